@@ -1,0 +1,388 @@
+"""Build and validate the experiment dataset of the ``lcmr-xr-1`` data contract.
+
+One closed-loop multirate experiment: fast excitation ``r`` and plant input ``u`` on
+(``time``, ``input``), slow plant output ``y`` on (``slow_time``, ``output``), attributes
+``factor`` and ``conventions``.  See ``shared/conventions.md``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+import xarray as xr
+
+from lcmr_xr.conventions import (
+    CHANNEL,
+    CONVENTIONS,
+    EXPERIMENT,
+    FACTOR,
+    INPUT,
+    OUTPUT,
+    SLOW_TIME,
+    TIME,
+    label_attrs,
+    time_attrs,
+)
+from lcmr_xr.transforms._coords import even_spacing
+
+__all__ = ["experiment", "validate_experiment"]
+
+_LONG_NAMES = {
+    "r": "fast-rate excitation",
+    "u": "fast-rate plant input",
+    "y": "slow-rate plant output",
+}
+# Time coordinates must start at 0 up to rounding, relative to one sample.
+_START_RTOL = 1e-9
+
+
+def _labels(given, default_prefix: str, count: int, what: str) -> np.ndarray:
+    if given is None:
+        return np.array([f"{default_prefix}{i}" for i in range(count)])
+    if isinstance(given, str) or not isinstance(given, Sequence | np.ndarray):
+        raise TypeError(f"{what} must be a sequence of labels, got {given!r}.")
+    labels = np.array([str(g) for g in given])
+    if labels.size != count:
+        raise ValueError(
+            f"{what} has {labels.size} labels but the data has {count} channels; "
+            f"pass one label per channel."
+        )
+    return labels
+
+
+def _numpy_to_dataarray(a, time_dim, chan_dim, what: str) -> xr.DataArray:
+    arr = np.asarray(a)
+    if arr.ndim == 1:
+        arr = arr[:, None]  # a single channel
+    if arr.ndim == 2:
+        dims = (time_dim, chan_dim)
+    elif arr.ndim == 3:
+        dims = (EXPERIMENT, time_dim, chan_dim)
+    else:
+        raise ValueError(
+            f"{what} has {arr.ndim} dims; numpy input must be ({time_dim}, {chan_dim}) or "
+            f"(experiment, {time_dim}, {chan_dim}). For more leading dims pass DataArrays "
+            "with named dims."
+        )
+    return xr.DataArray(arr, dims=dims)
+
+
+def _as_signal(a, time_dim: str, chan_dim: str, what: str) -> xr.DataArray:
+    if isinstance(a, xr.DataArray):
+        da = a
+        if chan_dim == INPUT and CHANNEL in da.dims and INPUT not in da.dims:
+            da = da.rename({CHANNEL: INPUT})
+        missing = [d for d in (time_dim, chan_dim) if d not in da.dims]
+        if missing:
+            raise ValueError(
+                f"{what} must have dims ({time_dim!r}, {chan_dim!r}), got {da.dims}; rename "
+                f"them, e.g. {what}.rename({{'old': {time_dim!r}}})."
+            )
+        # Keep only what the contract defines; foreign coords (crest_factor, ...) would clash.
+        keep = {time_dim, chan_dim} | (set(da.dims) - {time_dim, chan_dim})
+        return da.drop_vars([c for c in da.coords if c not in keep])
+    return _numpy_to_dataarray(a, time_dim, chan_dim, what)
+
+
+def _attach_labels(da, dim, given, prefix, what):
+    if dim in da.coords:
+        existing = np.asarray(da[dim].values).astype(str)
+        if given is not None and list(existing) != [str(g) for g in given]:
+            raise ValueError(
+                f"{what} already has {dim} labels {existing.tolist()}, which differ from "
+                f"{dim}s={list(given)}; pass matching labels or drop one of them."
+            )
+        return da.assign_coords({dim: (dim, existing, label_attrs(f"{dim} channel"))})
+    labels = _labels(given, prefix, da.sizes[dim], f"{dim}s")
+    return da.assign_coords({dim: (dim, labels, label_attrs(f"{dim} channel"))})
+
+
+def experiment(
+    r,
+    u,
+    y,
+    *,
+    factor: int,
+    sampling_period: float | None = None,
+    inputs=None,
+    outputs=None,
+    attrs: dict | None = None,
+    input_units: str | None = None,
+    output_units: str | None = None,
+) -> xr.Dataset:
+    """Build a validated experiment dataset (``lcmr-xr-1``) from arrays or DataArrays.
+
+    Parameters
+    ----------
+    r, u : array_like or xarray.DataArray
+        Fast excitation and measured plant input.  numpy: shape (N, nu) or
+        (n_experiment, N, nu) (1-d means one channel).  DataArray: dims ``time`` and
+        ``input`` (``channel`` is renamed to ``input``) plus any extra dims.
+    y : array_like or xarray.DataArray
+        Slow measured plant output: numpy (M, ny) or (n_experiment, M, ny); DataArray dims
+        ``slow_time`` and ``output``.  ``M F`` must equal ``N``.
+    factor : int
+        Multirate factor F = Tl / Th.
+    sampling_period : float, optional
+        Fast sample time Th in s.  Required when ``r`` has no ``time`` coordinate; the
+        coordinates are then ``time = n Th`` and ``slow_time = l F Th``.
+    inputs, outputs : sequence of str, optional
+        Channel labels; default ``"u0", "u1", ...`` and ``"y0", "y1", ...`` (or the labels
+        the DataArrays carry, which must then agree).
+    attrs : dict, optional
+        Extra dataset attributes (e.g. the settings of a simulation).
+    input_units, output_units : str, optional
+        Units of ``r``/``u`` and of ``y``.  Default: the DataArray's ``units`` attribute,
+        else ``"1"``.
+
+    Returns
+    -------
+    xarray.Dataset
+        ``r``, ``u`` (``time``, ``input``), ``y`` (``slow_time``, ``output``), all with
+        ``units`` and ``long_name``; attributes ``factor`` and ``conventions="lcmr-xr-1"``.
+        Dask-backed DataArrays stay lazy except for the finiteness check.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> ds = experiment(np.zeros((8, 1)), np.ones((8, 1)), np.ones((4, 2)), factor=2,
+    ...                 sampling_period=0.5, outputs=["a", "b"])
+    >>> ds.sizes["time"], ds.sizes["slow_time"], ds.output.values.tolist(), ds.attrs["factor"]
+    (8, 4, ['a', 'b'], 2)
+    """
+    extra = dict(attrs or {})
+    for key in (FACTOR, "conventions"):
+        if key in extra:
+            raise ValueError(
+                f"attrs must not set {key!r}: it is part of the contract and set by experiment(); "
+                "pass factor=... instead."
+            )
+    if isinstance(factor, (bool, np.bool_)) or int(factor) != factor or int(factor) < 1:
+        raise ValueError(f"factor must be a positive integer, got {factor!r}.")
+    factor = int(factor)
+
+    r_da = _as_signal(r, TIME, INPUT, "r")
+    u_da = _as_signal(u, TIME, INPUT, "u")
+    y_da = _as_signal(y, SLOW_TIME, OUTPUT, "y")
+
+    if input_units is None:
+        input_units = str(r_da.attrs.get("units", u_da.attrs.get("units", "1")))
+    if output_units is None:
+        output_units = str(y_da.attrs.get("units", "1"))
+
+    # Labels are checked before the variables are combined: xarray would otherwise align
+    # mismatched labels by an outer join and fill the gaps with NaN.
+    r_da = _attach_labels(r_da, INPUT, inputs, "u", "r")
+    u_da = _attach_labels(u_da, INPUT, inputs, "u", "u")
+    y_da = _attach_labels(y_da, OUTPUT, outputs, "y", "y")
+    if r_da.sizes[INPUT] != u_da.sizes[INPUT] or not np.array_equal(
+        r_da[INPUT].values, u_da[INPUT].values
+    ):
+        raise ValueError(
+            f"r and u must have the same input labels, got {r_da[INPUT].values.tolist()} and "
+            f"{u_da[INPUT].values.tolist()}; pass inputs=[...] or relabel one of them."
+        )
+
+    n = r_da.sizes[TIME]
+    if TIME in r_da.coords:
+        fast_t = (np.asarray(r_da[TIME].values), dict(r_da[TIME].attrs) or time_attrs())
+    elif TIME in u_da.coords:
+        fast_t = (np.asarray(u_da[TIME].values), dict(u_da[TIME].attrs) or time_attrs())
+    elif sampling_period is not None:
+        th = float(sampling_period)
+        if not np.isfinite(th) or th <= 0:
+            raise ValueError(f"sampling_period must be a positive time in s, got {sampling_period!r}.")
+        fast_t = (np.arange(n) * th, time_attrs())
+    else:
+        raise ValueError(
+            "the fast sample time is unknown: pass sampling_period=Th (in s), or give r a "
+            "'time' coordinate."
+        )
+    if n < 2:
+        raise ValueError(f"r has {n} fast sample(s); an experiment needs at least 2 slow samples.")
+    _, th = even_spacing(fast_t[0], TIME)
+    if sampling_period is not None and not np.isclose(th, float(sampling_period), rtol=1e-6):
+        raise ValueError(
+            f"sampling_period={sampling_period} s disagrees with the spacing {th} s of the time "
+            "coordinate; drop one of them."
+        )
+    m = y_da.sizes[SLOW_TIME]
+    if SLOW_TIME in y_da.coords:
+        slow_t = (np.asarray(y_da[SLOW_TIME].values), dict(y_da[SLOW_TIME].attrs))
+    else:
+        slow_t = (np.arange(m) * (factor * th), {})
+    slow_attrs = {**time_attrs("slow time"), **slow_t[1]}
+    fast_attrs = {**time_attrs(), **fast_t[1]}
+
+    def finish(da, name, units, time_dim, t):
+        da = da.assign_coords({time_dim: (time_dim, t[0], fast_attrs if time_dim == TIME else slow_attrs)})
+        da.attrs = {**da.attrs, "units": units, "long_name": da.attrs.get("long_name", _LONG_NAMES[name])}
+        da.name = name
+        return da
+
+    try:
+        ds = xr.Dataset(
+            {
+                "r": finish(r_da, "r", input_units, TIME, fast_t),
+                "u": finish(u_da, "u", input_units, TIME, fast_t),
+                "y": finish(y_da, "y", output_units, SLOW_TIME, slow_t),
+            },
+            attrs={**extra, FACTOR: factor, "conventions": CONVENTIONS},
+        )
+    except ValueError as err:  # conflicting sizes of a shared dim, e.g. `experiment`
+        raise ValueError(f"r, u and y do not fit together: {err}. Check their shapes.") from err
+    for name in (EXPERIMENT,):
+        if name in ds.dims and name not in ds.coords:
+            ds = ds.assign_coords({name: (name, np.arange(ds.sizes[name]), label_attrs(name))})
+    return validate_experiment(ds)
+
+
+def _is_lazy(a) -> bool:
+    try:
+        import dask
+    except ImportError:  # dask is a dependency, but numpy-only use need not import it
+        return False
+    return dask.is_dask_collection(a)
+
+
+def _fail(problem: str, fix: str):
+    raise ValueError(f"invalid experiment dataset: {problem}. {fix}")
+
+
+def _check_time(ds, dim: str, expected_spacing: float | None) -> float:
+    if dim not in ds.coords:
+        _fail(f"coordinate {dim!r} is missing", f"assign it, e.g. ds.assign_coords({dim}=np.arange(n) * T).")
+    values = np.asarray(ds[dim].values)
+    if values.size < 2:
+        _fail(f"{dim!r} has {values.size} sample(s)", "an experiment needs at least 2 samples on each time axis.")
+    try:
+        start, spacing = even_spacing(values, dim)
+    except ValueError as err:
+        _fail(str(err).rstrip("."), "Fix the coordinate.")
+    if abs(start) > _START_RTOL * spacing:
+        _fail(
+            f"{dim!r} starts at {start} s instead of 0",
+            f"shift it: ds.assign_coords({dim}=ds.{dim} - ds.{dim}[0]).",
+        )
+    if expected_spacing is not None and not np.isclose(spacing, expected_spacing, rtol=1e-6):
+        _fail(
+            f"{dim!r} is spaced by {spacing} s, but factor * (time spacing) = {expected_spacing} s",
+            "the slow period must be F times the fast period: check the factor attribute and "
+            "both time coordinates.",
+        )
+    return spacing
+
+
+def validate_experiment(ds: xr.Dataset) -> xr.Dataset:
+    """Check an experiment dataset against the ``lcmr-xr-1`` contract; return it if valid.
+
+    Parameters
+    ----------
+    ds : xarray.Dataset
+        Candidate experiment dataset; extra dims (e.g. ``experiment``), variables and
+        attributes are allowed.
+
+    Returns
+    -------
+    xarray.Dataset
+        ``ds`` itself, unchanged.
+
+    Raises
+    ------
+    ValueError
+        Naming the problem and the fix, for: wrong ``conventions``; missing or invalid
+        ``factor``; missing ``r``/``u``/``y``; wrong dims; missing ``time``, ``slow_time``,
+        ``input``, ``output`` coordinates; ``N`` not a multiple of ``F`` or
+        ``N != M F``; uneven spacing; time not starting at 0; slow spacing not ``F`` times
+        the fast one; complex, boolean or non-numeric data; NaN or inf; duplicate or empty
+        channel labels.
+    TypeError
+        If ``ds`` is not a Dataset.
+
+    Notes
+    -----
+    Everything but the NaN/inf check reads metadata only.  The NaN/inf check has to look
+    at the data: for dask-backed variables it computes the three ``isfinite(...).all()``
+    reductions in a single ``dask.compute`` call (one pass over the data, nothing kept).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> ds = experiment(np.zeros((8, 1)), np.ones((8, 1)), np.ones((4, 1)), factor=2,
+    ...                 sampling_period=0.5)
+    >>> validate_experiment(ds) is ds
+    True
+    """
+    if not isinstance(ds, xr.Dataset):
+        raise TypeError(
+            f"an experiment must be an xarray.Dataset, got {type(ds).__name__}; build one with "
+            "lcmr_xr.experiment.experiment(r, u, y, factor=...)."
+        )
+    conv = ds.attrs.get("conventions")
+    if conv is None:
+        _fail("attribute 'conventions' is missing", f"set ds.attrs['conventions'] = {CONVENTIONS!r} after checking the contract.")
+    if conv != CONVENTIONS:
+        _fail(
+            f"conventions is {conv!r}, expected {CONVENTIONS!r}",
+            "this file follows another data contract; convert it with lcmr_xr.experiment.experiment().",
+        )
+    if FACTOR not in ds.attrs:
+        _fail("attribute 'factor' is missing", "set ds.attrs['factor'] = F (the multirate factor Tl/Th).")
+    f_raw = ds.attrs[FACTOR]
+    try:
+        factor = int(np.asarray(f_raw).item())
+        ok = factor == np.asarray(f_raw).item() and factor >= 1 and not isinstance(f_raw, (bool, np.bool_))
+    except (TypeError, ValueError):
+        ok = False
+    if not ok:
+        _fail(f"attribute 'factor' must be a positive integer, got {f_raw!r}", "set ds.attrs['factor'] = F.")
+
+    required = {"r": (TIME, INPUT), "u": (TIME, INPUT), "y": (SLOW_TIME, OUTPUT)}
+    for name, dims in required.items():
+        if name not in ds.data_vars:
+            _fail(f"variable {name!r} is missing", f"add {name!r} with dims {dims}.")
+        var = ds[name]
+        missing = [d for d in dims if d not in var.dims]
+        if missing:
+            _fail(f"{name!r} has dims {var.dims}, missing {missing}", f"{name!r} must have dims {dims} (plus optional leading dims).")
+        wrong = [d for d in (TIME, SLOW_TIME, INPUT, OUTPUT) if d in var.dims and d not in dims]
+        if wrong:
+            _fail(f"{name!r} has dims {var.dims}, which include {wrong}", f"{name!r} must have dims {dims} (plus optional leading dims).")
+        dt = var.dtype
+        if np.issubdtype(dt, np.complexfloating):
+            _fail(f"{name!r} is complex ({dt})", "time-domain signals must be real; pass the real signals, not spectra.")
+        if dt.kind not in "fiu":
+            _fail(f"{name!r} has non-numeric dtype {dt}", "convert it to float, e.g. ds[name].astype(float).")
+        if "units" not in var.attrs or "long_name" not in var.attrs:
+            _fail(f"{name!r} lacks the 'units' or 'long_name' attribute", "set both (units '1' if dimensionless).")
+
+    for dim in (INPUT, OUTPUT):
+        if dim not in ds.coords:
+            _fail(f"label coordinate {dim!r} is missing", f"assign channel labels: ds.assign_coords({dim}=['...']).")
+        labels = np.asarray(ds[dim].values)
+        if labels.dtype.kind not in "UO" or any(str(v) == "" for v in labels):
+            _fail(f"{dim!r} labels must be non-empty strings, got {labels.tolist()}", "relabel the channels, e.g. ['u0', 'u1'].")
+        if len(set(labels.tolist())) != labels.size:
+            _fail(f"{dim!r} labels {labels.tolist()} contain duplicates", "give every channel a unique label.")
+
+    n, m = ds.sizes[TIME], ds.sizes[SLOW_TIME]
+    if n % factor:
+        _fail(f"N={n} fast samples is not a multiple of factor F={factor}", f"trim the experiment to {n - n % factor} fast samples.")
+    if n != m * factor:
+        _fail(f"N={n} fast samples but M={m} slow samples and F={factor} (M*F={m * factor})", "y must cover the same time span as r and u: N = M * F.")
+    th = _check_time(ds, TIME, None)
+    _check_time(ds, SLOW_TIME, factor * th)
+
+    checks = {name: np.isfinite(ds[name].data).all() for name in required if ds[name].dtype.kind == "f"}
+    if any(_is_lazy(c) for c in checks.values()):
+        import dask
+
+        # One graph for the three reductions: the data are read once.
+        values = dict(zip(checks, dask.compute(*checks.values())))
+    else:
+        values = checks
+    bad = [name for name, ok in values.items() if not bool(ok)]
+    if bad:
+        _fail(f"{bad} contain NaN or inf", "remove or interpolate the bad samples before identification.")
+    return ds

@@ -1,0 +1,136 @@
+"""The paper's identification experiment on the HDD benchmark, and the true FRF to compare with."""
+
+from __future__ import annotations
+
+import numpy as np
+import xarray as xr
+
+from lcmr_xr.conventions import FREQUENCY, INPUT, OUTPUT, TIME, frequency_attrs, label_attrs, time_attrs
+from lcmr_xr.hdd.control import controller, notch_filters
+from lcmr_xr.hdd.disturbances import fan_vibration, repeatable_runout, rotational_vibration
+from lcmr_xr.hdd.plants import FACTOR, FAST_PERIOD, INPUTS, OUTPUTS, check_case, plant, pzt_plant, vcm_plant
+from lcmr_xr.kernels.excitation import random_phase_multisine
+from lcmr_xr.kernels.ltisim import frequency_response, simulate_lti
+from lcmr_xr.simulation import simulate_closed_loop
+
+BENCHMARK = "IEEJ dual-stage HDD benchmark (Atsumi 2022, MATLAB File Exchange 111515)"
+#: rms of the excitation (vcm, pzt) used in the paper.
+PAPER_RMS = (8.0e-8, 3.6e-9)
+
+
+def true_frf(frequency, case: int = 2) -> xr.DataArray:
+    """Exact fast-rate FRF of the ZOH-discretised HDD plant ``[Pv, Pp]`` at given frequencies.
+
+    Parameters
+    ----------
+    frequency : array_like or xarray.DataArray
+        Frequencies in Hz (a ``frequency`` coordinate of an FRF dataset works).
+    case : int, optional
+        Benchmark plant case 1..9; default 2.
+
+    Returns
+    -------
+    xarray.DataArray
+        Complex, dims (``frequency``, ``output``, ``input``), inputs ``"vcm"``, ``"pzt"``,
+        output ``"position"``, units ``"m"`` per input unit; evaluated at
+        ``z = exp(2j pi f Th)`` from the state space.  The VCM column is ``inf`` at 0 Hz
+        (rigid-body double integrator).
+
+    Examples
+    --------
+    >>> P = true_frf([0.0], case=5)
+    >>> round(float(P.sel(input="pzt").real[0, 0]), 12)
+    1.05
+    """
+    f = np.asarray(frequency.values if isinstance(frequency, xr.DataArray) else frequency,
+                   dtype=float).ravel()
+    case = check_case(case)
+    # one column per actuator, so the VCM's pole at DC (inf) leaves the PZT column finite
+    values = np.concatenate([frequency_response(vcm_plant(case), f),
+                             frequency_response(pzt_plant(case), f)], axis=2)
+    return xr.DataArray(
+        values, dims=(FREQUENCY, OUTPUT, INPUT), name="P",
+        coords={FREQUENCY: (FREQUENCY, f, frequency_attrs()),
+                OUTPUT: (OUTPUT, list(OUTPUTS), label_attrs("output channel")),
+                INPUT: (INPUT, list(INPUTS), label_attrs("input channel"))},
+        attrs={"units": "m", "long_name": f"true FRF of the HDD plant, case {case}",
+               "case": int(case)},
+    )
+
+
+def simulate(n_samples: int = 3600, case: int = 2, noise: bool = True, seed: int = 0,
+             rms=PAPER_RMS, *, fast_output: bool = False) -> xr.Dataset:
+    """Simulate the paper's closed-loop identification experiment on the HDD benchmark.
+
+    Random-phase multisines with flat amplitude on every fast bin ``1..N/2`` (one period of
+    ``N`` samples) excite the VCM and PZT inputs; the loop runs the paper's slow controllers
+    ``Cv``, ``Cp`` at ``Tl = 1/50400 s`` and the fast notch filters at ``Th = 1/100800 s``,
+    starting from rest.  With ``noise``, the benchmark disturbances act: rotational
+    vibration at the VCM input (after ``u`` is measured), fan vibration at the head
+    position, repeatable run-out as the slow reference (see :mod:`lcmr_xr.hdd.disturbances`
+    for the ``Th``-instead-of-``Tsc`` approximation and the ``sqrt(1/10)`` scaling).
+
+    Parameters
+    ----------
+    n_samples : int, optional
+        Fast samples ``N`` (even); default 3600 as in the paper.
+    case : int, optional
+        Benchmark plant case 1..9; default 2.
+    noise : bool, optional
+        Include the disturbances; default True.
+    seed : int, optional
+        Seed of everything random; default 0.  Excitation and each disturbance draw from
+        their own child stream (``numpy.random.SeedSequence(seed).spawn``), so switching
+        ``noise`` keeps the excitation.
+    rms : (float, float), optional
+        rms of the (vcm, pzt) excitation in input units; default ``(8.0e-8, 3.6e-9)``.
+    fast_output : bool, optional
+        Also return ``y_fast`` (fast head position, m) and ``pzt_displacement`` (the PZT's
+        own displacement ``Pp u_pzt``, m, for the 50 nm stroke check); default False.
+
+    Returns
+    -------
+    xarray.Dataset
+        Experiment dataset (``lcmr-xr-1``): ``r``, ``u`` (input units ``"1"``), ``y`` (m);
+        attributes ``benchmark``, ``case``, ``seed``, ``rms``, ``noise`` (1 on, 0 off).
+
+    Examples
+    --------
+    >>> ds = simulate(n_samples=400, noise=False)
+    >>> ds.sizes["time"], ds.sizes["slow_time"], ds.input.values.tolist()
+    (400, 200, ['vcm', 'pzt'])
+    """
+    case = check_case(case)
+    n_samples = int(n_samples)
+    if n_samples < 2 * FACTOR or n_samples % FACTOR:
+        raise ValueError(f"n_samples must be a multiple of the factor {FACTOR} and at least "
+                         f"{2 * FACTOR}, got {n_samples}.")
+    rms = np.asarray(rms, dtype=float)
+    excitation_rng, fan_rng, rotation_rng, runout_rng = (
+        np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(4))
+    bins = np.arange(1, n_samples // 2 + 1)
+    time = (TIME, np.arange(n_samples) * FAST_PERIOD, time_attrs())
+    r = xr.DataArray(random_phase_multisine(n_samples, len(INPUTS), bins, rms, excitation_rng),
+                     dims=(TIME, INPUT), coords={TIME: time, INPUT: list(INPUTS)},
+                     attrs={"units": "1", "long_name": "fast-rate excitation"})
+    disturbances = {}
+    if noise:
+        d_f = np.zeros((n_samples, len(INPUTS)))
+        d_f[:, 0] = rotational_vibration(n_samples, rotation_rng)
+        disturbances = dict(
+            d_u=r.copy(data=d_f),
+            d_y=xr.DataArray(fan_vibration(n_samples, fan_rng)[:, None], dims=(TIME, OUTPUT),
+                             attrs={"units": "m"}),
+            reference=xr.DataArray(repeatable_runout(n_samples // FACTOR, runout_rng)[:, None],
+                                   dims=("slow_time", OUTPUT), attrs={"units": "m"}),
+        )
+    attrs = {"benchmark": BENCHMARK, "case": case, "seed": int(seed), "rms": rms,
+             "noise": int(bool(noise)), "excitation": "random-phase multisine, bins 1..N/2"}
+    ds = simulate_closed_loop(plant(case), controller(), notch_filters(), FACTOR, r,
+                              outputs=list(OUTPUTS), output_units="m", fast_output=fast_output,
+                              attrs=attrs, **disturbances)
+    if fast_output:
+        stroke = simulate_lti(pzt_plant(case), ds.u.sel(input="pzt").values[:, None])[:, 0]
+        ds["pzt_displacement"] = xr.DataArray(
+            stroke, dims=(TIME,), attrs={"units": "m", "long_name": "PZT displacement Pp u_pzt"})
+    return ds

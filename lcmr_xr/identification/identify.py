@@ -1,0 +1,405 @@
+"""``identify``: the paper's Procedure 1 on a labelled experiment dataset.
+
+A thin layer: dimension names are mapped onto the trailing axes of
+:func:`lcmr_xr.kernels.identification.identify_arrays` with ``xarray.apply_ufunc``
+(``dask="parallelized"``, so leading dims such as ``experiment`` may be chunked), and
+the arrays that come back are labelled per ``shared/conventions.md``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import xarray as xr
+
+from lcmr_xr import conventions as cv
+from lcmr_xr.kernels.identification import (
+    excitation_rank,
+    identify_arrays,
+    identify_single_rate_arrays,
+    lifted_spectra,
+    parameters_per_row,
+)
+
+METHODS = {"lrm": None, "lpm": 0}
+DEFAULT_DEGREES = {"lrm": (3, 3, 3), "lpm": (3, 3, 0)}
+ERRORS = ("raise", "ignore")
+
+
+def _validate(experiment):
+    from lcmr_xr.experiment import validate_experiment
+
+    if not isinstance(experiment, xr.Dataset):
+        raise TypeError(
+            f"identify expects an experiment xarray.Dataset (variables r, u, y; see "
+            f"lcmr_xr.experiment), got {type(experiment).__name__}. Build one with "
+            f"lcmr_xr.experiment(r, u, y, factor=F, sampling_period=Th)."
+        )
+    return validate_experiment(experiment)
+
+
+def _resolve_degrees(method, degrees):
+    if method not in METHODS:
+        raise ValueError(f"method must be 'lrm' or 'lpm', got {method!r}.")
+    if degrees is None:
+        return DEFAULT_DEGREES[method]
+    try:
+        degrees = tuple(int(d) for d in degrees)
+    except TypeError:
+        raise TypeError(
+            f"degrees must be a sequence (Rn, Rm, Rd) of three non-negative integers, got {degrees!r}."
+        ) from None
+    if len(degrees) == 2 and method == "lpm":
+        degrees = degrees + (0,)
+    if len(degrees) != 3 or min(degrees) < 0:
+        raise ValueError(
+            f"degrees must be (Rn, Rm, Rd), three non-negative integers, got {degrees!r}."
+        )
+    if method == "lpm" and degrees[2] != 0:
+        raise ValueError(
+            f"method='lpm' is the local polynomial model, whose denominator degree Rd is 0; "
+            f"got degrees={degrees}. Pass degrees=({degrees[0]}, {degrees[1]}, 0) or method='lrm'."
+        )
+    return degrees
+
+
+def _check_window(window, degrees, nr, m):
+    window = int(window)
+    if window < 1:
+        raise ValueError(f"window (the half-width n of the 2n+1-bin local window) must be >= 1, got {window}.")
+    p = parameters_per_row(nr, degrees)
+    if 2 * window + 1 <= p:  # at least one degree of freedom is left for the noise estimate
+        n_min = (p + 1) // 2
+        raise ValueError(
+            f"too few bins for the local model: window={window} gives 2n+1 = {2 * window + 1} bins "
+            f"per row but degrees {degrees} with {nr} lifted excitation channels need "
+            f"{p} parameters per row and at least one more bin for the noise estimate. "
+            f"Use window >= {n_min} (or lower degrees)."
+        )
+    if 2 * window + 1 > m:
+        raise ValueError(
+            f"the local window (2n+1 = {2 * window + 1} bins for window={window}) is wider than the "
+            f"spectrum ({m} slow bins). Use window <= {(m - 1) // 2} or a longer experiment."
+        )
+    return window
+
+
+def _ratio_units(num: str, den: str) -> str:
+    if den in ("1", ""):
+        return num
+    if any(c in den for c in " /*"):
+        den = f"({den})"
+    return f"{num}/{den}"
+
+
+def identify(experiment: xr.Dataset, *, method: str = "lrm", window: int = 30, degrees=None,
+             closed_loop: str = "indirect", covariance: bool = True, errors: str = "raise") -> xr.Dataset:
+    """Identify the fast-rate FRF of a plant in multirate closed loop (paper, Procedure 1).
+
+    The fast excitation ``r`` and plant input ``u`` are lifted by the factor ``F``, the
+    lifted sensitivity ``S`` and first row of the process sensitivity ``PS_1`` are
+    estimated with local models in a circular window of ``2 window + 1`` slow DFT bins,
+    ``P_1 = PS_1 S^-1`` is formed and the fast FRF is recovered on every fast bin
+    from DC to the fast Nyquist frequency.
+
+    Parameters
+    ----------
+    experiment : xarray.Dataset
+        Experiment dataset per the lcmr-xr-1 conventions (``r``, ``u`` on ``time``/``input``,
+        ``y`` on ``slow_time``/``output``, attribute ``factor``); extra leading dims
+        (e.g. ``experiment``) broadcast and may be dask-chunked.
+    method : {"lrm", "lpm"}, default "lrm"
+        Local rational model, or local polynomial model (denominator degree ``Rd = 0``).
+    window : int, default 30
+        Half-width ``n`` of the local window: each estimate uses ``2 n + 1`` slow bins.
+    degrees : (int, int, int), optional
+        ``(Rn, Rm, Rd)``: degrees of the numerator, transient and (diagonal) denominator
+        polynomials in the local frequency variable.  Default ``(3, 3, 3)`` for LRM and
+        ``(3, 3, 0)`` for LPM (a pair ``(Rn, Rm)`` is accepted for LPM).
+    closed_loop : {"indirect", "direct"}, default "indirect"
+        ``"indirect"`` (the paper): estimate ``[S; PS_1]`` from the lifted excitation and
+        form ``PS_1 S^-1`` -- unbiased under feedback.  ``"direct"``: local model from the
+        lifted measured input to the output; biased under feedback because ``u`` is
+        correlated with the noise (for comparison; see :func:`identify_single_rate` for
+        the estimate that ignores the multirate structure).
+    covariance : bool, default True
+        Propagate the local-model covariance to ``P_std`` (first order).  ``False`` saves
+        memory on very long records; ``P_std`` is then NaN.
+    errors : {"raise", "ignore"}, default "raise"
+        What to do when the estimated lifted sensitivity ``S`` cannot be inverted at
+        some bins: raise a ``ValueError`` naming them, or return NaN there with the
+        flag ``s_singular`` set (use "ignore" in sweeps).  Ill-conditioned local models
+        are always returned as data (flag ``ill_posed``), never raised.
+
+    Returns
+    -------
+    xarray.Dataset
+        ``P`` (``frequency``, ``output``, ``input``), complex: fast FRF at bins
+        ``k / (N Th)``, ``k = 0..N/2``; ``P_std``: standard deviation of the complex estimate,
+        ``sqrt(E|P_hat - P|^2)``, same units (the 95 % region for a circular Gaussian error
+        is ``|P_hat - P| <= sqrt(ln 20) P_std``); ``P_flag``: bins that could not be
+        estimated.  Lifted estimates on ``slow_frequency``: ``S`` (``lift_phase``, ``input``,
+        ``lift_phase2``, ``input2``), ``PS`` (``output``, ``lift_phase2``, ``input2``) with
+        ``S_std``, ``PS_std``; residual noise variances ``noise_variance_u``,
+        ``noise_variance_y``; transients ``transient_u``, ``transient_y``; ``condition``,
+        ``ill_posed``, ``s_condition``, ``s_singular``.  Attributes record every setting.
+
+    Raises
+    ------
+    TypeError
+        ``experiment`` is not an experiment dataset.
+    ValueError
+        Invalid settings, too few bins for the number of parameters, a window wider than
+        the spectrum, an excitation that does not excite all ``F nu`` lifted channels, or
+        (with ``errors="raise"``) a non-invertible estimated ``S``.
+
+    Examples
+    --------
+    >>> import lcmr_xr
+    >>> from lcmr_xr import hdd
+    >>> exp = hdd.simulate(n_samples=3600, noise=False, seed=1)
+    >>> frf = lcmr_xr.identify(exp, window=30, degrees=(3, 3, 3))
+    >>> frf.P.dims
+    ('frequency', 'output', 'input')
+    >>> float(frf.frequency[-1])  # fast Nyquist frequency, Hz
+    50400.0
+    """
+    if errors not in ERRORS:
+        raise ValueError(f"errors must be 'raise' or 'ignore', got {errors!r}.")
+    ds = _validate(experiment)
+    degrees = _resolve_degrees(method, degrees)
+    factor = int(ds.attrs[cv.FACTOR])
+    n = ds.sizes[cv.TIME]
+    m = ds.sizes[cv.SLOW_TIME]
+    nu = ds.sizes[cv.INPUT]
+    ny = ds.sizes[cv.OUTPUT]
+    nr = factor * nu  # lifted r (indirect) or lifted u (direct): F nu channels either way
+    window = _check_window(window, degrees, nr, m)
+    th = float(ds[cv.TIME][1] - ds[cv.TIME][0])
+    _check_excitation(ds, factor, closed_loop)
+
+    core_in = [[cv.TIME, cv.INPUT], [cv.TIME, cv.INPUT], [cv.SLOW_TIME, cv.OUTPUT]]
+    LP, IN2, LP2 = cv.LIFT_PHASE, cv.INPUT + cv.SECOND, cv.LIFT_PHASE + cv.SECOND
+    FQ, SF = cv.FREQUENCY, cv.SLOW_FREQUENCY
+    specs = [  # (name, core dims, dtype)
+        ("P", [FQ, cv.OUTPUT, cv.INPUT], complex),
+        ("P_std", [FQ, cv.OUTPUT, cv.INPUT], float),
+        ("P_flag", [FQ], bool),
+        ("PS", [SF, cv.OUTPUT, LP2, IN2], complex),
+        ("PS_std", [SF, cv.OUTPUT, LP2, IN2], float),
+        ("transient_y", [SF, cv.OUTPUT], complex),
+        ("noise_variance_y", [SF, cv.OUTPUT], float),
+        ("condition", [SF], float),
+        ("ill_posed", [SF], bool),
+    ]
+    if closed_loop == "indirect":
+        specs += [
+            ("S", [SF, LP, cv.INPUT, LP2, IN2], complex),
+            ("S_std", [SF, LP, cv.INPUT, LP2, IN2], float),
+            ("transient_u", [SF, LP, cv.INPUT], complex),
+            ("noise_variance_u", [SF, LP, cv.INPUT], float),
+            ("s_condition", [SF], float),
+            ("s_singular", [SF], bool),
+        ]
+
+    def kernel(r, u, y):
+        out = identify_arrays(r, u, y, factor=factor, half_width=window, degrees=degrees,
+                              closed_loop=closed_loop, covariance=covariance)
+        lead = out["G"].shape[:-3]
+        fnu = factor * nu
+        G, G_sd = out["G"], np.sqrt(np.maximum(out["G_var"], 0.0))  # rounding can leave -0-ish
+        pieces = {
+            "P": out["P"],
+            "P_std": np.sqrt(out["P_var"]),  # already clipped at 0
+            "P_flag": out["P_bad"],
+            "condition": out["condition"],
+            "ill_posed": out["ill_posed"],
+        }
+        zy = slice(fnu, None) if closed_loop == "indirect" else slice(0, None)
+        pieces["PS"] = G[..., zy, :].reshape(lead + (m, ny, factor, nu))
+        pieces["PS_std"] = G_sd[..., zy, :].reshape(lead + (m, ny, factor, nu))
+        pieces["transient_y"] = out["T"][..., zy]
+        pieces["noise_variance_y"] = out["noise_variance"][..., zy]
+        if closed_loop == "indirect":
+            shape_s = lead + (m, factor, nu, factor, nu)
+            pieces["S"] = G[..., :fnu, :].reshape(shape_s)
+            pieces["S_std"] = G_sd[..., :fnu, :].reshape(shape_s)
+            pieces["transient_u"] = out["T"][..., :fnu].reshape(lead + (m, factor, nu))
+            pieces["noise_variance_u"] = out["noise_variance"][..., :fnu].reshape(lead + (m, factor, nu))
+            pieces["s_condition"] = out["s_condition"]
+            pieces["s_singular"] = out["s_singular"]
+        return tuple(pieces[name] for name, _, _ in specs)
+
+    results = xr.apply_ufunc(
+        kernel,
+        ds["r"], ds["u"], ds["y"],
+        input_core_dims=core_in,
+        output_core_dims=[dims for _, dims, _ in specs],
+        dask="parallelized",
+        output_dtypes=[dt for _, _, dt in specs],
+        dask_gufunc_kwargs={
+            "output_sizes": {FQ: n // 2 + 1, SF: m, LP: factor, LP2: factor, IN2: nu},
+            "allow_rechunk": False,
+        },
+        keep_attrs=False,
+    )
+    out = xr.Dataset({name: da for (name, _, _), da in zip(specs, results)})
+    out = _label(out, ds, factor=factor, th=th, n=n, m=m)
+    if errors == "raise" and closed_loop == "indirect" and not _is_lazy(out):
+        bad = np.asarray(out["s_singular"])
+        if bad.any():
+            idx = np.flatnonzero(bad.reshape(-1, m).any(axis=0))
+            raise ValueError(
+                f"the estimated lifted sensitivity S is not invertible at {idx.size} slow bin(s) "
+                f"(first: {idx[:5].tolist()}), so P_1 = PS_1 S^-1 cannot be formed there. Check "
+                f"that u was recorded at the plant input in closed loop and that the excitation "
+                f"is strong enough there, or pass errors='ignore' to get NaN and the flag "
+                f"s_singular at those bins."
+            )
+    out.attrs.update({
+        "conventions": cv.CONVENTIONS,
+        "method": method,
+        "closed_loop": closed_loop,
+        "window": window,
+        "window_bins": 2 * window + 1,
+        "degrees": np.array(degrees, dtype=int),
+        "factor": factor,
+        "sampling_period": th,
+        "slow_nyquist": 1.0 / (2 * factor * th),
+        "n_samples": n,
+        "parameters_per_row": parameters_per_row(nr, degrees),
+        "covariance": int(bool(covariance)),
+        "title": f"lifted {closed_loop} closed-loop {method.upper()} FRF estimate",
+    })
+    return out
+
+
+def _is_lazy(ds):
+    return any(v.chunks is not None for v in ds.data_vars.values())
+
+
+def _check_excitation(ds, factor, closed_loop):
+    """Refuse an excitation that does not excite every lifted channel (rank-deficient R)."""
+    source = ds["r"] if closed_loop == "indirect" else ds["u"]
+    if source.chunks is not None:
+        return  # checked per block by the local model's condition numbers instead
+    x = np.asarray(source.transpose(..., cv.TIME, cv.INPUT))
+    R = lifted_spectra(x, factor)
+    nr = R.shape[-1]
+    rank, sv = excitation_rank(R)
+    if rank < nr:
+        name = "r" if closed_loop == "indirect" else "u"
+        raise ValueError(
+            f"the lifted {name} has rank {rank} < F*nu = {nr}: not every lifted channel is "
+            f"excited independently (smallest/largest singular value "
+            f"{float(np.min(sv[..., -1] / sv[..., 0])):.1e}). A signal held constant over each "
+            f"slow period (or any signal whose F phases are linear combinations of each other) "
+            f"cannot identify the fast plant. Excite at the fast rate over all fast bins, e.g. "
+            f"lcmr_xr.multisine(N, sampling_period=Th, rms=...) per input."
+        )
+
+
+def _label(out, ds, *, factor, th, n, m):
+    u_units = ds["u"].attrs.get("units", "1")
+    y_units = ds["y"].attrs.get("units", "1")
+    p_units = _ratio_units(y_units, u_units)
+    coords = {
+        cv.FREQUENCY: (cv.FREQUENCY, np.arange(n // 2 + 1) / (n * th), cv.frequency_attrs("frequency")),
+        cv.SLOW_FREQUENCY: (cv.SLOW_FREQUENCY, np.arange(m) / (m * factor * th),
+                            cv.frequency_attrs("slow-rate DFT frequency")),
+        cv.LIFT_PHASE: (cv.LIFT_PHASE, np.arange(factor), cv.label_attrs("lift phase (fast sample within a slow period)")),
+        cv.LIFT_PHASE + cv.SECOND: (cv.LIFT_PHASE + cv.SECOND, np.arange(factor), cv.label_attrs("lift phase of the excitation")),
+        cv.INPUT: ds[cv.INPUT].variable,
+        cv.OUTPUT: ds[cv.OUTPUT].variable,
+        cv.INPUT + cv.SECOND: (cv.INPUT + cv.SECOND, ds[cv.INPUT].values, cv.label_attrs("excited input")),
+    }
+    out = out.assign_coords({k: v for k, v in coords.items() if k in out.dims or k in (cv.INPUT, cv.OUTPUT)})
+    for name in ds.coords:
+        if name not in out.coords and set(ds[name].dims) <= set(out.dims):
+            out = out.assign_coords({name: ds[name]})
+    ru = ds["r"].attrs.get("units", "1")
+    meta = {
+        "P": ("plant FRF", p_units),
+        "P_std": ("standard deviation of P", p_units),
+        "P_flag": ("P could not be estimated", "1"),
+        "PS": ("lifted process sensitivity, first block row", _ratio_units(y_units, ru)),
+        "PS_std": ("standard deviation of PS", _ratio_units(y_units, ru)),
+        "S": ("lifted sensitivity", _ratio_units(u_units, ru)),
+        "S_std": ("standard deviation of S", _ratio_units(u_units, ru)),
+        "transient_y": ("local transient of the output spectrum", y_units),
+        "transient_u": ("local transient of the lifted input spectrum", u_units),
+        "noise_variance_y": ("residual noise variance of the output spectrum", f"({y_units})2" if y_units != "1" else "1"),
+        "noise_variance_u": ("residual noise variance of the lifted input spectrum", f"({u_units})2" if u_units != "1" else "1"),
+        "condition": ("condition number of the local least-squares problem", "1"),
+        "ill_posed": ("local model ill-posed", "1"),
+        "s_condition": ("condition number of the estimated lifted sensitivity", "1"),
+        "s_singular": ("lifted sensitivity not invertible", "1"),
+    }
+    for name, (long_name, units) in meta.items():
+        if name in out:
+            out[name].attrs.update({"long_name": long_name, "units": units})
+    return out
+
+
+def identify_single_rate(experiment: xr.Dataset, *, method: str = "lrm", window: int = 30,
+                         degrees=None, covariance: bool = True) -> xr.Dataset:
+    """Single-rate closed-loop estimate that ignores the multirate structure (for comparison).
+
+    ``r`` and ``u`` are sampled at the slow rate (``x(l F)``) and the ordinary indirect
+    local model ``P = PS S^-1`` is formed from ``[U_l; Y_l]`` on the slow DFT grid.  It
+    only reaches the slow Nyquist frequency ``1 / (2 F Th)``, and fast dynamics alias onto
+    it: this is the estimate the lifted method (:func:`identify`) improves on.
+
+    Parameters
+    ----------
+    experiment : xarray.Dataset
+        Experiment dataset (lcmr-xr-1 conventions).
+    method : {"lrm", "lpm"}, default "lrm"
+        Local rational or polynomial model.
+    window : int, default 30
+        Half-width ``n`` of the local window (``2 n + 1`` slow bins).
+    degrees : (int, int, int), optional
+        ``(Rn, Rm, Rd)``; default ``(3, 3, 3)`` (LRM) or ``(3, 3, 0)`` (LPM).
+    covariance : bool, default True
+        Return ``P_std`` from the local-model covariance.
+
+    Returns
+    -------
+    xarray.Dataset
+        ``P``, ``P_std``, ``P_flag`` on ``frequency`` = slow bins ``m / (M Tl)``,
+        ``m = 0..M/2`` (Hz); attributes as :func:`identify`.
+    """
+    ds = _validate(experiment)
+    degrees = _resolve_degrees(method, degrees)
+    factor = int(ds.attrs[cv.FACTOR])
+    m = ds.sizes[cv.SLOW_TIME]
+    nu = ds.sizes[cv.INPUT]
+    window = _check_window(window, degrees, nu, m)
+    th = float(ds[cv.TIME][1] - ds[cv.TIME][0])
+    FQ = cv.FREQUENCY
+
+    def kernel(r, u, y):
+        out = identify_single_rate_arrays(r, u, y, factor=factor, half_width=window,
+                                          degrees=degrees, covariance=covariance)
+        return out["P"], np.sqrt(out["P_var"]), out["P_bad"]
+
+    P, P_std, flag = xr.apply_ufunc(
+        kernel, ds["r"], ds["u"], ds["y"],
+        input_core_dims=[[cv.TIME, cv.INPUT], [cv.TIME, cv.INPUT], [cv.SLOW_TIME, cv.OUTPUT]],
+        output_core_dims=[[FQ, cv.OUTPUT, cv.INPUT], [FQ, cv.OUTPUT, cv.INPUT], [FQ]],
+        dask="parallelized", output_dtypes=[complex, float, bool],
+        dask_gufunc_kwargs={"output_sizes": {FQ: m // 2 + 1}},
+    )
+    p_units = _ratio_units(ds["y"].attrs.get("units", "1"), ds["u"].attrs.get("units", "1"))
+    out = xr.Dataset({"P": P, "P_std": P_std, "P_flag": flag})
+    out = out.assign_coords({FQ: (FQ, np.arange(m // 2 + 1) / (m * factor * th), cv.frequency_attrs())})
+    out["P"].attrs.update(long_name="plant FRF (single-rate estimate)", units=p_units)
+    out["P_std"].attrs.update(long_name="standard deviation of P", units=p_units)
+    out["P_flag"].attrs.update(long_name="P could not be estimated", units="1")
+    out.attrs.update({
+        "conventions": cv.CONVENTIONS, "method": method, "closed_loop": "single-rate indirect",
+        "window": window, "window_bins": 2 * window + 1, "degrees": np.array(degrees, dtype=int),
+        "factor": factor, "sampling_period": th, "slow_nyquist": 1.0 / (2 * factor * th),
+        "n_samples": ds.sizes[cv.TIME],
+        "title": f"single-rate closed-loop {method.upper()} FRF estimate (ignores lifting)",
+    })
+    return out

@@ -1,0 +1,327 @@
+"""NetCDF files of experiments and FRF results: atomic writes, exact complex round trips.
+
+NetCDF attributes must be flat (strings, numbers, 1-d arrays).  Python values that are not
+(``bool``, ``tuple``, ``list``, ``None``) are converted on :func:`save` and their original
+types recorded in a JSON attribute ``lcmr_attr_types`` on the same object, so that
+:func:`open_dataset` restores them and a saved dataset opens ``assert_identical``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from numbers import Number
+from pathlib import Path
+
+import numpy as np
+import xarray as xr
+
+from lcmr_xr.conventions import CONVENTIONS, FREQUENCY, INPUT, OUTPUT
+from lcmr_xr.experiment.dataset import validate_experiment
+
+__all__ = ["open_dataset", "open_experiment", "open_frf", "save"]
+
+_ENGINE = "netcdf4"
+_TYPES_ATTR = "lcmr_attr_types"
+
+
+# --- attribute flattening -------------------------------------------------------------
+
+
+def _flatten_value(owner: str, key: str, value):
+    """``(flat_value, type_tag or None)`` for one attribute value."""
+    if isinstance(value, (bool, np.bool_)):
+        return int(value), "bool"
+    if value is None:
+        return "", "none"
+    if isinstance(value, (tuple, list)):
+        if len(value) == 0:
+            return "", f"empty_{type(value).__name__}"
+        items = list(value)
+        if all(isinstance(v, str) for v in items):
+            return items, type(value).__name__
+        if all(isinstance(v, (Number, np.number)) and not isinstance(v, (bool, np.bool_)) for v in items):
+            return np.asarray(items), type(value).__name__
+        if all(isinstance(v, (bool, np.bool_)) for v in items):
+            return np.asarray(items, dtype=np.int8), f"bool_{type(value).__name__}"
+        raise TypeError(
+            f"attribute {key!r} of {owner} is a {type(value).__name__} of mixed types {value!r}, "
+            "which NetCDF cannot store; make it all numbers or all strings, or a JSON string."
+        )
+    if isinstance(value, np.ndarray) and value.dtype == bool:
+        return value.astype(np.int8), "bool_array"
+    if isinstance(value, np.ndarray) and value.ndim > 1:
+        raise TypeError(
+            f"attribute {key!r} of {owner} is a {value.ndim}-d array; NetCDF attributes are "
+            "1-d. Store it as a variable instead, or flatten it."
+        )
+    if isinstance(value, (str, bytes, Number, np.number, np.ndarray)):
+        return value, None
+    raise TypeError(
+        f"attribute {key!r} of {owner} has type {type(value).__name__}, which NetCDF cannot "
+        "store; use a string, number, or 1-d sequence (e.g. json.dumps for a dict)."
+    )
+
+
+def _flatten_attrs(owner: str, attrs: dict) -> dict:
+    if _TYPES_ATTR in attrs:
+        raise ValueError(f"{owner} already has the reserved attribute {_TYPES_ATTR!r}; remove it.")
+    out, types = {}, {}
+    for key, value in attrs.items():
+        flat, tag = _flatten_value(owner, key, value)
+        out[key] = flat
+        if tag is not None:
+            types[key] = tag
+    if types:
+        out[_TYPES_ATTR] = json.dumps(types, sort_keys=True)
+    return out
+
+
+def _restore_value(value, tag: str):
+    if tag == "bool":
+        return bool(value)
+    if tag == "none":
+        return None
+    if tag.startswith("empty_"):
+        return () if tag == "empty_tuple" else []
+    if tag == "bool_array":
+        return np.asarray(value).astype(bool)
+    seq = np.atleast_1d(value) if not isinstance(value, (list, str)) else value
+    if isinstance(seq, str):
+        seq = [seq]
+    items = [v.item() if isinstance(v, np.generic) else v for v in list(seq)]
+    if tag.startswith("bool_"):
+        items = [bool(v) for v in items]
+        tag = tag[len("bool_"):]
+    return tuple(items) if tag == "tuple" else items
+
+
+def _restore_attrs(attrs: dict) -> dict:
+    # netCDF4 hands back numpy scalars; plain Python numbers are what users wrote.
+    out = {k: (v.item() if isinstance(v, np.generic) else v) for k, v in attrs.items()}
+    if _TYPES_ATTR not in out:
+        return out
+    types = json.loads(out.pop(_TYPES_ATTR))
+    for key, tag in types.items():
+        if key in out:
+            out[key] = _restore_value(out[key], tag)
+    return out
+
+
+def _map_attrs(ds: xr.Dataset, func) -> xr.Dataset:
+    out = ds.copy(deep=False)
+    out.attrs = func("the dataset", dict(ds.attrs))
+    for name, var in out.variables.items():
+        # shallow copy: new Variable objects, so the caller's attrs are never touched
+        var.attrs = func(f"variable {name!r}", dict(ds.variables[name].attrs))
+    return out
+
+
+# --- public API ---------------------------------------------------------------------
+
+
+def save(ds: xr.Dataset, path) -> Path:
+    """Write a dataset to NetCDF-4 atomically, complex values included.
+
+    Parameters
+    ----------
+    ds : xarray.Dataset
+        Any dataset (experiment, FRF, spectra).  Attribute values that NetCDF cannot hold
+        (bool, tuple, list, None) are converted and restored by :func:`open_dataset`.
+    path : str or os.PathLike
+        Target file; its directory must exist.  An existing file is replaced.
+
+    Returns
+    -------
+    pathlib.Path
+        The path written.
+
+    Notes
+    -----
+    The data are written to a temporary file in the same directory, flushed to disk, and
+    moved over ``path`` with :func:`os.replace` (atomic on POSIX), so a failure mid-write
+    never leaves a half-written file and never destroys an existing one.  Complex arrays
+    use the netCDF4 ``auto_complex`` compound type and read back bit for bit.
+
+    Examples
+    --------
+    >>> import numpy as np, xarray as xr, tempfile, os
+    >>> ds = xr.Dataset({"P": ("frequency", np.array([1 + 2j, 3 - 1j]))},
+    ...                 attrs={"degrees": (3, 3, 3), "noise": True})
+    >>> with tempfile.TemporaryDirectory() as d:
+    ...     p = save(ds, os.path.join(d, "frf.nc"))
+    ...     xr.testing.assert_identical(open_dataset(p), ds)
+    """
+    if not isinstance(ds, xr.Dataset):
+        raise TypeError(
+            f"save writes an xarray.Dataset, got {type(ds).__name__}; for a DataArray use "
+            "x.to_dataset(name='...')."
+        )
+    path = Path(path)
+    directory = path.parent if str(path.parent) else Path(".")
+    if not directory.is_dir():
+        raise FileNotFoundError(
+            f"cannot save to {path}: directory {directory} does not exist; create it first."
+        )
+    flat = _map_attrs(ds, _flatten_attrs)
+    fd, tmp = tempfile.mkstemp(dir=directory, prefix=f".{path.name}.", suffix=".tmp")
+    os.close(fd)
+    try:
+        flat.to_netcdf(tmp, engine=_ENGINE, auto_complex=True)
+        with open(tmp, "rb+") as fh:  # make the bytes durable before the rename
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.remove(tmp)
+        raise
+    return path
+
+
+def open_dataset(path, chunks=None) -> xr.Dataset:
+    """Open a NetCDF file written by :func:`save`, restoring attribute types.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        File to read.
+    chunks : dict or "auto", optional
+        Dask chunks.  Default ``None``: the data are loaded into memory and the file is
+        closed (experiment and FRF files are small); with chunks the data stay lazy.
+
+    Returns
+    -------
+    xarray.Dataset
+        The stored dataset with its original attribute types.
+
+    Raises
+    ------
+    FileNotFoundError
+        If the file does not exist.
+    ValueError
+        If it is not a readable NetCDF file (truncated, corrupt or another format).
+
+    Examples
+    --------
+    >>> import numpy as np, xarray as xr, tempfile, os
+    >>> with tempfile.TemporaryDirectory() as d:
+    ...     p = save(xr.Dataset({"a": ("x", [1.0, 2.0])}), os.path.join(d, "a.nc"))
+    ...     open_dataset(p)["a"].values.tolist()
+    [1.0, 2.0]
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"no such file: {path}; check the path.")
+    try:
+        ds = xr.open_dataset(
+            path,
+            engine=_ENGINE,
+            chunks=chunks,
+            auto_complex=True,
+            decode_timedelta=False,  # 's' time coordinates are plain floats in seconds
+        )
+        if chunks is None:
+            ds.load()
+            ds.close()
+    except (OSError, ValueError, RuntimeError, KeyError, IndexError) as err:
+        raise ValueError(
+            f"cannot read {path}: not a valid NetCDF-4 file (truncated, corrupt, or another "
+            f"format): {err}. Re-create it with lcmr_xr.save."
+        ) from err
+    return _map_attrs(ds, lambda owner, attrs: _restore_attrs(attrs))
+
+
+def _check_conventions(ds: xr.Dataset, path, kind: str) -> None:
+    conv = ds.attrs.get("conventions")
+    if conv != CONVENTIONS:
+        raise ValueError(
+            f"{path} is not an lcmr_xr {kind} file: its 'conventions' attribute is {conv!r}, "
+            f"expected {CONVENTIONS!r}. Convert it with lcmr_xr.experiment.experiment() or "
+            "open it with lcmr_xr.io.open_dataset."
+        )
+
+
+def open_experiment(path, chunks=None) -> xr.Dataset:
+    """Open and validate an experiment file (``lcmr-xr-1``).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        NetCDF file written by :func:`save` from an experiment dataset.
+    chunks : dict, optional
+        Dask chunks (default: load into memory).
+
+    Returns
+    -------
+    xarray.Dataset
+        Validated by :func:`lcmr_xr.experiment.validate_experiment`.
+
+    Raises
+    ------
+    FileNotFoundError, ValueError
+        Missing, unreadable, foreign (not ``lcmr-xr-1``) or invalid file; the message names
+        the file and the problem.
+
+    Examples
+    --------
+    >>> import numpy as np, tempfile, os
+    >>> from lcmr_xr.experiment import experiment
+    >>> ds = experiment(np.ones((8, 1)), np.ones((8, 1)), np.ones((4, 1)), factor=2,
+    ...                 sampling_period=0.5)
+    >>> with tempfile.TemporaryDirectory() as d:
+    ...     p = save(ds, os.path.join(d, "e.nc"))
+    ...     open_experiment(p).attrs["factor"]
+    2
+    """
+    ds = open_dataset(path, chunks=chunks)
+    _check_conventions(ds, path, "experiment")
+    try:
+        return validate_experiment(ds)
+    except ValueError as err:
+        raise ValueError(f"{path}: {err}") from err
+
+
+def open_frf(path, chunks=None) -> xr.Dataset:
+    """Open an FRF result file and check its structure (``P``, ``frequency``, conventions).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        NetCDF file written by :func:`save` from an FRF dataset.
+    chunks : dict, optional
+        Dask chunks (default: load into memory).
+
+    Returns
+    -------
+    xarray.Dataset
+        The FRF dataset (``P``, usually ``P_std``, settings in attributes).
+
+    Raises
+    ------
+    FileNotFoundError, ValueError
+        Missing, unreadable or foreign file, or ``P`` missing, not complex, or lacking the
+        ``frequency``/``output``/``input`` dims.
+
+    Examples
+    --------
+    >>> import numpy as np, xarray as xr, tempfile, os
+    >>> frf = xr.Dataset({"P": (("frequency", "output", "input"), np.ones((3, 1, 1), complex))},
+    ...                  coords={"frequency": [0.0, 1.0, 2.0], "output": ["y0"], "input": ["u0"]},
+    ...                  attrs={"conventions": "lcmr-xr-1"})
+    >>> with tempfile.TemporaryDirectory() as d:
+    ...     open_frf(save(frf, os.path.join(d, "f.nc"))).sizes["frequency"]
+    3
+    """
+    ds = open_dataset(path, chunks=chunks)
+    _check_conventions(ds, path, "FRF")
+    if "P" not in ds.data_vars:
+        raise ValueError(f"{path} has no variable 'P' (the FRF); is it an experiment file? Use open_experiment.")
+    missing = [d for d in (FREQUENCY, OUTPUT, INPUT) if d not in ds["P"].dims]
+    if missing:
+        raise ValueError(f"{path}: 'P' has dims {ds['P'].dims}, missing {missing}; it is not an FRF file.")
+    if FREQUENCY not in ds.coords:
+        raise ValueError(f"{path}: the 'frequency' coordinate (Hz) is missing; the FRF cannot be placed.")
+    if not np.issubdtype(ds["P"].dtype, np.complexfloating):
+        raise ValueError(f"{path}: 'P' is {ds['P'].dtype}, expected complex; the file is not an FRF result.")
+    return ds

@@ -1,0 +1,132 @@
+"""Indirect closed-loop step of the lifted identification, with first-order uncertainty.
+
+Pure numpy on trailing axes.  The local model estimates, per slow bin,
+
+    G = [S; PS_1]      (F nu + ny) x (F nu)
+
+from the lifted excitation to ``Z = [lifted u; y_l]``.  The first block row of the
+lifted plant is ``P_1 = PS_1 S^-1`` (paper, eq. FirstRowPbar) and the fast FRF follows
+from :func:`lcmr_xr.kernels.lifting.frf_from_first_block_row`.
+
+Uncertainty: to first order ``dP_1 = (dPS_1 - P_1 dS) S^-1 = (L dG) S^-1`` with
+``L = [-P_1, I]``, so the covariance of ``vec(P_1)`` is ``J Cov(vec G) J^H`` with
+``J[(a, c), (i, b)] = L[a, i] S^-1[b, c]``.  ``P(k)`` is linear in ``P_1(k mod M)``.
+Covariances are ``E[d d^H]`` of complex estimates; pseudo-covariances are neglected
+(circular noise), as is standard for frequency-domain estimators.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from lcmr_xr.kernels.lifting import first_block_row_weights
+
+#: S is declared not invertible where its condition number exceeds this (relative
+#: precision left in P_1 would be below ~1e-4 for noiseless double-precision data).
+S_CONDITION_LIMIT = 1e12
+
+
+class IndirectResult(NamedTuple):
+    """Result of :func:`indirect_first_row` (arrays over leading dims and slow bins)."""
+
+    first_row: np.ndarray  #: (..., M, ny, F nu) estimate of P_1
+    first_row_cov: np.ndarray | None  #: (..., M, ny F nu, ny F nu) or None
+    s_condition: np.ndarray  #: (..., M) condition number of S
+    singular: np.ndarray  #: (..., M) bool: S could not be inverted
+
+
+def indirect_first_row(G: np.ndarray, n_lifted_inputs: int, G_cov: np.ndarray | None = None,
+                       s_condition_limit: float = S_CONDITION_LIMIT) -> IndirectResult:
+    """First block row of the lifted plant from ``G = [S; PS_1]``.
+
+    Parameters
+    ----------
+    G : ndarray, shape (..., M, F nu + ny, F nu)
+        Local-model estimate per slow bin; its first ``F nu`` rows are the lifted sensitivity.
+    n_lifted_inputs : int
+        ``F nu``, the number of rows of ``S``.
+    G_cov : ndarray, shape (..., M, nz nr, nz nr), optional
+        Covariance of ``vec(G)`` (row-major, index ``i nr + b``).  When given, the
+        first-order covariance of ``vec(P_1)`` is returned.
+    s_condition_limit : float, default 1e12
+        Bins where ``cond(S)`` exceeds this are flagged and set to NaN.
+
+    Returns
+    -------
+    IndirectResult
+    """
+    G = np.asarray(G)
+    nr = int(n_lifted_inputs)
+    nz = G.shape[-2]
+    if G.shape[-1] != nr or nz <= nr:
+        raise ValueError(
+            f"G must have shape (..., M, F*nu + ny, F*nu) = (..., M, >{nr}, {nr}); got {G.shape}."
+        )
+    S = G[..., :nr, :]
+    PS = G[..., nr:, :]
+    finite = np.isfinite(G).all(axis=(-2, -1))
+    S_safe = np.where(finite[..., None, None], S, np.eye(nr))
+    cond = np.linalg.cond(S_safe)
+    cond = np.where(finite, cond, np.inf)
+    singular = ~(cond < s_condition_limit)
+    S_safe = np.where(singular[..., None, None], np.eye(nr), S_safe)
+    S_inv = np.linalg.inv(S_safe)
+    P1 = PS @ S_inv
+    P1 = np.where(singular[..., None, None], np.nan, P1)
+
+    cov = None
+    if G_cov is not None:
+        ny = nz - nr
+        L = np.concatenate(
+            [-P1, np.broadcast_to(np.eye(ny), P1.shape[:-2] + (ny, ny))], axis=-1
+        )  # (..., M, ny, nz)
+        C = np.asarray(G_cov).reshape(G_cov.shape[:-2] + (nz, nr, nz, nr))
+        # J[a, c, i, b] = L[a, i] Sinv[b, c];  Cov = J C J^H
+        J = np.einsum("...ai,...bc->...acib", L, S_inv)
+        cov = np.einsum("...acib,...ibjd,...gejd->...acge", J, C, J.conj())
+        cov = cov.reshape(cov.shape[:-4] + (ny * nr, ny * nr))
+        cov = np.where(singular[..., None, None], np.nan, cov)
+    return IndirectResult(P1, cov, cond, singular)
+
+
+def direct_first_row(G: np.ndarray) -> np.ndarray:
+    """Direct estimate: the local model from lifted ``u`` to ``y_l`` *is* ``P_1``.
+
+    Kept for comparison only: under feedback ``u`` is correlated with the noise,
+    so this estimate is biased (paper, Section 3.1; Pintelon and Schoukens 2012, 2.6).
+    """
+    return np.asarray(G)
+
+
+def frf_variance_from_first_row(first_row_cov: np.ndarray, n_fast: int, factor: int,
+                                bins: np.ndarray, ny: int, nu: int) -> np.ndarray:
+    """Variance ``E|dP(k)|^2`` of the recovered fast FRF at fast ``bins``.
+
+    Parameters
+    ----------
+    first_row_cov : ndarray, shape (..., M, ny F nu, ny F nu)
+        Covariance of ``vec(P_1)`` per slow bin (row-major, index ``a F nu + j nu + b``).
+    n_fast, factor : int
+        ``N`` and ``F``.
+    bins : ndarray of int
+        Fast bins ``k`` at which ``P(k)`` is recovered.
+    ny, nu : int
+        Plant outputs and inputs.
+
+    Returns
+    -------
+    ndarray, shape (..., len(bins), ny, nu), real
+    """
+    f_ = int(factor)
+    m = n_fast // f_
+    bins = np.asarray(bins)
+    C = np.asarray(first_row_cov)
+    C = C.reshape(C.shape[:-2] + (ny, f_, nu, ny, f_, nu))
+    # only same-(a, b) entries are needed: C[a, j, b, a, j', b]
+    diag = np.einsum("...ajbAkB,aA,bB->...abjk", C, np.eye(ny), np.eye(nu))  # (..., M, ny, nu, F, F)
+    diag = np.take(diag, bins % m, axis=-5)  # (..., K, ny, nu, F, F)
+    w = first_block_row_weights(n_fast, f_, bins)  # (K, F)
+    var = np.einsum("kj,...kabjl,kl->...kab", w, diag, w.conj())
+    return np.maximum(var.real, 0.0)

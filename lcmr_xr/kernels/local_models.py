@@ -1,0 +1,590 @@
+"""Local polynomial / local rational modelling (LPM / LRM) of spectra, batched over bins.
+
+The paper's local model (van Haren et al., section "Multivariable Identification through
+Local Modeling") at every DFT bin ``k``, for ``r = -n..n``::
+
+    D(r) Z(k+r) - N(r) R(k+r) - Mt(r) = e(r)
+    D(r)  = I + sum_{s=1..Rd} D_s rho^s          (diagonal: one row per output)
+    N(r)  = G + sum_{s=1..Rn} N_s rho^s
+    Mt(r) = T + sum_{s=1..Rm} M_s rho^s,         rho = r / n
+
+minimising ``sum_r ||e(r)||^2``.  ``G`` and ``T`` (the values at ``r = 0``) do not depend on
+the scaling of the local variable, so ``rho = r/n`` is used for the numerics.
+
+How it is computed (and why)
+----------------------------
+With a diagonal ``D`` the output rows decouple.  Row ``i`` has the regressors
+``rho^b R_p`` and ``rho^c`` (the *shared* block ``A``, the same for every row) and the
+row-specific ``-rho^s Z_i`` (block ``B_i``).  Every entry of the normal equations is a
+windowed moment ``sum_{|r|<=n} rho^a x(k+r)`` of a product series ``x`` (``conj(R_p) R_q``,
+``conj(R_p) Z_i``, ``conj(Z_i) Z_j``, ...).  For all bins at once these are correlations
+with the kernels ``rho^a``, computed by FFT in short overlap-save blocks, so the cost does
+not grow with the window width.  Per bin, the shared block is Cholesky-factored once and
+each row only needs its small ``Rd x Rd`` Schur complement.
+
+The linear algebra is written "bins last": arrays are ``(matrix indices..., batch..., bins)``
+and the Python loops run over matrix indices only, so every numpy call works on long
+contiguous vectors.  Measured on this project's machine: numpy's batched ``linalg`` calls on
+``(M, 20, 20)`` stacks cost microseconds *per matrix* (``solve`` ~20 us), which is slower
+than the whole bins-last elimination.
+
+Numerics.  An FFT correlation has an absolute error of about ``eps`` times the norm of the
+block it transforms, so a bin whose local energy is far below that of its neighbours loses
+relative accuracy.  The blocks are therefore short (``_fft_length``: about four windows), which
+keeps the error local: a bin is only polluted by data within about two windows of it.  The
+Schur-complement form of the residual (``||D z||^2 - ||L^-1 A^H D z||^2``) is exact for
+the computed ``D`` and stationary in it, so the residual variance keeps the accuracy of the
+moments.  Normal equations square the condition number; ``condition`` reports an estimate
+per bin and bins above :data:`CONDITION_LIMIT` are flagged.  The test suite checks agreement
+with a per-bin ``numpy.linalg.lstsq`` oracle to 1e-6 relative on data with a 1e4 dynamic
+range.
+"""
+
+from __future__ import annotations
+
+from math import comb
+from typing import NamedTuple
+
+import numpy as np
+
+__all__ = ["LocalModelFit", "local_model", "CONDITION_LIMIT", "parameters_per_row"]
+
+#: Bins whose (column-scaled) regression matrix has a condition number estimate above
+#: this are flagged ``ill_posed``.  The normal equations lose about ``eps * cond**2`` of
+#: relative accuracy, so at 1e6 about four correct digits remain in the worst case.
+CONDITION_LIMIT = 1e6
+
+# Target number of (batch x bin) elements handled per chunk: bounds the memory of the
+# moment tables (about 60 series x 7 powers x 16 bytes per element).
+_CHUNK_ELEMENTS = 1 << 14
+
+
+class LocalModelFit(NamedTuple):
+    """Result of :func:`local_model` (all arrays share the leading batch dims ``...``).
+
+    Attributes
+    ----------
+    G : ndarray, complex, shape (..., M, nz, nr)
+        Local estimate of the FRF at each bin (units of Z / units of R).
+    T : ndarray, complex, shape (..., M, nz)
+        Local estimate of the transient at each bin (units of Z).
+    noise_variance : ndarray, float, shape (..., M, nz)
+        Residual variance per output row, ``sum_r |e_i(r)|^2 / dof`` (units of Z squared).
+    noise_covariance : ndarray, complex, shape (..., M, nz, nz)
+        Residual covariance ``C[i, j] = sum_r e_i(r) conj(e_j(r)) / dof``.
+    dof : int
+        Degrees of freedom per row, ``2 n + 1 - (nr (Rn + 1) + Rm + 1 + Rd)``.
+    G_cov : ndarray or None
+        ``covariance="full"``: complex, shape (..., M, nz nr, nz nr), ``E[dG dG^H]`` of the
+        vectorised ``G`` (index ``i nr + p``), cross-row terms included.
+        ``covariance="diag"``: float, shape (..., M, nz, nr), variances ``E|dG|^2``.
+        ``None`` when not requested.
+    condition : ndarray, float, shape (..., M)
+        Estimate of the condition number of the column-scaled regression per bin (worst
+        row).
+    ill_posed : ndarray, bool, shape (..., M)
+        ``condition > CONDITION_LIMIT``, a non-finite estimate, or (with
+        ``circular=False``) a bin without a full window.  ``G``, ``T`` are NaN where the
+        factorisation failed or the window is incomplete.
+    """
+
+    G: np.ndarray
+    T: np.ndarray
+    noise_variance: np.ndarray
+    noise_covariance: np.ndarray
+    dof: int
+    G_cov: np.ndarray | None
+    condition: np.ndarray
+    ill_posed: np.ndarray
+
+
+def parameters_per_row(nr: int, degrees=(3, 3, 3)) -> int:
+    """Number of local parameters per output row, ``nr (Rn + 1) + Rm + 1 + Rd``.
+
+    Parameters
+    ----------
+    nr : int
+        Number of excitation channels.
+    degrees : tuple of int, default (3, 3, 3)
+        ``(Rn, Rm, Rd)``: numerator, transient and denominator degrees.
+
+    Returns
+    -------
+    int
+
+    Examples
+    --------
+    >>> parameters_per_row(4, (3, 3, 3))
+    23
+    """
+    rn, rm, rd = _check_degrees(degrees)
+    return nr * (rn + 1) + rm + 1 + rd
+
+
+def _check_degrees(degrees):
+    try:
+        rn, rm, rd = (int(d) for d in degrees)
+    except (TypeError, ValueError):
+        raise ValueError(
+            f"degrees must be three integers (Rn, Rm, Rd), got {degrees!r}; "
+            "for example degrees=(3, 3, 3), or (2, 2, 0) for the LPM."
+        ) from None
+    if min(rn, rm, rd) < 0:
+        raise ValueError(f"degrees must be non-negative, got {(rn, rm, rd)}.")
+    return rn, rm, rd
+
+
+# ----------------------------------------------------------------------------- moments
+def _fft_length(half_width: int) -> int:
+    """FFT block length for the overlap-save moments: the power of two >= 4 windows.
+
+    Four windows keep the FFT's absolute error local (see the module notes) while the
+    overlap (2n of every block) costs at most about half of the work.  Measured: cost per
+    bin changes by < 1.5x between n = 10 and n = 100.
+    """
+    w = 2 * half_width + 1
+    return max(64, 1 << int(np.ceil(np.log2(4 * w))))
+
+
+def _kernel_spectra(half_width: int, max_power: int, nfft: int) -> np.ndarray:
+    """``conj(fft(h_a))`` for ``h_a[t] = rho^a`` at ``t = r + n``, ``a = 0..max_power``."""
+    n = half_width
+    rho = np.arange(-n, n + 1) / n if n > 0 else np.zeros(1)
+    h = np.zeros((max_power + 1, nfft))
+    h[:, : 2 * n + 1] = rho[None, :] ** np.arange(max_power + 1)[:, None]
+    return np.conj(np.fft.fft(h, axis=-1))
+
+
+def _window_moments(x: np.ndarray, half_width: int, max_power: int) -> np.ndarray:
+    """``out[a, ..., k] = sum_{r=-n..n} rho^a x[..., k + n + r]`` for ``k = 0..L-2n-1``.
+
+    ``x`` has shape (..., L) with its halo of ``n`` bins on both sides already included.
+    Overlap-save: blocks of ``nfft`` bins advance by ``nfft - 2n``; within a block the
+    circular correlation equals the linear one for the first ``nfft - 2n`` outputs.
+    """
+    n = half_width
+    lead = x.shape[:-1]
+    length = x.shape[-1]
+    n_out = length - 2 * n
+    nfft = _fft_length(n)
+    step = nfft - 2 * n
+    n_blocks = -(-n_out // step)
+    padded = np.zeros(lead + (n_blocks * step + 2 * n,), dtype=complex)
+    padded[..., :length] = x
+    blocks = np.lib.stride_tricks.sliding_window_view(padded, nfft, axis=-1)[..., ::step, :]
+    spectra = np.fft.fft(blocks, axis=-1)  # (..., n_blocks, nfft)
+    kernels = _kernel_spectra(n, max_power, nfft)  # (A, nfft)
+    corr = np.fft.ifft(spectra[..., None, :, :] * kernels[:, None, :], axis=-1)[..., :step]
+    corr = corr.reshape(lead + (max_power + 1, n_blocks * step))[..., :n_out]
+    return np.moveaxis(corr, -2, 0)  # (power, ..., bins)
+
+
+def _analytic_moments(half_width: int, max_power: int) -> np.ndarray:
+    """``sum_{r=-n..n} rho^a`` for ``a = 0..max_power`` (the constant-column moments)."""
+    n = half_width
+    rho = np.arange(-n, n + 1) / n if n > 0 else np.zeros(1)
+    return np.array([np.sum(rho**a) for a in range(max_power + 1)])
+
+
+# ------------------------------------------------------------------ bins-last linear algebra
+def _cholesky(a: np.ndarray):
+    """Lower Cholesky factor of Hermitian ``a`` (q, q, ...); bins/batch on trailing axes.
+
+    Non-positive pivots become NaN (that bin's solution is NaN, the rest is untouched).
+    Returns ``(L, pivots)``, pivots ``(q, ...)`` real (the squared diagonal of ``L``).
+    """
+    q = a.shape[0]
+    low = np.zeros_like(a)
+    piv = np.empty((q,) + a.shape[2:])
+    for j in range(q):
+        row = low[j, :j]
+        p = a[j, j].real - np.sum(row.real**2 + row.imag**2, axis=0)
+        p = np.where(p > 0, p, np.nan)
+        piv[j] = p
+        d = np.sqrt(p)
+        low[j, j] = d
+        if j + 1 < q:
+            s = a[j + 1 :, j] - np.einsum("im...,m...->i...", low[j + 1 :, :j], np.conj(row))
+            low[j + 1 :, j] = s / d
+    return low, piv
+
+
+def _forward(low: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Solve ``L y = b`` for lower-triangular ``L`` (q, q, ...); ``b`` (q, nrhs, ...)."""
+    q = low.shape[0]
+    y = np.empty(np.broadcast_shapes(b.shape, (q, 1) + low.shape[2:]), dtype=complex)
+    for j in range(q):
+        s = b[j] - np.einsum("m...,mr...->r...", low[j, :j], y[:j]) if j else b[j]
+        y[j] = s / low[j, j]
+    return y
+
+
+def _backward_tail(low: np.ndarray, y: np.ndarray, count: int) -> np.ndarray:
+    """Last ``count`` entries of ``x`` solving ``L^H x = y`` (they need only the tail)."""
+    q = low.shape[0]
+    tail = low[q - count :, q - count :]
+    x = np.empty((count,) + y.shape[1:], dtype=complex)
+    for j in range(count - 1, -1, -1):
+        s = y[q - count + j]
+        if j + 1 < count:
+            s = s - np.einsum("m...,m...->...", np.conj(tail[j + 1 :, j]), x[j + 1 :])
+        x[j] = s / tail[j, j]
+    return x
+
+
+def _tail_inverse(low: np.ndarray, count: int) -> np.ndarray:
+    """``Lambda = L22^-H`` for the trailing ``count x count`` block ``L22`` of ``L``."""
+    q = low.shape[0]
+    l22 = low[q - count :, q - count :]
+    eye = np.broadcast_to(
+        np.eye(count, dtype=complex).reshape((count, count) + (1,) * (low.ndim - 2)),
+        (count, count) + low.shape[2:],
+    )
+    inv = _forward(l22, eye)  # L22^-1, lower
+    return np.conj(np.swapaxes(inv, 0, 1))
+
+
+def _small_solve(low: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Solve ``(L L^H) x = b`` with ``L`` (q, q, ...) and ``b`` (q, nrhs, ...)."""
+    y = _forward(low, b)
+    q = low.shape[0]
+    x = np.empty_like(y)
+    for j in range(q - 1, -1, -1):
+        s = y[j]
+        if j + 1 < q:
+            s = s - np.einsum("m...,mr...->r...", np.conj(low[j + 1 :, j]), x[j + 1 :])
+        x[j] = s / low[j, j]
+    return x
+
+
+# ---------------------------------------------------------------------------- the model
+def local_model(R, Z, *, half_width: int, degrees=(3, 3, 3), circular: bool = True,
+                covariance: str | None = "full") -> LocalModelFit:
+    """Fit the local rational (LRM) or polynomial (LPM, ``Rd = 0``) model at every bin.
+
+    Parameters
+    ----------
+    R : array_like, complex, shape (..., M, nr)
+        Excitation spectra on ``M`` DFT bins (any unit).
+    Z : array_like, complex, shape (..., M, nz)
+        Output spectra on the same bins (any unit).  Leading dims of ``R`` and ``Z``
+        broadcast.
+    half_width : int
+        ``n``: the local window is ``2 n + 1`` bins, ``r = -n..n`` (in bins).
+    degrees : tuple of int, default (3, 3, 3)
+        ``(Rn, Rm, Rd)``: degrees of the numerator ``N``, transient ``Mt`` and the diagonal
+        denominator ``D`` in the local variable.  ``Rd = 0`` is the LPM.
+    circular : bool, default True
+        ``True``: the bins cover the whole unit circle, the window at bin ``k`` uses bins
+        ``(k + r) mod M``.  ``False``: the caller passed data already padded with ``n`` halo
+        bins on each side (as ``dask.array.map_overlap`` does); the output has the same
+        length and the ``n`` bins at each end, which lack a full window, are NaN and flagged.
+    covariance : {"full", "diag", None}, default "full"
+        What to return in ``G_cov``: the full cross-row covariance of the vectorised ``G``,
+        only its variances, or nothing (saves time).
+
+    Returns
+    -------
+    LocalModelFit
+        ``G`` (..., M, nz, nr), ``T`` (..., M, nz), ``noise_variance`` (..., M, nz),
+        ``noise_covariance`` (..., M, nz, nz), ``dof``, ``G_cov``, ``condition`` (..., M),
+        ``ill_posed`` (..., M); see :class:`LocalModelFit`.
+
+    Raises
+    ------
+    ValueError
+        Wrong shapes, fewer than ``2 n + 1`` bins, no degrees of freedom left, an unknown
+        ``covariance``, or non-finite input.  Ill-conditioned bins never raise: they are NaN
+        and flagged.
+
+    Notes
+    -----
+    The covariance of ``G`` treats the regressors as exact (the LPM case; for the LRM it
+    is the usual first-order approximation): for rows ``i, j`` with regressions ``K_i, K_j``
+    ``Cov(theta_i, theta_j) = C[i, j] K_i^+ K_j^{+H}``.  The moments are computed by FFT in
+    short blocks (cost independent of ``n``; see the module docstring for the accuracy
+    argument); the 1e-6 agreement with a per-bin ``lstsq`` is tested.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> rng = np.random.default_rng(0)
+    >>> M = 64
+    >>> R = np.exp(2j * np.pi * rng.random((M, 1)))
+    >>> G = 2.0 - 1.0j
+    >>> fit = local_model(R, G * R + 0.5, half_width=4, degrees=(1, 1, 0))
+    >>> bool(np.allclose(fit.G[..., 0, 0], G)), bool(np.allclose(fit.T[..., 0], 0.5))
+    (True, True)
+    >>> fit.dof
+    4
+    """
+    rn, rm, rd = _check_degrees(degrees)
+    R = np.asarray(R)
+    Z = np.asarray(Z)
+    if R.ndim < 2 or Z.ndim < 2:
+        raise ValueError(
+            f"R and Z must have shape (..., M, nr) and (..., M, nz), got {R.shape} and "
+            f"{Z.shape}; add a trailing channel axis for one channel (R[..., None])."
+        )
+    m, nr = R.shape[-2:]
+    nz = Z.shape[-1]
+    if Z.shape[-2] != m:
+        raise ValueError(
+            f"R has {m} bins and Z has {Z.shape[-2]} (axis -2); pass spectra on the same bins."
+        )
+    try:
+        batch = np.broadcast_shapes(R.shape[:-2], Z.shape[:-2])
+    except ValueError:
+        raise ValueError(
+            f"leading dims of R {R.shape[:-2]} and Z {Z.shape[:-2]} do not broadcast."
+        ) from None
+    if nr < 1 or nz < 1:
+        raise ValueError(f"need at least one channel in R and Z, got nr={nr}, nz={nz}.")
+    n = int(half_width)
+    if n < 1 or n != half_width:
+        raise ValueError(f"half_width must be a positive integer, got {half_width!r}.")
+    w = 2 * n + 1
+    if m < w:
+        raise ValueError(
+            f"{m} bins are too few for half_width={n}: a window needs 2n+1 = {w} bins. "
+            f"Use half_width <= {(m - 1) // 2} or more bins."
+        )
+    p_row = parameters_per_row(nr, (rn, rm, rd))
+    dof = w - p_row
+    if dof < 1:
+        raise ValueError(
+            f"no degrees of freedom: {p_row} parameters per row (nr={nr}, degrees="
+            f"{(rn, rm, rd)}) need a window of at least {p_row + 1} bins; use half_width >= "
+            f"{(p_row + 1) // 2} or lower degrees."
+        )
+    if covariance not in ("full", "diag", None):
+        raise ValueError(
+            f"covariance must be 'full', 'diag' or None, got {covariance!r}."
+        )
+    if not (np.all(np.isfinite(R)) and np.all(np.isfinite(Z))):
+        raise ValueError(
+            "R and Z must be finite (found NaN or inf); drop or interpolate the bad bins "
+            "before fitting."
+        )
+
+    # Bins-last layout: (channel, *batch, bins), with the n-bin halo on both ends.
+    rt = np.moveaxis(np.broadcast_to(R, batch + (m, nr)), -1, 0).astype(complex)
+    zt = np.moveaxis(np.broadcast_to(Z, batch + (m, nz)), -1, 0).astype(complex)
+    if circular:
+        idx = np.arange(-n, m + n) % m
+        rt, zt = rt[..., idx], zt[..., idx]
+        k_lo, k_hi = 0, m
+    else:
+        k_lo, k_hi = n, m - n
+    n_valid = k_hi - k_lo
+
+    out = _allocate(batch, m, nz, nr, covariance)
+    n_batch = int(np.prod(batch, dtype=int))
+    chunk = max(1, _CHUNK_ELEMENTS // max(1, n_batch))
+    with np.errstate(all="ignore"):
+        for c0 in range(0, n_valid, chunk):
+            c1 = min(n_valid, c0 + chunk)
+            # padded coordinates: output bin k_lo + c needs padded samples c .. c + 2n
+            res = _fit_chunk(rt[..., c0 : c1 + 2 * n], zt[..., c0 : c1 + 2 * n], n,
+                             (rn, rm, rd), covariance)
+            _store(out, res, slice(k_lo + c0, k_lo + c1), covariance)
+        ill = ~(out["condition"] <= CONDITION_LIMIT)
+    return LocalModelFit(
+        G=out["G"], T=out["T"], noise_variance=out["noise_variance"],
+        noise_covariance=out["noise_covariance"], dof=int(dof), G_cov=out.get("G_cov"),
+        condition=out["condition"], ill_posed=ill,
+    )
+
+
+def _allocate(batch, m, nz, nr, covariance):
+    nan_c = complex(np.nan, np.nan)
+    out = {
+        "G": np.full(batch + (m, nz, nr), nan_c),
+        "T": np.full(batch + (m, nz), nan_c),
+        "noise_variance": np.full(batch + (m, nz), np.nan),
+        "noise_covariance": np.full(batch + (m, nz, nz), nan_c),
+        "condition": np.full(batch + (m,), np.inf),
+    }
+    if covariance == "full":
+        out["G_cov"] = np.full(batch + (m, nz * nr, nz * nr), nan_c)
+    elif covariance == "diag":
+        out["G_cov"] = np.full(batch + (m, nz, nr), np.nan)
+    return out
+
+
+def _store(out, res, sl, covariance):
+    # res arrays are bins-last with matrix indices first; move them to (..., bins, mat)
+    out["G"][..., sl, :, :] = np.moveaxis(res["G"], (0, 1), (-2, -1))
+    out["T"][..., sl, :] = np.moveaxis(res["T"], 0, -1)
+    out["noise_variance"][..., sl, :] = np.moveaxis(res["noise_variance"], 0, -1)
+    out["noise_covariance"][..., sl, :, :] = np.moveaxis(res["noise_covariance"], (0, 1),
+                                                         (-2, -1))
+    cond = res["condition"]
+    out["condition"][..., sl] = np.where(np.isfinite(cond), cond, np.inf)
+    if covariance == "full":
+        gc = res["G_cov"]  # (nz, nr, nz, nr, ..., K)
+        nz, nr = gc.shape[:2]
+        gc = gc.reshape((nz * nr, nz * nr) + gc.shape[4:])
+        out["G_cov"][..., sl, :, :] = np.moveaxis(gc, (0, 1), (-2, -1))
+    elif covariance == "diag":
+        out["G_cov"][..., sl, :, :] = np.moveaxis(res["G_cov"], (0, 1), (-2, -1))
+
+
+def _fit_chunk(rt, zt, n, degrees, covariance):
+    """Fit all bins of one chunk; ``rt`` (nr, ..., K + 2n), ``zt`` (nz, ..., K + 2n)."""
+    rn, rm, rd = degrees
+    nr, nz = rt.shape[0], zt.shape[0]
+    rho_n = n
+
+    # ---- windowed moments of the product series (index [.., power, ..., bins])
+    iu_r = np.triu_indices(nr)
+    m_rr = _window_moments(np.conj(rt[iu_r[0]]) * rt[iu_r[1]], rho_n, 2 * rn)
+    m_r1 = _window_moments(np.conj(rt), rho_n, rn + rm)
+    m_rz = _window_moments(np.conj(rt)[:, None] * zt[None], rho_n, rn + rd)
+    m_1z = _window_moments(zt, rho_n, rm + rd)
+    iu_z = np.triu_indices(nz)
+    m_zz = _window_moments(np.conj(zt[iu_z[0]]) * zt[iu_z[1]], rho_n, 2 * rd)
+    m_11 = _analytic_moments(n, 2 * rm)
+    pair_r = {(int(a), int(b)): j for j, (a, b) in enumerate(zip(*iu_r))}
+    pair_z = {(int(a), int(b)): j for j, (a, b) in enumerate(zip(*iu_z))}
+    shape = m_r1.shape[2:]  # (*batch, K)
+
+    def rr(p, pp, a):  # sum rho^a conj(R_p) R_pp
+        return m_rr[a, pair_r[(p, pp)]] if p <= pp else np.conj(m_rr[a, pair_r[(pp, p)]])
+
+    def zz(i, ii, a):  # sum rho^a conj(Z_i) Z_ii
+        return m_zz[a, pair_z[(i, ii)]] if i <= ii else np.conj(m_zz[a, pair_z[(ii, i)]])
+
+    # ---- shared columns, ordered so that T and then G (the r^0 terms) come last
+    cols = [("R", p, b) for b in range(rn, 0, -1) for p in range(nr)]
+    cols += [("1", 0, c) for c in range(rm, -1, -1)]
+    cols += [("R", p, 0) for p in range(nr)]
+    q = len(cols)
+
+    def gram(c1, c2):  # sum conj(x_c1) x_c2 for shared columns
+        (k1, p1, b1), (k2, p2, b2) = c1, c2
+        a = b1 + b2
+        if k1 == "R" and k2 == "R":
+            return rr(p1, p2, a)
+        if k1 == "R":
+            return m_r1[a, p1]
+        if k2 == "R":
+            return np.conj(m_r1[a, p2])
+        return np.broadcast_to(m_11[a], shape)
+
+    gaa = np.empty((q, q) + shape, dtype=complex)
+    for j1, c1 in enumerate(cols):
+        for j2 in range(j1, q):
+            v = gram(c1, cols[j2])
+            gaa[j1, j2] = v
+            if j2 != j1:
+                gaa[j2, j1] = np.conj(v)
+    # A^H Z_i rho^s for s = 0..Rd (s = 0 is the target, s >= 1 the D columns up to sign)
+    ahz = np.empty((q, nz, rd + 1) + shape, dtype=complex)
+    for j, (k1, p1, b1) in enumerate(cols):
+        for s in range(rd + 1):
+            ahz[j, :, s] = m_rz[b1 + s, p1] if k1 == "R" else m_1z[b1 + s]
+
+    # ---- Jacobi scaling of the shared block, then one Cholesky per bin
+    dscale = 1.0 / np.sqrt(gaa[np.arange(q), np.arange(q)].real)  # (q, ..., K); inf -> nan
+    dscale = np.where(np.isfinite(dscale), dscale, np.nan)
+    gaa_s = gaa * dscale[:, None] * dscale[None, :]
+    low, piv_a = _cholesky(gaa_s)
+    # y_i = L^-1 A~^H z_i and W_i = L^-1 A~^H B~_i, all rows and columns in one sweep
+    ahz_s = ahz * dscale[:, None, None]
+    yw = _forward(low, ahz_s.reshape((q, nz * (rd + 1)) + shape))
+    yw = yw.reshape((q, nz, rd + 1) + shape)
+    y = yw[:, :, 0]  # (q, nz, ...)
+
+    nt = nr + 1  # T and G at the tail
+    if rd > 0:
+        # D columns B_i[:, s] = -rho^s Z_i, scaled by tscale = 1 / ||rho^s Z_i||
+        bb_diag = np.stack([np.stack([zz(i, i, 2 * s).real for s in range(1, rd + 1)])
+                            for i in range(nz)])  # (nz, rd, ..., K)
+        tscale = 1.0 / np.sqrt(bb_diag)
+        tscale = np.where(np.isfinite(tscale), tscale, np.nan)
+        wmat = -yw[:, :, 1:] * tscale[None]  # W_i = L^-1 A~^H B~_i: (q, nz, rd, ...)
+        # B~_i^H B~_j [s, t] = tscale_is tscale_jt sum rho^(s+t) conj(Z_i) Z_j
+        bhb = np.empty((nz, nz, rd, rd) + shape, dtype=complex)
+        for i in range(nz):
+            for ii in range(nz):
+                for s in range(rd):
+                    for t in range(rd):
+                        bhb[i, ii, s, t] = (zz(i, ii, s + t + 2) * tscale[i, s] * tscale[ii, t])
+        # B~_i^H z_i [s] = -tscale_is sum rho^s |Z_i|^2
+        bhz = np.stack([np.stack([-zz(i, i, s) * tscale[i, s - 1] for s in range(1, rd + 1)])
+                        for i in range(nz)])  # (nz, rd, ..., K)
+        # Schur complement per row: S_i = B~^H B~ - W^H W  (rd x rd)
+        whw = np.einsum("qis...,qit...->ist...", np.conj(wmat), wmat)  # (nz, rd, rd, ...)
+        schur = bhb[np.arange(nz), np.arange(nz)] - whw
+        rhs_d = bhz - np.einsum("qis...,qi...->is...", np.conj(wmat), y)  # (nz, rd, ...)
+        # Cholesky of every row's Schur complement: rows as a leading batch axis
+        s_low, piv_s = _cholesky(np.moveaxis(schur, 0, 2))  # (rd, rd, nz, ...)
+        d_s = _small_solve(s_low, np.moveaxis(rhs_d, 0, 1)[:, None])[:, 0]  # (rd, nz, ...)
+        d_s = np.moveaxis(d_s, 0, 1)  # scaled D coefficients (nz, rd, ...)
+        v = y - np.einsum("qis...,is...->qi...", wmat, d_s)  # L^-1 A~^H (D z), (q, nz, ...)
+        # unscaled D coefficients: u_i = z_i - B_i d_i = z_i + sum_s d_is rho^s z_i
+        delta = np.concatenate([np.ones((nz, 1) + shape), d_s * tscale], axis=1)
+    else:
+        v = y
+        delta = np.ones((nz, 1) + shape, dtype=complex)
+        piv_s = np.ones((1, nz) + shape)
+
+    # ---- estimates: the tail of a~ = L^-H v holds T and G
+    tail = _backward_tail(low, v, nt)  # (nt, nz, ...)
+    T = tail[0] * dscale[q - nt]
+    G = tail[1:] * dscale[q - nr :, None]  # (nr, nz, ...)
+    G = np.swapaxes(G, 0, 1)  # (nz, nr, ...)
+
+    # ---- residual (cross) products: e_i^H e_j = u_i^H u_j - v_i^H v_j
+    uu = np.zeros((nz, nz) + shape, dtype=complex)
+    for i in range(nz):
+        for ii in range(nz):
+            acc = 0
+            for s in range(rd + 1):
+                for t in range(rd + 1):
+                    acc = acc + np.conj(delta[i, s]) * delta[ii, t] * zz(i, ii, s + t)
+            uu[i, ii] = acc
+    ehe = uu - np.einsum("qi...,qj...->ij...", np.conj(v), v)
+    dof = 2 * n + 1 - (q + rd)
+    noise_cov = np.conj(ehe) / dof  # C[i, j] = sum_r e_i conj(e_j) / dof
+    noise_var = np.maximum(ehe[np.arange(nz), np.arange(nz)].real, 0.0) / dof
+
+    # ---- condition estimate: pivots of the column-scaled Gram (unit diagonal) bound
+    # lambda_min from above, so 1/min pivot is a lower bound of its condition number
+    min_piv = np.minimum(np.min(piv_a, axis=0), np.min(piv_s, axis=(0, 1)) if rd else 1.0)
+    condition = np.sqrt(1.0 / min_piv)
+
+    res = {"G": G, "T": T, "noise_variance": noise_var, "noise_covariance": noise_cov,
+           "condition": condition}
+    if covariance is None:
+        return res
+
+    # ---- covariance of G: C_ij [Lam Lam^H + beta_i S_i^-1 (B_i^H Q B_j) S_j^-1 beta_j^H]
+    lam = _tail_inverse(low, nr)  # (nr, nr, ...) = L22^-H
+    base = np.einsum("ab...,cb...->ac...", lam, np.conj(lam))  # (nr, nr, ...)
+    sg = dscale[q - nr :]  # (nr, ...)
+    if covariance == "diag":
+        var = np.broadcast_to(np.real(base[np.arange(nr), np.arange(nr)]), (nz, nr) + shape)
+        var = np.array(var)
+        if rd > 0:
+            beta = np.einsum("ab...,bis...->ais...", lam, wmat[q - nr :])  # (nr, nz, rd, .)
+            sinv_bt = _small_solve(s_low, np.moveaxis(np.conj(beta), 2, 0))  # S^-1 beta^H
+            # Q projects out A; B_i^H Q B_i = S_i, so the term is beta S^-1 beta^H
+            var = var + np.real(np.einsum("ais...,sai...->ia...", beta, sinv_bt))
+        res["G_cov"] = var * noise_var[:, None] * sg[None] ** 2
+        return res
+
+    cov = np.broadcast_to(base[None, :, None, :], (nz, nr, nz, nr) + shape).copy()
+    if rd > 0:
+        beta = np.einsum("ab...,bis...->ais...", lam, wmat[q - nr :])  # (nr, nz, rd, ...)
+        # F_i = S_i^-1 beta_i^H  (rd, nr) per row
+        f = _small_solve(s_low, np.moveaxis(np.conj(beta), 2, 0))  # (rd, nr, nz, ...)
+        # B_i^H Q B_j = B~_i^H B~_j - W_i^H W_j
+        bqb = bhb - np.einsum("qis...,qjt...->ijst...", np.conj(wmat), wmat)
+        # beta_i S_i^-1 (B_i^H Q B_j) S_j^-1 beta_j^H = F_i^H bqb_ij F_j
+        cross = np.einsum("sai...,ijst...,tbj...->iajb...", np.conj(f), bqb, f)
+        cov = cov + cross
+    cov = cov * noise_cov[:, None, :, None] * (sg[None, :, None, None] * sg[None, None, None, :])
+    res["G_cov"] = cov
+    return res

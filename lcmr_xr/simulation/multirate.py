@@ -1,0 +1,179 @@
+"""Labelled simulation of a multirate closed loop, returning an experiment dataset.
+
+The numerics live in :mod:`lcmr_xr.kernels.ltisim`; this module maps the named dims of the
+data contract onto its axes with :func:`xarray.apply_ufunc` and builds the dataset with
+:func:`lcmr_xr.experiment.experiment`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+import xarray as xr
+
+from lcmr_xr.conventions import INPUT, OUTPUT, SLOW_TIME, TIME
+from lcmr_xr.experiment import experiment
+from lcmr_xr.kernels.ltisim import StateSpace, multirate_closed_loop, simulate_multirate
+
+__all__ = ["simulate_closed_loop"]
+
+_CORE_DIMS = {"r": [TIME, INPUT], "d_u": [TIME, INPUT], "d_y": [TIME, OUTPUT],
+              "reference": [SLOW_TIME, OUTPUT]}
+
+
+def _check_signal(da, name: str):
+    if not isinstance(da, xr.DataArray):
+        raise TypeError(
+            f"{name} must be an xarray.DataArray with dims {tuple(_CORE_DIMS[name])}, got "
+            f"{type(da).__name__}; wrap it, e.g. xr.DataArray(x, dims={tuple(_CORE_DIMS[name])})."
+        )
+    missing = [d for d in _CORE_DIMS[name] if d not in da.dims]
+    if missing:
+        raise ValueError(
+            f"{name} must have dims {tuple(_CORE_DIMS[name])}, missing {missing} (has {da.dims}); "
+            f"rename its dims, e.g. {name}.rename({{'old': {missing[0]!r}}})."
+        )
+
+
+def _output_labels(outputs, given: dict, ny: int) -> list[str]:
+    for da in given.values():
+        if OUTPUT in da.coords:
+            labels = [str(v) for v in da[OUTPUT].values]
+            if outputs is not None and list(outputs) != labels:
+                raise ValueError(
+                    f"outputs={list(outputs)} differ from the output labels {labels} of the "
+                    "disturbance/reference signals; pass matching labels."
+                )
+            return labels
+    if outputs is None:
+        return [f"y{i}" for i in range(ny)]
+    if isinstance(outputs, str) or len(outputs) != ny:
+        raise ValueError(f"outputs must be a sequence of {ny} labels (one per plant output), "
+                         f"got {outputs!r}.")
+    return [str(o) for o in outputs]
+
+
+def simulate_closed_loop(
+    plant: StateSpace,
+    controller: StateSpace,
+    filter: StateSpace | None,
+    factor: int,
+    r: xr.DataArray,
+    *,
+    d_u: xr.DataArray | None = None,
+    d_y: xr.DataArray | None = None,
+    reference: xr.DataArray | None = None,
+    outputs: Sequence[str] | None = None,
+    output_units: str | None = None,
+    fast_output: bool = False,
+    attrs: dict | None = None,
+) -> xr.Dataset:
+    """Simulate a multirate closed-loop experiment from rest and return its dataset.
+
+    The loop is that of :func:`lcmr_xr.kernels.ltisim.multirate_closed_loop`: slow
+    controller on ``e = reference - y_l``, zero-order hold, fast filter, ``u_h = r + Fi v_h``
+    recorded, plant input ``u_h + d_u``, output ``P(u_h + d_u) + d_y``, measured
+    ``y_l(l) = y(lF)``.
+
+    Parameters
+    ----------
+    plant : StateSpace
+        Fast plant, ``nu`` inputs, ``ny`` outputs, period ``Th``.
+    controller : StateSpace
+        Slow controller, ``ny`` inputs, ``nu`` outputs, period ``F Th``.
+    filter : StateSpace or None
+        Fast filter (``nu`` x ``nu``, period ``Th``); ``None`` for none.
+    factor : int
+        Multirate factor ``F``.
+    r : xarray.DataArray
+        Excitation, dims (``time``, ``input``) plus any leading dims; ``N`` a multiple of
+        ``F``.  A ``time`` coordinate, when present, must be spaced by ``Th``.
+    d_u : xarray.DataArray, optional
+        Input disturbance (``time``, ``input``), added after ``u`` is measured; default 0.
+    d_y : xarray.DataArray, optional
+        Output disturbance (``time``, ``output``); default 0.
+    reference : xarray.DataArray, optional
+        Slow reference (``slow_time``, ``output``), e.g. run-out; default 0.
+    outputs : sequence of str, optional
+        Output labels; default those of ``d_y``/``reference``, else ``"y0", ...``.
+    output_units : str, optional
+        Units of ``y``; default the ``units`` attribute of ``d_y`` or ``reference``, else
+        ``"1"``.  ``r`` and ``u`` keep the units of ``r`` (default ``"1"``).
+    fast_output : bool, optional
+        Also return the fast output ``y_fast`` (``time``, ``output``), which a real
+        experiment does not measure (e.g. for stroke checks); default False.
+    attrs : dict, optional
+        Extra dataset attributes (the simulation settings).
+
+    Returns
+    -------
+    xarray.Dataset
+        Experiment dataset of the ``lcmr-xr-1`` contract (``r``, ``u``, ``y``), plus
+        ``y_fast`` when asked.
+
+    Raises
+    ------
+    ValueError
+        Unstable loop, wrong dims or sizes, or a time coordinate not spaced by ``Th``.
+
+    Examples
+    --------
+    >>> import numpy as np, xarray as xr
+    >>> from lcmr_xr.kernels.ltisim import static_gain, tf_q_inverse
+    >>> P = tf_q_inverse([0.0, 0.5], [1.0, -0.9], dt=0.5)
+    >>> r = xr.DataArray(np.ones((8, 1)), dims=("time", "input"))
+    >>> ds = simulate_closed_loop(P, static_gain(0.2, dt=1.0), None, 2, r)
+    >>> ds.sizes["time"], ds.sizes["slow_time"]
+    (8, 4)
+    """
+    loop = multirate_closed_loop(plant, controller, filter, factor)
+    F, ny, th = loop.factor, plant.n_outputs, plant.dt
+    given = {"r": r, "d_u": d_u, "d_y": d_y, "reference": reference}
+    given = {k: v for k, v in given.items() if v is not None}
+    for name, da in given.items():
+        _check_signal(da, name)
+    if r.sizes[INPUT] != plant.n_inputs:
+        raise ValueError(f"r has {r.sizes[INPUT]} inputs but the plant has {plant.n_inputs}; "
+                         "pass one excitation channel per plant input.")
+    if TIME in r.coords and r.sizes[TIME] > 1:
+        spacing = np.diff(np.asarray(r[TIME].values, dtype=float))
+        if not np.allclose(spacing, th, rtol=1e-6, atol=0):
+            raise ValueError(
+                f"the time coordinate of r is spaced by {spacing[0]} s but the plant is sampled "
+                f"at Th = {th} s; resample r or discretise the plant at the spacing of r."
+            )
+    labels = _output_labels(outputs, given, ny)
+    if output_units is None:
+        output_units = next((str(da.attrs["units"]) for k, da in given.items()
+                             if k in ("d_y", "reference") and "units" in da.attrs), "1")
+    names = list(given)
+
+    def kernel(*arrays):
+        kw = dict(zip(names, arrays))
+        res = simulate_multirate(loop, kw["r"], kw.get("d_u"), kw.get("d_y"), kw.get("reference"))
+        return res.u, res.y
+
+    u, y_fast = xr.apply_ufunc(
+        kernel, *given.values(),
+        input_core_dims=[_CORE_DIMS[k] for k in names],
+        output_core_dims=[[TIME, INPUT], [TIME, OUTPUT]],
+        dask="parallelized",
+        output_dtypes=[float, float],
+        dask_gufunc_kwargs={"output_sizes": {OUTPUT: ny}},
+        keep_attrs=False,
+    )
+    y_fast = y_fast.assign_coords({OUTPUT: labels})
+    # y_l(l) = y(lF): the slow samples are every F-th fast sample.
+    y = y_fast.isel({TIME: slice(None, None, F)}).rename({TIME: SLOW_TIME})
+    y = y.drop_vars([c for c in (SLOW_TIME,) if c in y.coords])
+    in_units = str(r.attrs.get("units", "1"))
+    ds = experiment(r, u.assign_attrs(units=in_units, long_name="fast-rate plant input"),
+                    y.assign_attrs(units=output_units, long_name="slow-rate plant output"),
+                    factor=F, sampling_period=None if TIME in r.coords else th,
+                    outputs=labels, attrs=attrs, input_units=in_units,
+                    output_units=output_units)
+    if fast_output:
+        ds["y_fast"] = y_fast.assign_coords({TIME: ds[TIME], OUTPUT: ds[OUTPUT]}).assign_attrs(
+            units=output_units, long_name="fast-rate plant output (not measured)")
+    return ds

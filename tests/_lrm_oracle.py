@@ -1,0 +1,130 @@
+"""Plain per-bin least-squares oracle of the local rational / polynomial model.
+
+Obviously-correct and slow on purpose: a Python loop over bins and rows, the regression
+matrix written literally from the model equations, solved by ``numpy.linalg.lstsq``.
+The tests compare :func:`lcmr_xr.kernels.local_models.local_model` with it, and
+``benchmarks/local_models.py`` imports it (one copy only).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def oracle_local_model(R, Z, half_width, degrees, circular=True, bins=None):
+    """Per-bin ``lstsq`` fit of ``D(r) Z_i(k+r) - N_i(r) R(k+r) - Mt_i(r) = e_i(r)``.
+
+    ``R`` (M, nr), ``Z`` (M, nz) (no batch dims).  Returns a dict with ``G`` (M, nz, nr),
+    ``T`` (M, nz), ``noise_variance`` (M, nz), ``noise_covariance`` (M, nz, nz) with
+    ``C[i, j] = sum_r e_i(r) conj(e_j(r)) / dof``, ``G_cov`` (M, nz nr, nz nr)
+    ``= C[i, j] (K_i^+ K_j^+^H)`` restricted to the G entries, and ``singular`` values of
+    the column-scaled regression (M, nz, p).  Bins without a full window (non-circular)
+    or not in ``bins`` are NaN.
+    """
+    R = np.asarray(R, dtype=complex)
+    Z = np.asarray(Z, dtype=complex)
+    m, nr = R.shape
+    nz = Z.shape[1]
+    rn, rm, rd = degrees
+    n = half_width
+    r = np.arange(-n, n + 1)
+    rho = r / n
+    p_row = nr * (rn + 1) + rm + 1 + rd
+    dof = 2 * n + 1 - p_row
+    out = {
+        "G": np.full((m, nz, nr), np.nan + 0j),
+        "T": np.full((m, nz), np.nan + 0j),
+        "noise_variance": np.full((m, nz), np.nan),
+        "noise_covariance": np.full((m, nz, nz), np.nan + 0j),
+        "G_cov": np.full((m, nz * nr, nz * nr), np.nan + 0j),
+        "singular": np.full((m, nz, p_row), np.nan),
+        "dof": dof,
+    }
+    if bins is None:
+        bins = range(m) if circular else range(n, m - n)
+    for k in bins:
+        idx = (k + r) % m if circular else k + r
+        Rw, Zw = R[idx], Z[idx]
+        resid = np.empty((nz, 2 * n + 1), dtype=complex)
+        gain = []  # rows of K_i^+ that give G_i
+        for i in range(nz):
+            columns = []
+            for p in range(nr):  # N(r) R(k+r): G_p + sum_s N_s,p rho^s
+                for b in range(rn + 1):
+                    columns.append(Rw[:, p] * rho**b)
+            for c in range(rm + 1):  # Mt(r): T + sum_s M_s rho^s
+                columns.append(rho**c + 0j)
+            for s in range(1, rd + 1):  # D(r) Z_i = Z_i + sum_s d_s rho^s Z_i, moved right
+                columns.append(-(rho**s) * Zw[:, i])
+            K = np.stack(columns, axis=1)
+            theta, *_ = np.linalg.lstsq(K, Zw[:, i], rcond=None)
+            out["G"][k, i] = theta[0 : nr * (rn + 1) : rn + 1]
+            out["T"][k, i] = theta[nr * (rn + 1)]
+            resid[i] = Zw[:, i] - K @ theta
+            pinv = np.linalg.pinv(K)
+            gain.append(pinv[0 : nr * (rn + 1) : rn + 1])
+            Ks = K / np.linalg.norm(K, axis=0)
+            out["singular"][k, i] = np.linalg.svd(Ks, compute_uv=False)
+        C = resid @ resid.conj().T / dof
+        out["noise_covariance"][k] = C
+        out["noise_variance"][k] = np.real(np.diag(C))
+        for i in range(nz):
+            for j in range(nz):
+                out["G_cov"][k, i * nr : (i + 1) * nr, j * nr : (j + 1) * nr] = (
+                    C[i, j] * gain[i] @ gain[j].conj().T
+                )
+    return out
+
+
+def resonant_system(m, nz, nr, *, damping=0.01, seed=0, noise=1e-3, bins_per_pole=None):
+    """Spectra of a lightly damped, rational, MIMO system with a transient, on ``m`` bins.
+
+    ``Z = G R + T + V``: ``G_ip(z) = b_ip(z) / a(z)``, ``T_i(z) = t_i(z) / a(z)`` (a real
+    transient shares the system's denominator), ``z = exp(2j pi k / m)`` on the DFT grid,
+    ``R`` random-phase with unit modulus, ``V`` circular complex Gaussian noise with
+    standard deviation ``noise`` relative to the RMS of ``G R``.  Two resonances of the
+    given damping make ``|Z|`` span about four decades.
+
+    Returns ``R`` (m, nr), ``Z`` (m, nz), ``G`` (m, nz, nr) and ``T`` (m, nz) (noise-free).
+    """
+    rng = np.random.default_rng(seed)
+    zk = np.exp(2j * np.pi * np.arange(m) / m)
+    poles = []
+    for w0 in (0.05 * 2 * np.pi, 0.21 * 2 * np.pi):
+        rad = np.exp(-damping * w0)
+        poles += [rad * np.exp(1j * w0), rad * np.exp(-1j * w0)]
+    a = np.real(np.poly(poles))  # denominator coefficients in z^-1 (monic)
+    zinv = zk[:, None] ** -np.arange(len(a))[None, :]
+    den = zinv @ a
+    nb = 3
+    b = rng.standard_normal((nz, nr, nb)) * 0.05
+    G = np.einsum("ipj,kj->kip", b, zinv[:, :nb]) / den[:, None, None]
+    t = rng.standard_normal((nz, nb)) * 0.05
+    T = np.einsum("ij,kj->ki", t, zinv[:, :nb]) / den[:, None] * np.sqrt(m)
+    R = np.exp(2j * np.pi * rng.random((m, nr))) * np.sqrt(m)
+    clean = np.einsum("kip,kp->ki", G, R) + T
+    scale = noise * np.sqrt(np.mean(np.abs(clean) ** 2))
+    V = scale * (rng.standard_normal((m, nz)) + 1j * rng.standard_normal((m, nz))) / np.sqrt(2)
+    return R, clean + V, G, T
+
+
+def continuous_resonance(k, nz, nr, *, seed=0, damping=0.05, center=None, width=None):
+    """A system that is exactly rational in the bin index ``k`` (so in ``r``).
+
+    ``G_ip(k) = (b0_ip + b1_ip s) / a(s)``, ``T_i(k) = (t0_i + t1_i s) / a(s)`` with
+    ``s = j (k - center) / width`` and ``a(s) = s^2 + 2 zeta s + 1``: a second-order
+    resonance (a continuous-time transfer function sampled on a frequency grid).  Over
+    any window the local rational model with degrees ``(>=1, >=1, 2)`` is then exact.
+    Returns ``G`` (len(k), nz, nr) and ``T`` (len(k), nz).
+    """
+    rng = np.random.default_rng(seed)
+    k = np.asarray(k, dtype=float)
+    center = k.mean() if center is None else center
+    width = (k.max() - k.min()) / 8 if width is None else width
+    s = 1j * (k - center) / width
+    a = s**2 + 2 * damping * s + 1
+    b = rng.standard_normal((2, nz, nr)) + 1j * rng.standard_normal((2, nz, nr))
+    t = rng.standard_normal((2, nz)) + 1j * rng.standard_normal((2, nz))
+    G = (b[0] + b[1] * s[:, None, None]) / a[:, None, None]
+    T = (t[0] + t[1] * s[:, None]) / a[:, None]
+    return G, T

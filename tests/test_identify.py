@@ -1,0 +1,275 @@
+"""``identify``: the paper's Procedure 1 against closed loops whose FRF is known exactly."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import xarray as xr
+from scipy import signal
+
+import lcmr_xr
+from lcmr_xr.experiment import experiment
+from lcmr_xr.identification import identify, identify_single_rate
+from lcmr_xr.identification.lifted_system import frf_from_first_block_row, lifted_frf
+from lcmr_xr.kernels import ltisim
+from lcmr_xr.kernels.excitation import random_phase_multisine
+from _closed_loop_fd import lifted_loop, matrix_frf, periodic_experiment
+
+TH = 1e-3  # fast period, s
+
+# A lightly damped second-order plant (poles 0.8 +- 0.5j, |p| = 0.94), a lead-lag slow
+# controller and a first-order fast filter: a stable loop, low order, so a local rational
+# model of degree 3 represents the lifted closed loop well.
+PLANT = ([0.0, 0.10, 0.06], [1.0, -1.6, 0.89])
+CONTROLLER = ([0.25, -0.15], [1.0, -0.3])
+FILTER = ([0.6, 0.0], [1.0, -0.4])
+
+
+def _ss(tf, dt):
+    return ltisim.tf_q_inverse(tf[0], tf[1], dt)
+
+
+def _siso_loop(factor):
+    plant = _ss(PLANT, TH)
+    controller = _ss(CONTROLLER, factor * TH)
+    filt = _ss(FILTER, TH)
+    return ltisim.multirate_closed_loop(plant, controller, filt, factor)
+
+
+def _true_frf(tf, n):
+    w = 2 * np.pi * np.arange(n // 2 + 1) / n
+    return signal.freqz(tf[0], tf[1], worN=w)[1]
+
+
+def _simulate(loop, r, factor, d_y=None):
+    out = ltisim.simulate_multirate(loop, r, d_y=d_y)
+    return experiment(r, out.u, out.y_slow, factor=factor, sampling_period=TH)
+
+
+def _median_rel(est, true):
+    return float(np.median(np.abs(est - true) / np.abs(true)))
+
+
+@pytest.mark.parametrize("factor", [2, 3, 4])
+def test_noiseless_transient_recovery_siso(factor):
+    """Time-domain simulation from rest (transient included), one period of a multisine."""
+    n = 240 * factor
+    rng = np.random.default_rng(factor)
+    r = random_phase_multisine(n, 1, np.arange(1, n // 2 + 1), 1.0, rng)
+    exp = _simulate(_siso_loop(factor), r, factor)
+    frf = identify(exp, window=15, degrees=(3, 3, 3))
+    truth = _true_frf(PLANT, n)
+    est = frf.P.isel(output=0, input=0).values
+    assert frf.P.dims == ("frequency", "output", "input")
+    assert frf.sizes["frequency"] == n // 2 + 1
+    assert _median_rel(est, truth) < 1e-4
+    # LPM on the same data is worse than LRM, but still a usable estimate
+    lpm = identify(exp, method="lpm", window=15)
+    assert _median_rel(lpm.P.isel(output=0, input=0).values, truth) > _median_rel(est, truth)
+
+
+@pytest.mark.parametrize("factor", [2, 3])
+def test_periodic_steady_state_recovers_lifted_G(factor):
+    """Frequency-domain construction: S and PS_1 themselves are recovered."""
+    n = 200 * factor
+    m = n // factor
+    P = matrix_frf([[PLANT]], n)
+    C = matrix_frf([[CONTROLLER]], m)
+    Fi = matrix_frf([[FILTER]], n)
+    r = random_phase_multisine(n, 1, np.arange(1, n // 2 + 1), 1.0, np.random.default_rng(7))
+    u, y = periodic_experiment(P, C, Fi, factor, r)
+    exp = experiment(r, u, y, factor=factor, sampling_period=TH)
+    frf = identify(exp, window=12)
+    S, PS1, _ = lifted_loop(P, C, Fi, factor)
+    S_est = frf.S.values.reshape(m, factor, factor)
+    PS_est = frf.PS.values.reshape(m, 1, factor)
+    assert np.median(np.abs(S_est - S)) / np.median(np.abs(S)) < 1e-5
+    assert np.median(np.abs(PS_est - PS1)) / np.median(np.abs(PS1)) < 1e-5
+    assert _median_rel(frf.P.values[:, 0, 0], P[: n // 2 + 1, 0, 0]) < 1e-4
+
+
+def test_mimo_2x2_plant():
+    factor = 2
+    n = 960
+    plant_tfs = [[([0.0, 0.10, 0.06], [1.0, -1.6, 0.89]), ([0.0, 0.03], [1.0, -0.7])],
+                 [([0.0, -0.02], [1.0, -0.5]), ([0.0, 0.08, 0.05], [1.0, -1.2, 0.72])]]
+    dt = TH
+    rows = []
+    for i in range(2):
+        rows.append(ltisim.hstack(*[_ss(plant_tfs[i][j], dt) for j in range(2)]))
+    plant = ltisim.vstack(*rows)
+    controller = ltisim.block_diagonal(_ss(([0.2, -0.1], [1.0, -0.3]), 2 * dt),
+                                       ltisim.static_gain(0.15, 2 * dt))
+    loop = ltisim.multirate_closed_loop(plant, controller, None, factor)
+    rng = np.random.default_rng(11)
+    r = random_phase_multisine(n, 2, np.arange(1, n // 2 + 1), [1.0, 1.0], rng)
+    out = ltisim.simulate_multirate(loop, r)
+    exp = experiment(r, out.u, out.y_slow, factor=factor, sampling_period=dt,
+                     inputs=["a", "b"], outputs=["p", "q"])
+    frf = identify(exp, window=20)
+    assert frf.P.sizes == {"frequency": n // 2 + 1, "output": 2, "input": 2}
+    assert list(frf.input.values) == ["a", "b"] and list(frf.output.values) == ["p", "q"]
+    for i in range(2):
+        for j in range(2):
+            truth = _true_frf(plant_tfs[i][j], n)
+            assert _median_rel(frf.P.values[:, i, j], truth) < 1e-4, (i, j)
+
+
+def _noisy_siso(factor, n, seed, noise_std):
+    rng = np.random.default_rng(seed)
+    r = random_phase_multisine(n, 1, np.arange(1, n // 2 + 1), 1.0, rng)
+    d_y = noise_std * rng.standard_normal((n, 1))
+    return _simulate(_siso_loop(factor), r, factor, d_y=d_y)
+
+
+@pytest.mark.slow
+def test_p_std_coverage_over_seeds():
+    """The 95 % regions from P_std cover the truth in 90-99 % of (bin, seed) cases."""
+    factor, n = 2, 480
+    truth = _true_frf(PLANT, n)
+    k95 = np.sqrt(np.log(20.0))
+    hits, total, ratios = 0, 0, []
+    for seed in range(60):
+        exp = _noisy_siso(factor, n, seed, noise_std=0.02)
+        frf = identify(exp, window=15)
+        est = frf.P.values[1:-1, 0, 0]
+        std = frf.P_std.values[1:-1, 0, 0]
+        err = np.abs(est - truth[1:-1])
+        hits += int(np.sum(err <= k95 * std))
+        total += err.size
+        ratios.append(np.mean(err**2) / np.mean(std**2))
+    coverage = hits / total
+    assert 0.90 <= coverage <= 0.99, coverage
+    assert 0.6 < np.median(ratios) < 1.6
+
+
+def test_direct_method_is_biased_under_feedback():
+    """With output noise in closed loop the direct estimate is biased; the indirect is not."""
+    factor, n = 2, 960
+    truth = _true_frf(PLANT, n)
+    direct_err, indirect_err = [], []
+    for seed in range(6):
+        exp = _noisy_siso(factor, n, seed, noise_std=0.5)
+        ind = identify(exp, window=20).P.values[:, 0, 0]
+        dr = identify(exp, window=20, closed_loop="direct").P.values[:, 0, 0]
+        indirect_err.append(ind - truth)
+        direct_err.append(dr - truth)
+    # averaging over seeds shrinks the variance but not the bias
+    bias_direct = np.median(np.abs(np.mean(direct_err, axis=0)) / np.abs(truth))
+    bias_indirect = np.median(np.abs(np.mean(indirect_err, axis=0)) / np.abs(truth))
+    assert bias_direct > 3 * bias_indirect, (bias_direct, bias_indirect)
+
+
+def test_single_rate_estimate_only_reaches_slow_nyquist_and_aliases():
+    factor, n = 2, 960
+    rng = np.random.default_rng(3)
+    r = random_phase_multisine(n, 1, np.arange(1, n // 2 + 1), 1.0, rng)
+    exp = _simulate(_siso_loop(factor), r, factor)
+    sr = identify_single_rate(exp, window=20)
+    m = n // factor
+    assert sr.sizes["frequency"] == m // 2 + 1
+    assert float(sr.frequency[-1]) == pytest.approx(1 / (2 * factor * TH))
+    truth = _true_frf(PLANT, n)[: m // 2 + 1]
+    lifted = identify(exp, window=20).P.values[: m // 2 + 1, 0, 0]
+    # aliasing of the fast dynamics corrupts the single-rate estimate; lifting does not
+    assert _median_rel(sr.P.values[:, 0, 0], truth) > 100 * _median_rel(lifted, truth)
+
+
+def test_lifted_tools_are_inverse_and_match_kernel():
+    n, factor = 48, 3
+    P = matrix_frf([[PLANT, ([0.0, 0.2], [1.0, -0.5])]], n)
+    da = xr.DataArray(P, dims=("frequency", "output", "input"),
+                      coords={"frequency": np.arange(n) / (n * TH), "output": ["y"],
+                              "input": ["a", "b"]}, attrs={"units": "m", "long_name": "plant"})
+    lifted = lifted_frf(da, factor)
+    assert lifted.dims == ("slow_frequency", "lift_phase", "output", "lift_phase2", "input")
+    first = lifted.isel(lift_phase=0)
+    back = frf_from_first_block_row(first)
+    np.testing.assert_allclose(back.values, P[: n // 2 + 1], rtol=0, atol=1e-13)
+    # one-sided input is completed by conjugate symmetry
+    one_sided = lifted_frf(da.isel(frequency=slice(0, n // 2 + 1)), factor, n_samples=n)
+    np.testing.assert_allclose(one_sided.values, lifted.values, atol=1e-13)
+
+
+def test_leading_experiment_dim_broadcasts_and_dask_stays_lazy():
+    factor, n = 2, 480
+    exps = [_noisy_siso(factor, n, seed, noise_std=0.01) for seed in (1, 2)]
+    stacked = xr.concat(exps, dim="experiment")
+    eager = identify(stacked, window=15)
+    assert eager.P.dims == ("experiment", "frequency", "output", "input")
+    single = identify(exps[1], window=15)
+    np.testing.assert_allclose(eager.P.isel(experiment=1).values, single.P.values, rtol=1e-12)
+    lazy = identify(stacked.chunk({"experiment": 1}), window=15)
+    assert lazy.P.chunks is not None
+    xr.testing.assert_allclose(lazy.compute(), eager)
+
+
+def test_settings_recorded_and_units():
+    factor, n = 2, 480
+    exp = _noisy_siso(factor, n, 0, noise_std=0.01)
+    frf = identify(exp, window=15, degrees=(2, 2, 2))
+    assert frf.attrs["conventions"] == "lcmr-xr-1"
+    assert frf.attrs["method"] == "lrm" and frf.attrs["window"] == 15
+    assert list(frf.attrs["degrees"]) == [2, 2, 2] and frf.attrs["factor"] == 2
+    assert frf.attrs["slow_nyquist"] == pytest.approx(1 / (2 * factor * TH))
+    for name in list(frf.data_vars) + list(frf.coords):
+        assert "units" in frf[name].attrs and "long_name" in frf[name].attrs, name
+    np.testing.assert_allclose(frf.frequency.values, np.arange(n // 2 + 1) / (n * TH))
+
+
+class TestErrors:
+    def _exp(self):
+        return _noisy_siso(2, 480, 0, noise_std=0.01)
+
+    def test_too_few_bins_says_how_many(self):
+        with pytest.raises(ValueError, match=r"Use window >= 12"):
+            identify(self._exp(), window=5, degrees=(3, 3, 3))
+
+    def test_window_wider_than_spectrum(self):
+        with pytest.raises(ValueError, match="wider than the spectrum"):
+            identify(self._exp(), window=200)
+
+    def test_not_a_dataset(self):
+        with pytest.raises(TypeError, match="experiment xarray.Dataset"):
+            identify(self._exp()["r"])
+
+    def test_lpm_with_denominator_refused(self):
+        with pytest.raises(ValueError, match=r"degrees=\(3, 3, 0\)"):
+            identify(self._exp(), method="lpm", degrees=(3, 3, 3))
+
+    def test_unknown_method(self):
+        with pytest.raises(ValueError, match="'lrm' or 'lpm'"):
+            identify(self._exp(), method="arx")
+
+    def test_zoh_excitation_is_rank_deficient(self):
+        factor, n = 2, 480
+        rng = np.random.default_rng(0)
+        slow = random_phase_multisine(n // factor, 1, np.arange(1, n // 4 + 1), 1.0, rng)
+        r = np.repeat(slow, factor, axis=0)  # held over each slow period: lifted phases equal
+        exp = _simulate(_siso_loop(factor), r, factor)
+        with pytest.raises(ValueError, match="rank 1 < F\\*nu = 2"):
+            identify(exp, window=15)
+
+    def test_singular_S_raises_or_flags(self, monkeypatch):
+        import lcmr_xr.kernels.identification as kid
+
+        exp = self._exp()
+        real = kid.local_model
+
+        def broken(R, Z, **kw):
+            fit = real(R, Z, **kw)
+            G = fit.G.copy()
+            G[..., 7, :2, :] = 0.0  # S = 0 at slow bin 7
+            return fit._replace(G=G)
+
+        monkeypatch.setattr(kid, "local_model", broken)
+        with pytest.raises(ValueError, match="not invertible at 1 slow bin"):
+            identify(exp, window=15)
+        frf = identify(exp, window=15, errors="ignore")
+        assert bool(frf.s_singular.isel(slow_frequency=7))
+        assert np.isnan(frf.P.isel(frequency=7)).all()
+        assert bool(frf.P_flag.isel(frequency=7)) and not bool(frf.P_flag.isel(frequency=8))
+
+
+def test_top_level_entry_point():
+    assert lcmr_xr.identify is identify

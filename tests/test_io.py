@@ -1,0 +1,174 @@
+"""NetCDF save/open: exact round trips (complex too), atomic writes, clear errors."""
+
+from __future__ import annotations
+
+import os
+
+import dask
+import numpy as np
+import pytest
+import xarray as xr
+
+from lcmr_xr.experiment import experiment
+from lcmr_xr.io import open_dataset, open_experiment, open_frf, save
+from lcmr_xr.transforms import dft, lift
+
+
+def _experiment(seed=0, lead=()):
+    rng = np.random.default_rng(seed)
+    n, f = 24, 3
+    return experiment(
+        rng.standard_normal(lead + (n, 2)), rng.standard_normal(lead + (n, 2)),
+        rng.standard_normal(lead + (n // f, 1)), factor=f, sampling_period=1 / 100800,
+        inputs=["vcm", "pzt"], outputs=["position"], input_units="A", output_units="m",
+        attrs={"case": 2, "rms": (8.0e-8, 3.6e-9), "noise": True, "tags": ["a", "b"],
+               "note": None, "benchmark": "hdd"},
+    )
+
+
+def _frf(seed=0):
+    rng = np.random.default_rng(seed)
+    shape = (5, 1, 2)
+    p = rng.standard_normal(shape) + 1j * rng.standard_normal(shape)
+    return xr.Dataset(
+        {
+            "P": (("frequency", "output", "input"), p, {"units": "m/A", "long_name": "FRF"}),
+            "P_std": (("frequency", "output", "input"), np.abs(p) / 10, {"units": "m/A", "long_name": "std"}),
+        },
+        coords={
+            "frequency": ("frequency", np.arange(5) * 10.0, {"units": "Hz", "long_name": "frequency"}),
+            "output": ("output", ["position"], {"units": "1", "long_name": "output"}),
+            "input": ("input", ["vcm", "pzt"], {"units": "1", "long_name": "input"}),
+        },
+        attrs={"conventions": "lcmr-xr-1", "method": "lrm", "window": 30, "degrees": (3, 3, 3),
+               "factor": 3},
+    )
+
+
+def test_experiment_round_trip_identical(tmp_path):
+    ds = _experiment(lead=(2,))
+    path = save(ds, tmp_path / "exp.nc")
+    back = open_experiment(path)
+    xr.testing.assert_identical(back, ds)
+    assert back.attrs["rms"] == (8.0e-8, 3.6e-9) and back.attrs["noise"] is True
+    assert back.attrs["tags"] == ["a", "b"] and back.attrs["note"] is None
+    assert isinstance(back.attrs["factor"], int)
+    assert "noise" in ds.attrs and ds.attrs["noise"] is True  # the caller's dataset is untouched
+    assert "lcmr_attr_types" not in ds.attrs
+
+
+def test_complex_frf_round_trip_exact(tmp_path):
+    frf = _frf()
+    back = open_frf(save(frf, tmp_path / "frf.nc"))
+    xr.testing.assert_identical(back, frf)
+    np.testing.assert_array_equal(back["P"].values, frf["P"].values)  # bit for bit
+    assert back.attrs["degrees"] == (3, 3, 3)
+
+
+def test_spectra_of_lifted_experiment_round_trip(tmp_path):
+    spec = dft(lift(_experiment()), dim="slow_time")
+    xr.testing.assert_identical(open_dataset(save(spec, tmp_path / "spec.nc")), spec)
+
+
+def test_open_with_chunks_is_lazy(tmp_path):
+    path = save(_experiment(lead=(3,)), tmp_path / "exp.nc")
+    lazy = open_dataset(path, chunks={"experiment": 1})
+    assert dask.is_dask_collection(lazy["r"].data)
+    xr.testing.assert_identical(lazy.compute(), open_dataset(path))
+
+
+def test_failed_write_keeps_old_file_and_leaves_no_temp(tmp_path, monkeypatch):
+    path = tmp_path / "exp.nc"
+    old = _experiment(seed=1)
+    save(old, path)
+    before = path.read_bytes()
+
+    real_to_netcdf = xr.Dataset.to_netcdf
+
+    def half_then_fail(self, target, *args, **kwargs):
+        real_to_netcdf(self, target, *args, **kwargs)
+        with open(target, "r+b") as fh:  # leave a truncated, broken file behind
+            fh.truncate(os.path.getsize(target) // 2)
+        raise OSError("disk full (simulated)")
+
+    monkeypatch.setattr(xr.Dataset, "to_netcdf", half_then_fail)
+    with pytest.raises(OSError, match="simulated"):
+        save(_experiment(seed=2), path)
+    monkeypatch.undo()
+    assert path.read_bytes() == before
+    assert sorted(os.listdir(tmp_path)) == ["exp.nc"]
+    xr.testing.assert_identical(open_experiment(path), old)
+
+
+def test_save_replaces_existing_file(tmp_path):
+    path = tmp_path / "exp.nc"
+    save(_experiment(seed=1), path)
+    new = _experiment(seed=2)
+    save(new, path)
+    xr.testing.assert_identical(open_experiment(path), new)
+    assert sorted(os.listdir(tmp_path)) == ["exp.nc"]
+
+
+def test_truncated_file_error_names_file(tmp_path):
+    path = save(_experiment(), tmp_path / "exp.nc")
+    data = path.read_bytes()
+    path.write_bytes(data[: len(data) // 3])
+    with pytest.raises(ValueError, match=r"exp\.nc.*truncated"):
+        open_experiment(path)
+
+
+def test_not_netcdf_and_missing_file(tmp_path):
+    text = tmp_path / "notes.nc"
+    text.write_text("hello, not a netCDF file\n")
+    with pytest.raises(ValueError, match=r"notes\.nc.*not a valid NetCDF"):
+        open_dataset(text)
+    with pytest.raises(FileNotFoundError, match="nothing.nc"):
+        open_experiment(tmp_path / "nothing.nc")
+
+
+def test_foreign_files_refused(tmp_path):
+    foreign = xr.Dataset({"r": ("time", np.ones(4))}, attrs={"conventions": "CF-1.8"})
+    path = save(foreign, tmp_path / "cf.nc")
+    with pytest.raises(ValueError, match=r"cf\.nc is not an lcmr_xr experiment file.*'CF-1.8'"):
+        open_experiment(path)
+    with pytest.raises(ValueError, match=r"cf\.nc is not an lcmr_xr FRF file"):
+        open_frf(path)
+    # an experiment file is not an FRF file, and vice versa
+    exp_path = save(_experiment(), tmp_path / "exp.nc")
+    with pytest.raises(ValueError, match="no variable 'P'"):
+        open_frf(exp_path)
+    frf_path = save(_frf(), tmp_path / "frf.nc")
+    with pytest.raises(ValueError, match=r"frf\.nc: invalid experiment dataset"):
+        open_experiment(frf_path)
+
+
+def test_invalid_experiment_file_names_file_and_problem(tmp_path):
+    ds = _experiment()
+    ds.attrs["factor"] = 4
+    path = save(ds, tmp_path / "bad.nc")
+    with pytest.raises(ValueError, match=r"bad\.nc: invalid experiment dataset: N=24"):
+        open_experiment(path)
+
+
+def test_frf_checks(tmp_path):
+    real_p = _frf().assign(P=lambda d: abs(d["P"]))
+    with pytest.raises(ValueError, match="expected complex"):
+        open_frf(save(real_p, tmp_path / "a.nc"))
+    no_freq = _frf().drop_vars("frequency")
+    with pytest.raises(ValueError, match="'frequency' coordinate"):
+        open_frf(save(no_freq, tmp_path / "b.nc"))
+
+
+def test_save_refuses_unstorable_attributes(tmp_path):
+    ds = _experiment()
+    ds.attrs["settings"] = {"a": 1}
+    with pytest.raises(TypeError, match="'settings'.*json.dumps"):
+        save(ds, tmp_path / "x.nc")
+    ds.attrs["settings"] = (1, "a")
+    with pytest.raises(TypeError, match="mixed types"):
+        save(ds, tmp_path / "x.nc")
+    assert os.listdir(tmp_path) == []
+    with pytest.raises(TypeError, match="to_dataset"):
+        save(ds["r"], tmp_path / "x.nc")
+    with pytest.raises(FileNotFoundError, match="does not exist"):
+        save(_experiment(), tmp_path / "missing_dir" / "x.nc")
