@@ -80,6 +80,10 @@ def test_experiment_refuses_mismatched_labels_and_missing_period():
         experiment(r, u, y, factor=F, sampling_period=TH, outputs=["a", "b"])
     with pytest.raises(ValueError, match="must not set 'factor'"):
         experiment(r, u, y, factor=F, sampling_period=TH, attrs={"factor": 2})
+    ut = xr.DataArray(u, dims=("time", "input"), coords={"time": np.arange(12) * 2 * TH})
+    rt = xr.DataArray(r, dims=("time", "input"), coords={"time": np.arange(12) * TH})
+    with pytest.raises(ValueError, match="different 'time' coordinates"):
+        experiment(rt, ut, y, factor=F)
     with pytest.raises(ValueError, match="N=12.*M=5"):
         experiment(r, u, np.ones((5, 1)), factor=F, sampling_period=TH)
 

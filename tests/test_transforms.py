@@ -110,6 +110,18 @@ def test_lift_dataset_passes_slow_variables_through():
         lift(bad)
 
 
+def test_lift_round_trip_of_an_experiment_dataset():
+    from lcmr_xr.experiment import experiment
+
+    rng = np.random.default_rng(3)
+    ds = experiment(rng.standard_normal((2, 12, 2)), rng.standard_normal((2, 12, 2)),
+                    rng.standard_normal((2, 4, 1)), factor=3, sampling_period=1 / 100800)
+    lifted = lift(ds)  # factor from the attribute; y stays on slow_time
+    assert lifted["u"].dims == ("experiment", "slow_time", LIFT_PHASE, "input")
+    xr.testing.assert_identical(lifted["y"], ds["y"])
+    xr.testing.assert_identical(unlift(lifted), ds)
+
+
 def test_lift_and_unlift_stay_lazy():
     n = 12
     x = xr.DataArray(_exploding((2, n), (1, 5)), dims=("e", "time"),

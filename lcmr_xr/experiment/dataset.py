@@ -185,6 +185,13 @@ def experiment(
         )
 
     n = r_da.sizes[TIME]
+    if TIME in r_da.coords and TIME in u_da.coords and not np.array_equal(
+        r_da[TIME].values, u_da[TIME].values
+    ):
+        raise ValueError(
+            "r and u have different 'time' coordinates; they must be sampled at the same "
+            "instants. Drop one coordinate (u.drop_vars('time')) or resample."
+        )
     if TIME in r_da.coords:
         fast_t = (np.asarray(r_da[TIME].values), dict(r_da[TIME].attrs) or time_attrs())
     elif TIME in u_da.coords:
