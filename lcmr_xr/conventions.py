@@ -23,7 +23,20 @@ EXPERIMENT = "experiment"
 # (the column side) gets this suffix, as in xarray-einstats.
 SECOND = "2"
 
+LIFT_PHASE2 = LIFT_PHASE + SECOND
+INPUT2 = INPUT + SECOND
+
+# Variables of the FRF dataset.
+P = "P"
+STD_SUFFIX = "_std"
+LIFTED_S = "S"
+LIFTED_PS = "PS"
+NOISE_VARIANCE_U = "noise_variance_u"
+NOISE_VARIANCE_Y = "noise_variance_y"
+
 # Attribute names.
+SLOW_NYQUIST = "slow_nyquist"
+SAMPLING_PERIOD = "sampling_period"
 FACTOR = "factor"
 DFT_SCALING = "dft_scaling"
 DFT_SCALING_VALUE = "sum"  # X(k) = sum_n x(n) exp(-2j pi k n / N), as numpy.fft.fft

@@ -125,6 +125,7 @@ def test_tf_q_inverse_frf_matches_polynomial_ratio():
     qinv = np.exp(-2j * np.pi * 0.1)
     np.testing.assert_allclose(frequency_response(g2, [0.1])[0, 0, 0],
                                (1 + 2 * qinv + 3 * qinv**2) / (2 + 0.5 * qinv), rtol=1e-12)
+    np.testing.assert_allclose(tf_q_inverse([3.0], [2.0], dt=1.0).D, [[1.5]])  # static
     with pytest.raises(ValueError, match="a0 must be nonzero"):
         tf_q_inverse([1.0], [0.0, 1.0], dt=1.0)
 

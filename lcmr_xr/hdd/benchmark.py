@@ -83,7 +83,7 @@ def simulate(n_samples: int = 3600, case: int = 2, noise: bool = True, seed: int
         their own child stream (``numpy.random.SeedSequence(seed).spawn``), so switching
         ``noise`` keeps the excitation.
     rms : (float, float), optional
-        rms of the (vcm, pzt) excitation in input units; default ``(8.0e-8, 3.6e-9)``.
+        Root-mean-square values of the (vcm, pzt) excitation in input units; default ``(8.0e-8, 3.6e-9)``.
     fast_output : bool, optional
         Also return ``y_fast`` (fast head position, m) and ``pzt_displacement`` (the PZT's
         own displacement ``Pp u_pzt``, m, for the 50 nm stroke check); default False.

@@ -5,7 +5,9 @@ Slow controllers at ``Tl = 1/50400 s``; fast notch filters at ``Th = 1/100800 s`
 
 from __future__ import annotations
 
-from lcmr_xr.hdd.plants import FACTOR, FAST_PERIOD, SLOW_PERIOD, plant
+import functools
+
+from lcmr_xr.hdd.plants import FACTOR, FAST_PERIOD, SLOW_PERIOD, check_case, plant
 from lcmr_xr.kernels.ltisim import (MultirateClosedLoop, StateSpace, block_diagonal,
                                     multirate_closed_loop, notch_filter, tf_q_inverse, vstack)
 
@@ -22,6 +24,7 @@ PZT_NOTCHES = ((15000, .03, .10), (21500, .03, .10), (29000, .05, .20), (40000, 
                (43000, .05, .30))
 
 
+@functools.lru_cache(maxsize=None)
 def vcm_controller() -> StateSpace:
     """``Cv(q) = (0.65 + 0.020 q^-1 - 0.63 q^-2) / (1 - 1.4 q^-1 + 0.51 q^-2)`` at ``Tl``.
 
@@ -33,6 +36,7 @@ def vcm_controller() -> StateSpace:
     return tf_q_inverse(*VCM_CONTROLLER, SLOW_PERIOD)
 
 
+@functools.lru_cache(maxsize=None)
 def pzt_controller() -> StateSpace:
     """``Cp(q) = (0.01346 + 0.01346 q^-1) / (1 - 0.8825 q^-1)`` at ``Tl``.
 
@@ -44,6 +48,7 @@ def pzt_controller() -> StateSpace:
     return tf_q_inverse(*PZT_CONTROLLER, SLOW_PERIOD)
 
 
+@functools.lru_cache(maxsize=None)
 def controller() -> StateSpace:
     """Parallel dual-stage controller ``[Cv; Cp]``: error (m) to (vcm, pzt) commands, at ``Tl``.
 
@@ -56,6 +61,7 @@ def controller() -> StateSpace:
     return vstack(vcm_controller(), pzt_controller())
 
 
+@functools.lru_cache(maxsize=None)
 def vcm_filter() -> StateSpace:
     """Fast notch filter ``Fv`` (12 matched pole-zero sections, unit DC gain) at ``Th``.
 
@@ -67,6 +73,7 @@ def vcm_filter() -> StateSpace:
     return notch_filter(VCM_NOTCHES, FAST_PERIOD)
 
 
+@functools.lru_cache(maxsize=None)
 def pzt_filter() -> StateSpace:
     """Fast notch filter ``Fp`` (5 matched pole-zero sections, unit DC gain) at ``Th``.
 
@@ -78,6 +85,7 @@ def pzt_filter() -> StateSpace:
     return notch_filter(PZT_NOTCHES, FAST_PERIOD)
 
 
+@functools.lru_cache(maxsize=None)
 def notch_filters() -> StateSpace:
     """Both fast filters ``diag(Fv, Fp)`` (2 inputs, 2 outputs) at ``Th``.
 
@@ -107,4 +115,9 @@ def closed_loop(case: int = 2) -> MultirateClosedLoop:
     >>> closed_loop().spectral_radius < 1
     True
     """
+    return _closed_loop(check_case(case))
+
+
+@functools.lru_cache(maxsize=None)
+def _closed_loop(case: int) -> MultirateClosedLoop:
     return multirate_closed_loop(plant(case), controller(), notch_filters(), FACTOR)

@@ -15,9 +15,11 @@ from the first sample instead of growing in over tens of milliseconds.
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
-from lcmr_xr.hdd.plants import FAST_PERIOD, SLOW_PERIOD
+from lcmr_xr.hdd.plants import FAST_PERIOD
 from lcmr_xr.kernels.ltisim import StateSpace, continuous_zoh, modal_zoh, simulate_lti
 
 #: Fan-vibration modes (k, zeta, f Hz) of ``sum k / (s^2 + 2 zeta w s + w^2)``.
@@ -35,6 +37,7 @@ RRO_AMPLITUDE = 0.05e-9
 RRO_HARMONICS = np.arange(1, RRO_PERIOD // 2)
 
 
+@functools.lru_cache(maxsize=None)
 def fan_filter() -> StateSpace:
     """Shaping filter of the fan vibration (13 modes, block-diagonal modal form, ZOH at ``Th``).
 
@@ -47,6 +50,7 @@ def fan_filter() -> StateSpace:
     return modal_zoh(k, f, z, FAST_PERIOD)
 
 
+@functools.lru_cache(maxsize=None)
 def rotational_filter() -> StateSpace:
     """Shaping filter of the rotational vibration, ZOH at ``Th``.
 
@@ -116,10 +120,20 @@ def _stationary_state_covariance(sys: StateSpace, noise_std: float) -> np.ndarra
     raise ValueError("the shaping filter is not stable: its stationary covariance diverges.")
 
 
-def _shaped_uniform_noise(sys: StateSpace, n_samples: int, rng: np.random.Generator) -> np.ndarray:
-    noise = NOISE_SCALE * rng.uniform(-0.5, 0.5, size=(n_samples, 1))
+@functools.lru_cache(maxsize=None)
+def _stationary_state_factor(filter_name: str) -> tuple[StateSpace, np.ndarray]:
+    # Cached per filter (systems are immutable): the covariance, and a factor L with
+    # L L^T = P so that L @ N(0, I) is a stationary initial state.
+    sys = {"fan": fan_filter, "rotational": rotational_filter}[filter_name]()
     cov = _stationary_state_covariance(sys, NOISE_SCALE * UNIFORM_STD)
-    x0 = rng.multivariate_normal(np.zeros(sys.n_states), cov, method="eigh")
+    vals, vecs = np.linalg.eigh((cov + cov.T) / 2)
+    return sys, vecs * np.sqrt(np.clip(vals, 0.0, None))
+
+
+def _shaped_uniform_noise(filter_name: str, n_samples: int, rng: np.random.Generator) -> np.ndarray:
+    sys, factor = _stationary_state_factor(filter_name)
+    noise = NOISE_SCALE * rng.uniform(-0.5, 0.5, size=(int(n_samples), 1))
+    x0 = factor @ rng.standard_normal(sys.n_states)
     return simulate_lti(sys, noise, x0)[:, 0]
 
 
@@ -156,7 +170,7 @@ def fan_vibration(n_samples: int, rng: np.random.Generator) -> np.ndarray:
     (1000,)
     """
     _check_rng(rng)
-    return _shaped_uniform_noise(fan_filter(), n_samples, rng)
+    return _shaped_uniform_noise("fan", n_samples, rng)
 
 
 def rotational_vibration(n_samples: int, rng: np.random.Generator) -> np.ndarray:
@@ -182,7 +196,7 @@ def rotational_vibration(n_samples: int, rng: np.random.Generator) -> np.ndarray
     (10,)
     """
     _check_rng(rng)
-    return _shaped_uniform_noise(rotational_filter(), n_samples, rng)
+    return _shaped_uniform_noise("rotational", n_samples, rng)
 
 
 def repeatable_runout(n_slow_samples: int, rng: np.random.Generator) -> np.ndarray:
@@ -218,6 +232,3 @@ def repeatable_runout(n_slow_samples: int, rng: np.random.Generator) -> np.ndarr
     revolution = np.fft.irfft(spectrum, n=RRO_PERIOD)
     return np.resize(revolution, int(n_slow_samples))
 
-
-#: Slow period of the run-out, for reference (s).
-RRO_SAMPLE_PERIOD = SLOW_PERIOD

@@ -7,6 +7,8 @@ space (one 2x2 block per mode), for the nine plant cases of the benchmark.
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from lcmr_xr.kernels.ltisim import StateSpace, hstack, modal_zoh
@@ -50,6 +52,21 @@ CASES = {
 def check_case(case) -> int:
     """Return ``case`` as an int after checking it is one of the benchmark cases 1..9.
 
+    Parameters
+    ----------
+    case : int
+        Benchmark plant case.
+
+    Returns
+    -------
+    int
+        The case.
+
+    Raises
+    ------
+    ValueError
+        If ``case`` is not an integer in 1..9.
+
     Examples
     --------
     >>> check_case(2)
@@ -84,7 +101,12 @@ def vcm_plant(case: int = 2) -> StateSpace:
     >>> vcm_plant().n_states
     32
     """
-    temperature, _ = CASES[check_case(case)]
+    return _vcm_plant(check_case(case))
+
+
+@functools.lru_cache(maxsize=None)  # systems are immutable: build each case once
+def _vcm_plant(case: int) -> StateSpace:
+    temperature, _ = CASES[case]
     f_scale, _, z_scale = TEMPERATURES[temperature]
     return modal_zoh(VCM_GAIN * VCM_MODAL_GAINS, VCM_FREQS * f_scale, VCM_DAMPINGS * z_scale,
                      FAST_PERIOD)
@@ -113,7 +135,12 @@ def pzt_plant(case: int = 2) -> StateSpace:
     >>> round(float(dc_gain(pzt_plant(5))[0, 0]), 12)
     1.05
     """
-    temperature, gain = CASES[check_case(case)]
+    return _pzt_plant(check_case(case))
+
+
+@functools.lru_cache(maxsize=None)
+def _pzt_plant(case: int) -> StateSpace:
+    temperature, gain = CASES[case]
     _, f_scale, z_scale = TEMPERATURES[temperature]
     w = 2 * np.pi * PZT_FREQS * f_scale
     raw_dc = abs(np.sum(PZT_MODAL_GAINS / w**2))
@@ -140,4 +167,9 @@ def plant(case: int = 2) -> StateSpace:
     >>> g.n_inputs, g.n_outputs
     (2, 1)
     """
-    return hstack(vcm_plant(case), pzt_plant(case))
+    return _plant(check_case(case))
+
+
+@functools.lru_cache(maxsize=None)
+def _plant(case: int) -> StateSpace:
+    return hstack(_vcm_plant(case), _pzt_plant(case))

@@ -56,6 +56,74 @@ def excitation_rank(R: np.ndarray) -> tuple[int, np.ndarray]:
     return rank, sv
 
 
+def experiment_spectra(r, u, y, *, factor: int, closed_loop: str = "indirect"):
+    """Spectra of the local-model problem: ``R`` (..., M, nr) and ``Z`` (..., M, nz).
+
+    ``"indirect"``: ``R`` = DFT of the lifted ``r`` (``F nu`` channels), ``Z`` = DFTs of the
+    lifted ``u`` and of ``y`` (``F nu + ny``).  ``"direct"``: ``R`` = lifted ``u``, ``Z = Y``.
+    """
+    if closed_loop not in CLOSED_LOOP_METHODS:
+        raise ValueError(
+            f"closed_loop must be one of {CLOSED_LOOP_METHODS}, got {closed_loop!r}."
+        )
+    r = np.asarray(r, dtype=float)
+    u = np.asarray(u, dtype=float)
+    y = np.asarray(y, dtype=float)
+    n = r.shape[-2]
+    m = y.shape[-2]
+    f_ = int(factor)
+    if n != m * f_:
+        raise ValueError(
+            f"N = {n} fast samples and M = {m} slow samples do not match factor {f_} "
+            f"(need N = M * F = {m * f_})."
+        )
+    U = lifted_spectra(u, f_)
+    Y = np.fft.fft(y, axis=-2)
+    if closed_loop == "indirect":
+        return lifted_spectra(r, f_), np.concatenate([U, Y], axis=-1)
+    return U, Y
+
+
+def recover_frf(G, G_cov, *, n_fast: int, factor: int, nu: int, ny: int,
+                closed_loop: str = "indirect", ill_posed=None) -> dict:
+    """From the local-model ``G`` (..., M, nz, nr) per slow bin to the fast FRF.
+
+    ``"indirect"``: ``P_1 = PS_1 S^-1`` with first-order covariance; ``"direct"``:
+    ``P_1 = G``.  Then ``P(k) = sum_j exp(2j pi k j / N) P_1,j(k mod M)`` for
+    ``k = 0..N/2``.
+
+    Returns
+    -------
+    dict of ndarray
+        ``P``, ``P_var`` (NaN when ``G_cov`` is None), ``P_bad``, ``s_condition``,
+        ``s_singular``.
+    """
+    f_ = int(factor)
+    nr = f_ * nu
+    if closed_loop == "indirect":
+        ind = indirect_first_row(G, nr, G_cov)
+        P1, P1_cov, s_cond, s_sing = ind.first_row, ind.first_row_cov, ind.s_condition, ind.singular
+    else:
+        P1, P1_cov = G, G_cov
+        s_cond = np.ones(G.shape[:-2])
+        s_sing = np.zeros(G.shape[:-2], dtype=bool)
+    m = G.shape[-3]
+    bins = np.arange(n_fast // 2 + 1)
+    P = frf_from_first_block_row(P1, f_)[..., : n_fast // 2 + 1, :, :]
+    if P1_cov is not None:
+        P_var = frf_variance_from_first_row(P1_cov, n_fast, f_, bins, ny, nu)
+    else:
+        P_var = np.full(P.shape, np.nan)
+    slow_bad = s_sing if ill_posed is None else (ill_posed | s_sing)
+    return {
+        "P": P,
+        "P_var": P_var,
+        "P_bad": np.take(slow_bad, bins % m, axis=-1),
+        "s_condition": s_cond,
+        "s_singular": s_sing,
+    }
+
+
 def identify_arrays(r, u, y, *, factor: int, half_width: int, degrees=(3, 3, 3),
                     closed_loop: str = "indirect", covariance: bool = True) -> dict:
     """Fast FRF of a plant in multirate closed loop from ``r``, ``u`` (fast) and ``y`` (slow).
@@ -87,69 +155,30 @@ def identify_arrays(r, u, y, *, factor: int, half_width: int, degrees=(3, 3, 3),
         ``G_var`` (..., M, nz, nr); ``T`` (..., M, nz); ``noise_variance`` (..., M, nz);
         ``condition``, ``ill_posed``, ``s_condition``, ``s_singular`` (..., M).
     """
-    if closed_loop not in CLOSED_LOOP_METHODS:
-        raise ValueError(
-            f"closed_loop must be one of {CLOSED_LOOP_METHODS}, got {closed_loop!r}."
-        )
-    r = np.asarray(r, dtype=float)
-    u = np.asarray(u, dtype=float)
-    y = np.asarray(y, dtype=float)
-    n, nu = r.shape[-2:]
-    m, ny = y.shape[-2:]
-    f_ = int(factor)
-    if n != m * f_:
-        raise ValueError(
-            f"N = {n} fast samples and M = {m} slow samples do not match factor {f_} "
-            f"(need N = M * F = {m * f_})."
-        )
-    U = lifted_spectra(u, f_)
-    Y = np.fft.fft(y, axis=-2)
-    if closed_loop == "indirect":
-        R = lifted_spectra(r, f_)
-        Z = np.concatenate([U, Y], axis=-1)
-    else:
-        R = U
-        Z = Y
-    nr = R.shape[-1]
+    R, Z = experiment_spectra(r, u, y, factor=factor, closed_loop=closed_loop)
+    n = np.shape(r)[-2]
+    nu = np.shape(r)[-1]
+    ny = np.shape(y)[-1]
     fit = local_model(R, Z, half_width=half_width, degrees=tuple(degrees), circular=True,
                       covariance="full" if covariance else None)
-    G = fit.G
-    if closed_loop == "indirect":
-        ind = indirect_first_row(G, nr, fit.G_cov if covariance else None)
-        P1, P1_cov, s_cond, s_sing = ind.first_row, ind.first_row_cov, ind.s_condition, ind.singular
-    else:
-        P1, P1_cov = G, fit.G_cov if covariance else None
-        s_cond = np.ones(G.shape[:-2])
-        s_sing = np.zeros(G.shape[:-2], dtype=bool)
-    bins = np.arange(n // 2 + 1)
-    P = frf_from_first_block_row(P1, f_)[..., : n // 2 + 1, :, :]
-    if P1_cov is not None:
-        P_var = frf_variance_from_first_row(P1_cov, n, f_, bins, ny, nu)
-    else:
-        P_var = np.full(P.shape, np.nan)
-    slow_bad = fit.ill_posed | s_sing
-    P_bad = np.take(slow_bad, bins % m, axis=-1)
-    nz = Z.shape[-1]
+    out = recover_frf(fit.G, fit.G_cov if covariance else None, n_fast=n, factor=factor,
+                      nu=nu, ny=ny, closed_loop=closed_loop, ill_posed=fit.ill_posed)
     if covariance:
-        G_var = np.real(np.diagonal(fit.G_cov, axis1=-2, axis2=-1)).reshape(G.shape)
+        G_var = np.real(np.diagonal(fit.G_cov, axis1=-2, axis2=-1)).reshape(fit.G.shape)
     else:
-        G_var = np.full(G.shape, np.nan)
-    return {
-        "P": P,
-        "P_var": P_var,
-        "P_bad": P_bad,
-        "G": G,
+        G_var = np.full(fit.G.shape, np.nan)
+    out.update({
+        "G": fit.G,
         "G_var": G_var,
         "T": fit.T,
         "noise_variance": fit.noise_variance,
         "condition": fit.condition,
         "ill_posed": fit.ill_posed,
-        "s_condition": s_cond,
-        "s_singular": s_sing,
         "dof": fit.dof,
-        "nz": nz,
-        "nr": nr,
-    }
+        "nz": Z.shape[-1],
+        "nr": R.shape[-1],
+    })
+    return out
 
 
 def identify_single_rate_arrays(r, u, y, *, factor: int, half_width: int,
