@@ -21,11 +21,15 @@ $(VENV)/.installed-test: $(BIN)/python pyproject.toml
 demo: $(VENV)/.installed
 	$(BIN)/lcmr-xr demo --output-dir demo-output
 
+# One BLAS/OpenMP thread: the kernels batch their own work, and threaded BLAS on tiny
+# matrices is much slower on a loaded two-core machine.
+THREADS := OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 MKL_NUM_THREADS=1
+
 test: $(VENV)/.installed-test
-	$(BIN)/python -m pytest
+	$(THREADS) MPLBACKEND=Agg $(BIN)/python -m pytest
 
 bench: $(VENV)/.installed
-	for b in benchmarks/*.py; do $(BIN)/python $$b || exit 1; done
+	for b in benchmarks/*.py; do $(THREADS) $(BIN)/python $$b || exit 1; done
 
 datasets: $(VENV)/.installed
 	$(BIN)/python datasets/make_hdd_experiments.py

@@ -15,6 +15,7 @@ from lcmr_xr.experiment import experiment, validate_experiment
 from lcmr_xr.identification import identify, identify_single_rate
 from lcmr_xr.identification.lifted_system import frf_from_first_block_row, lifted_frf
 from lcmr_xr.io import open_dataset, open_experiment, open_frf, save
+from lcmr_xr.simulation import simulate_closed_loop
 from lcmr_xr.transforms import dft, fast_spectrum_from_lifted, idft, lift, unlift
 
 __version__ = "0.1.0"
@@ -37,6 +38,7 @@ __all__ = [
     "open_frf",
     "orthogonal_multisines",
     "save",
+    "simulate_closed_loop",
     "unlift",
     "validate_experiment",
 ]

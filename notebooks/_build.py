@@ -42,6 +42,8 @@ SETUP = """
     import numpy as np
     import xarray as xr
 
+    import pandas as pd
+
     import lcmr_xr
     from lcmr_xr import hdd, plot
     from lcmr_xr.demo import relative_error_table, resonance_peaks
@@ -53,20 +55,23 @@ SETUP = """
 # Median relative error per frequency band; defined in the notebooks that need it so each
 # notebook reads on its own.
 BAND_ERRORS = """
-    def band_errors(frf, truth, low=500.0):
-        \"\"\"Median |P_hat - P| / |P| per input in three bands (DC and fast Nyquist left out).\"\"\"
-        f = frf.frequency
-        nyq = frf.attrs["slow_nyquist"]
-        rel = abs(frf.P - truth) / abs(truth)
+    def band_median(x, slow_nyquist, low=500.0):
+        \"\"\"Median of ``x`` over ``frequency`` in three bands (DC and fast Nyquist left out).\"\"\"
+        f = x.frequency
         bands = {
             f"{f[1].item():.0f}-{low:.0f} Hz": (f > 0) & (f < low),
-            f"{low:.0f} Hz-slow Nyquist": (f >= low) & (f < nyq),
-            "slow-fast Nyquist": (f > nyq) & (f < f.max()),
+            f"{low:.0f} Hz-slow Nyquist": (f >= low) & (f < slow_nyquist),
+            "slow-fast Nyquist": (f > slow_nyquist) & (f < f.max()),
         }
-        out = xr.concat([rel.where(sel).median("frequency") for sel in bands.values()],
+        out = xr.concat([x.where(sel).median("frequency") for sel in bands.values()],
                         dim=xr.DataArray(list(bands), dims="band", name="band"))
-        out.attrs = {"units": "1", "long_name": "median relative error"}
         return out.isel(output=0, drop=True)
+
+
+    def band_errors(frf, truth, low=500.0):
+        \"\"\"Median relative error |P_hat - P| / |P| per input in three bands.\"\"\"
+        out = band_median(abs(frf.P - truth) / abs(truth), frf.attrs["slow_nyquist"], low)
+        return out.assign_attrs(units="1", long_name="median relative error")
 """
 
 NB01 = [
@@ -324,11 +329,9 @@ NB02 = [
         for data_name, data in (("noiseless", exp_clean), ("noisy", exp)):
             for name, settings in candidates.items():
                 estimates[data_name, name] = lcmr_xr.identify(data, **settings)
-        table = xr.concat(
-            [band_errors(e, truth).expand_dims(data=[d], estimator=[n]) for (d, n), e in estimates.items()],
-            dim="estimator").stack(row=("data", "estimator")).dropna("row", how="all")
-        print(table.transpose("row", "input", "band").to_dataframe(name="median relative error")
-              .unstack("band").round(4).to_string())
+        rows = {key: band_errors(e, truth).to_pandas().T for key, e in estimates.items()}
+        table = pd.concat(rows, names=["data", "estimator"])
+        print(table.round(4).to_string())
     """),
     ("md", """
         Near the PZT resonances (40-47 kHz, beyond the slow Nyquist frequency), the error of
@@ -362,53 +365,63 @@ NB02 = [
         other than `P`.  The indirect estimate uses only the excitation `r`, which is
         independent of the disturbances.
 
-        Five experiments with independent disturbances (seeds 0-4), stacked on an
-        `experiment` dim and identified in one call (every function broadcasts over it).
+        Eight experiments with independent disturbances (seeds 0-7, same excitation
+        spectrum), stacked on an `experiment` dim and identified in one call (every function
+        broadcasts over leading dims).  For each bin, the mean over the seeds is compared
+        with the truth in units of its own standard error
+        `sem = sqrt(sum_s |P_s - mean|^2 / ((S - 1) S))`: without bias this ratio is of
+        order one (median about 0.8 for a circular Gaussian error), with a bias it grows
+        like `sqrt(S)`.
     """),
     ("py", """
-        seeds = [0, 1, 2, 3, 4]
+        seeds = list(range(8))
         stack = xr.concat([hdd.simulate(n_samples=N, case=2, noise=True, seed=s) for s in seeds],
                           dim="experiment")
         stack = stack.assign_coords(experiment=("experiment", seeds, {"units": "1", "long_name": "seed"}))
         by_method = {
-            "indirect": lcmr_xr.identify(stack, window=30, degrees=(3, 3, 3), closed_loop="indirect"),
-            "direct": lcmr_xr.identify(stack, window=30, degrees=(3, 3, 3), closed_loop="direct"),
+            cl: lcmr_xr.identify(stack, window=30, degrees=(3, 3, 3), closed_loop=cl)
+            for cl in ("indirect", "direct")
         }
         noiseless_direct = lcmr_xr.identify(exp_clean, window=30, degrees=(3, 3, 3), closed_loop="direct")
         print(dict(by_method["direct"].P.sizes))
     """),
     ("py", """
-        def mean_bias(frf_stack):
-            \"\"\"Median over bins of |mean_seeds(P_hat) - P| / |P| and of the seed-to-seed spread.\"\"\"
+        def bias_in_standard_errors(frf_stack):
+            \"\"\"Median over each band of |mean_seeds(P_hat) - P| / sem and of |mean - P| / |P|.\"\"\"
+            n = frf_stack.sizes["experiment"]
             mean = frf_stack.P.mean("experiment")
-            spread = abs(frf_stack.P - mean).mean("experiment") / np.sqrt(frf_stack.sizes["experiment"])
-            averaged = frf_stack.isel(experiment=0).copy()
-            averaged["P"] = mean
-            bias = band_errors(averaged, truth)
-            noise_floor = band_errors(averaged.assign(P=truth + spread), truth)
-            return bias, noise_floor
+            sem = np.sqrt((abs(frf_stack.P - mean) ** 2).sum("experiment") / ((n - 1) * n))
+            nyquist = frf_stack.attrs["slow_nyquist"]
+            relative = band_median(abs(mean - truth) / abs(truth), nyquist)
+            z = band_median(abs(mean - truth) / sem, nyquist)
+            return relative, z
 
-        print("median |mean over seeds - P| / |P|   (in brackets: the random part, spread/sqrt(seeds))")
+        rows = {}
         for name, frf_stack in by_method.items():
-            bias, floor = mean_bias(frf_stack)
-            for actuator in bias.input.values:
-                cells = [f"{float(b):.3f} ({float(s):.3f})" for b, s in
-                         zip(bias.sel(input=actuator).values, floor.sel(input=actuator).values)]
-                print(f"{name:>9} {actuator}: " + "  ".join(f"{band}: {c}" for band, c in zip(bias.band.values, cells)))
-        print("noiseless direct:", band_errors(noiseless_direct, truth).round(5).values.tolist())
+            relative, z = bias_in_standard_errors(frf_stack)
+            rows[name, "|mean - P| / |P|"] = relative.to_pandas().T
+            rows[name, "|mean - P| / sem"] = z.to_pandas().T
+        print(pd.concat(rows, names=["estimate", "statistic"]).round(3).to_string())
+        print()
+        print("noiseless data, direct estimate:")
+        print(band_errors(noiseless_direct, truth).to_pandas().T.round(4).to_string())
     """),
     ("md", """
-        With no disturbances the direct estimate is as good as the indirect one: the bias is
-        caused by the feedback of noise, not by the method as such.  With disturbances the
-        indirect mean approaches the truth as seeds are added (its error is the random part),
-        the direct mean does not where the disturbances are large.
+        Without disturbances the direct estimate is accurate (near DC even more than the
+        indirect one, whose closed-loop maps `S` and `PS` vary faster there than `P`): the
+        bias comes from the feedback of the disturbances, not from the method as such.
+        Above 500 Hz, where the excitation dominates, both means sit within about two
+        standard errors of the truth.  Below 500 Hz, where rotational vibration and run-out dominate, the
+        direct mean is many standard errors away: it converges to the wrong FRF.  The
+        indirect estimate is also off there at this signal-to-disturbance ratio (a ratio of
+        noisy local estimates), but much less.
     """),
     ("py", """
         low = (30.0, 3000.0)
         view = plot.bode(by_method["indirect"].mean("experiment").sel(input=["vcm"]),
-                         truth=truth.sel(input=["vcm"]), band=None, label="indirect, mean of 5", xlim=low)
+                         truth=truth.sel(input=["vcm"]), band=None, label="indirect, mean of 8", xlim=low)
         plot.bode(by_method["direct"].mean("experiment").sel(input=["vcm"]), ax=view.axes,
-                  band=None, label="direct, mean of 5", xlim=low)
+                  band=None, label="direct, mean of 8", xlim=low)
         view.figure.suptitle("VCM at low frequency, where the disturbances act")
         plt.show()
     """),
@@ -449,7 +462,8 @@ NB02 = [
         plot.bode(single.sel(input=["pzt"]), ax=view.axes, band=None, label="single-rate")
         for t in true_hz:
             view.axes[0, 0].axvline(slow_rate - t, color="tab:red", linewidth=0.5, alpha=0.6)
-        view.figure.suptitle("PZT: single-rate estimate with aliased resonances (red lines)")
+        view.figure.set_size_inches(9, 6)
+        view.figure.suptitle("PZT: single-rate estimate; red lines: aliases of the resonances")
         plt.show()
     """),
     ("md", """
@@ -457,8 +471,9 @@ NB02 = [
 
         * The LRM follows the resonances where the LPM with the same window does not;
           near DC a narrower window is better for both.
-        * Under feedback with disturbances the direct estimate is biased; the indirect
-          estimate is not (its mean over seeds converges to the truth).
+        * Under feedback, where the disturbances dominate, the direct estimate converges to
+          the wrong FRF; the indirect estimate is far less affected and, where the
+          excitation dominates, its mean over seeds sits within its standard error.
         * A single-rate estimate stops at the slow Nyquist frequency and shows the PZT
           resonances at their aliases; the lifted estimate places them correctly, up to
           the fast Nyquist frequency.
@@ -550,12 +565,11 @@ NB03 = [
         true_error = (abs(result.P - truth) / abs(truth)).where(useful).median(["frequency", "output"])
         true_error = true_error.mean(["experiment", "input"]).isel(method=0)
         mean_score = choice.score.mean("experiment").isel(method=0)
-        print(xr.Dataset({"true error": true_error, "validation score": mean_score})
-              .to_dataframe().round(4).to_string())
-        best_by_truth = true_error.where(true_error == true_error.min(), drop=True)
-        best_by_score = mean_score.where(mean_score == mean_score.min(), drop=True)
-        print("lowest true error:", best_by_truth.degrees.item(), int(best_by_truth.window))
-        print("lowest mean score:", best_by_score.degrees.item(), int(best_by_score.window))
+        table = xr.Dataset({"true error": true_error, "validation score": mean_score}).reset_coords(drop=True)
+        print(table.to_dataframe().round(4).to_string())
+        for name, values in (("lowest true error", true_error), ("lowest mean score", mean_score)):
+            best = values.isel(values.argmin(...))
+            print(f"{name}: degrees {best.degrees.item()}, window {best.window.item()}")
     """),
     ("py", """
         workdir.cleanup()  # the archive lived in a temporary directory

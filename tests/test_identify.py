@@ -218,6 +218,33 @@ def test_leading_experiment_dim_broadcasts_and_dask_stays_lazy():
     xr.testing.assert_allclose(lazy.compute(), eager)
 
 
+def test_frequency_chunked_fit_is_lazy_and_equals_in_memory():
+    """Chunks along slow frequency get wrapped halos of `window` bins: same answer."""
+    import dask
+
+    factor, n = 2, 480
+    stacked = xr.concat([_noisy_siso(factor, n, s, noise_std=0.01) for s in (3, 4)], dim="experiment")
+    eager = identify(stacked, window=15)
+    calls = []
+
+    def count(*args, **kwargs):  # a scheduler that records it was asked to compute
+        calls.append(1)
+        return dask.get(*args, **kwargs)
+
+    with dask.config.set(scheduler=count):
+        lazy = identify(stacked.chunk({"experiment": 1}), window=15, frequency_chunks=40)
+        assert lazy.P.chunks is not None and not calls
+    computed = lazy.compute()
+    for name in eager.data_vars:
+        if eager[name].dtype == bool:
+            np.testing.assert_array_equal(computed[name].values, eager[name].values)
+        else:
+            np.testing.assert_allclose(computed[name].values, eager[name].values,
+                                       rtol=1e-8, atol=1e-12 * float(np.nanmax(np.abs(eager[name]))))
+    with pytest.raises(ValueError, match="frequency_chunks >= 15"):
+        identify(stacked, window=15, frequency_chunks=10)
+
+
 def test_settings_recorded_and_units():
     factor, n = 2, 480
     exp = _noisy_siso(factor, n, 0, noise_std=0.01)

@@ -281,7 +281,7 @@ def _check_time(ds, dim: str, expected_spacing: float | None) -> float:
     return spacing
 
 
-def validate_experiment(ds: xr.Dataset) -> xr.Dataset:
+def validate_experiment(ds: xr.Dataset, *, check_values: bool = True) -> xr.Dataset:
     """Check an experiment dataset against the ``lcmr-xr-1`` contract; return it if valid.
 
     Parameters
@@ -289,6 +289,10 @@ def validate_experiment(ds: xr.Dataset) -> xr.Dataset:
     ds : xarray.Dataset
         Candidate experiment dataset; extra dims (e.g. ``experiment``), variables and
         attributes are allowed.
+    check_values : bool, default True
+        Also check the data for NaN and inf.  ``False`` reads metadata only, so lazy
+        (dask-backed) data are not computed; lazy consumers such as
+        :func:`lcmr_xr.identify` then refuse non-finite data when they are computed.
 
     Returns
     -------
@@ -381,6 +385,8 @@ def validate_experiment(ds: xr.Dataset) -> xr.Dataset:
     th = _check_time(ds, TIME, None)
     _check_time(ds, SLOW_TIME, factor * th)
 
+    if not check_values:
+        return ds
     checks = {name: np.isfinite(ds[name].data).all() for name in required if ds[name].dtype.kind == "f"}
     if any(_is_lazy(c) for c in checks.values()):
         import dask

@@ -14,7 +14,11 @@ import xarray as xr
 from lcmr_xr import conventions as cv
 from lcmr_xr.kernels.identification import (
     excitation_rank,
+    experiment_spectra,
+    finish_packed,
+    fit_packed,
     identify_arrays,
+    packed_width,
     identify_single_rate_arrays,
     lifted_spectra,
     parameters_per_row,
@@ -34,7 +38,9 @@ def _validate(experiment):
             f"lcmr_xr.experiment), got {type(experiment).__name__}. Build one with "
             f"lcmr_xr.experiment(r, u, y, factor=F, sampling_period=Th)."
         )
-    return validate_experiment(experiment)
+    lazy = any(experiment[v].chunks is not None for v in ("r", "u", "y") if v in experiment)
+    # lazy data stay lazy: the NaN/inf check then happens in the kernel, at compute time
+    return validate_experiment(experiment, check_values=not lazy)
 
 
 def _resolve_degrees(method, degrees):
@@ -92,7 +98,8 @@ def _ratio_units(num: str, den: str) -> str:
 
 
 def identify(experiment: xr.Dataset, *, method: str = "lrm", window: int = 30, degrees=None,
-             closed_loop: str = "indirect", covariance: bool = True, errors: str = "raise") -> xr.Dataset:
+             closed_loop: str = "indirect", covariance: bool = True, errors: str = "raise",
+             frequency_chunks: int | None = None) -> xr.Dataset:
     """Identify the fast-rate FRF of a plant in multirate closed loop (paper, Procedure 1).
 
     The fast excitation ``r`` and plant input ``u`` are lifted by the factor ``F``, the
@@ -129,6 +136,13 @@ def identify(experiment: xr.Dataset, *, method: str = "lrm", window: int = 30, d
         some bins: raise a ``ValueError`` naming them, or return NaN there with the
         flag ``s_singular`` set (use "ignore" in sweeps).  Ill-conditioned local models
         are always returned as data (flag ``ill_posed``), never raised.
+    frequency_chunks : int, optional
+        Fit the local models lazily with dask in chunks of this many slow bins; each chunk
+        is extended by a halo of ``window`` bins on both sides (wrapping around the unit
+        circle, as the circular windows do), so the result equals the unchunked one to
+        rounding.  Default: one chunk (leading dims such as ``experiment`` are still
+        parallel when the experiment is dask-backed).  The singular-``S`` check of
+        ``errors="raise"`` runs only on computed (not lazy) results.
 
     Returns
     -------
@@ -201,9 +215,8 @@ def identify(experiment: xr.Dataset, *, method: str = "lrm", window: int = 30, d
             ("s_singular", [SF], bool),
         ]
 
-    def kernel(r, u, y):
-        out = identify_arrays(r, u, y, factor=factor, half_width=window, degrees=degrees,
-                              closed_loop=closed_loop, covariance=covariance)
+    def split(out):
+        """The dict of :func:`identify_arrays` -> the tuple of ``specs``, with lifted dims."""
         lead = out["G"].shape[:-3]
         fnu = factor * nu
         G, G_sd = out["G"], np.sqrt(np.maximum(out["G_var"], 0.0))  # rounding can leave -0-ish
@@ -229,19 +242,36 @@ def identify(experiment: xr.Dataset, *, method: str = "lrm", window: int = 30, d
             pieces["s_singular"] = out["s_singular"]
         return tuple(pieces[name] for name, _, _ in specs)
 
-    results = xr.apply_ufunc(
-        kernel,
-        ds["r"], ds["u"], ds["y"],
-        input_core_dims=core_in,
-        output_core_dims=[dims for _, dims, _ in specs],
-        dask="parallelized",
-        output_dtypes=[dt for _, _, dt in specs],
-        dask_gufunc_kwargs={
-            "output_sizes": {FQ: n // 2 + 1, SF: m, LP: factor, LP2: factor, IN2: nu},
-            "allow_rechunk": False,
-        },
-        keep_attrs=False,
-    )
+    gufunc_kwargs = {
+        "output_sizes": {FQ: n // 2 + 1, SF: m, LP: factor, LP2: factor, IN2: nu,
+                         cv.INPUT: nu, cv.OUTPUT: ny},
+        "allow_rechunk": False,
+    }
+    output_spec = dict(output_core_dims=[dims for _, dims, _ in specs], dask="parallelized",
+                       output_dtypes=[dt for _, _, dt in specs],
+                       dask_gufunc_kwargs=gufunc_kwargs, keep_attrs=False)
+    if frequency_chunks is None:
+        def kernel(r, u, y):
+            return split(identify_arrays(r, u, y, factor=factor, half_width=window,
+                                         degrees=degrees, closed_loop=closed_loop,
+                                         covariance=covariance))
+
+        results = xr.apply_ufunc(kernel, ds["r"], ds["u"], ds["y"], input_core_dims=core_in,
+                                 **output_spec)
+    else:
+        packed = _fit_frequency_chunked(ds, factor=factor, window=window, degrees=degrees,
+                                        closed_loop=closed_loop, covariance=covariance,
+                                        frequency_chunks=frequency_chunks)
+        nz_, nr_ = packed.attrs["nz"], packed.attrs["nr"]
+
+        def finish(p):
+            p = np.ascontiguousarray(p).view(complex)
+            return split(finish_packed(p, nz=nz_, nr=nr_, n_fast=n, factor=factor, nu=nu, ny=ny,
+                                       closed_loop=closed_loop, covariance=covariance))
+
+        # the recovery gathers every slow bin (P(k) uses bin k mod M): one chunk along it
+        results = xr.apply_ufunc(finish, packed.chunk({SF: -1}), input_core_dims=[[SF, "_packed"]],
+                                 **output_spec)
     out = xr.Dataset({name: da for (name, _, _), da in zip(specs, results)})
     out = _label(out, ds, factor=factor, th=th, n=n, m=m)
     if errors == "raise" and closed_loop == "indirect" and not _is_lazy(out):
@@ -270,6 +300,61 @@ def identify(experiment: xr.Dataset, *, method: str = "lrm", window: int = 30, d
         "covariance": int(bool(covariance)),
         "title": f"lifted {closed_loop} closed-loop {method.upper()} FRF estimate",
     })
+    return out
+
+
+def _fit_frequency_chunked(ds, *, factor, window, degrees, closed_loop, covariance,
+                           frequency_chunks):
+    """Lazy local-model fit in chunks along ``slow_frequency`` with wrapped halos.
+
+    Returns a DataArray (..., ``slow_frequency``, ``_packed``) of :func:`fit_packed` columns.
+    """
+    import dask.array as da
+
+    chunk = int(frequency_chunks)
+    m = ds.sizes[cv.SLOW_TIME]
+    if chunk < 1:
+        raise ValueError(f"frequency_chunks must be a positive number of slow bins, got {chunk}.")
+    if chunk < window:
+        raise ValueError(
+            f"frequency_chunks={chunk} is smaller than the halo the local window needs "
+            f"(window={window} bins on each side); use frequency_chunks >= {window}."
+        )
+    nu, ny = ds.sizes[cv.INPUT], ds.sizes[cv.OUTPUT]
+    nr = factor * nu
+    nz = nr + ny if closed_loop == "indirect" else ny
+    SF = cv.SLOW_FREQUENCY
+    R, Z = xr.apply_ufunc(
+        lambda r, u, y: experiment_spectra(r, u, y, factor=factor, closed_loop=closed_loop),
+        ds["r"], ds["u"], ds["y"],
+        input_core_dims=[[cv.TIME, cv.INPUT], [cv.TIME, cv.INPUT], [cv.SLOW_TIME, cv.OUTPUT]],
+        output_core_dims=[[SF, "_r"], [SF, "_z"]], dask="parallelized",
+        output_dtypes=[complex, complex],
+        dask_gufunc_kwargs={"output_sizes": {SF: m, "_r": nr, "_z": nz}},
+    )
+    lead_chunks = {d: "auto" for d in R.dims if d not in (SF, "_r")}
+    Rd = R.chunk({**{d: R.chunks[R.get_axis_num(d)] if R.chunks else -1 for d in lead_chunks},
+                  SF: chunk, "_r": -1}).data
+    Zd = Z.chunk({**{d: Z.chunks[Z.get_axis_num(d)] if Z.chunks else -1 for d in lead_chunks},
+                  SF: chunk, "_z": -1}).data
+    ax = Rd.ndim - 2
+    depth = {i: 0 for i in range(Rd.ndim)}
+    depth[ax] = window
+    boundary = {i: "none" for i in range(Rd.ndim)}
+    boundary[ax] = "periodic"
+    Rg = da.overlap.overlap(Rd, depth=depth, boundary=boundary)
+    Zg = da.overlap.overlap(Zd, depth=depth, boundary=boundary)
+    width = packed_width(nz, nr, covariance)
+    fitted = da.map_blocks(
+        lambda rb, zb: fit_packed(rb, zb, half_width=window, degrees=degrees, circular=False,
+                                  covariance=covariance),
+        Rg, Zg, dtype=complex, chunks=Rg.chunks[:-1] + ((width,),),
+    )
+    trimmed = da.overlap.trim_internal(fitted, {**depth}, boundary=boundary)
+    # a float view (pairs of re, im) so dask builds real metadata for the real outputs
+    out = xr.DataArray(trimmed.view(float), dims=R.dims[:-1] + ("_packed",),
+                       coords={k: v for k, v in R.coords.items() if k in R.dims[:-1]})
+    out.attrs.update(nz=nz, nr=nr)
     return out
 
 

@@ -171,6 +171,10 @@ def save(ds: xr.Dataset, path) -> Path:
         flat.to_netcdf(tmp, engine=_ENGINE, auto_complex=True)
         with open(tmp, "rb+") as fh:  # make the bytes durable before the rename
             os.fsync(fh.fileno())
+        # mkstemp creates the file 0600; give it the mode a plain open() would have
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):

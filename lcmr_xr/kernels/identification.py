@@ -124,6 +124,53 @@ def recover_frf(G, G_cov, *, n_fast: int, factor: int, nu: int, ny: int,
     }
 
 
+def packed_width(nz: int, nr: int, covariance: bool) -> int:
+    """Length of the last axis of :func:`fit_packed`'s output."""
+    return nz * nr + 2 * nz + 2 + ((nz * nr) ** 2 if covariance else 0)
+
+
+def fit_packed(R, Z, *, half_width: int, degrees=(3, 3, 3), circular: bool = True,
+               covariance: bool = True) -> np.ndarray:
+    """Local model per bin, packed into one complex array ``(..., M, K)``.
+
+    One array (rather than a tuple) so that a frequency-chunked dask computation can run
+    the fit with ``map_overlap``-style halos: columns are ``vec(G)`` (``nz nr``), ``T``
+    (``nz``), the noise variances (``nz``), the condition number, the ill-posed flag and,
+    with ``covariance``, ``vec(G_cov)``.  :func:`finish_packed` unpacks it.
+    """
+    fit = local_model(R, Z, half_width=half_width, degrees=tuple(degrees), circular=circular,
+                      covariance="full" if covariance else None)
+    lead_m = fit.G.shape[:-2]
+    parts = [fit.G.reshape(lead_m + (-1,)), fit.T, fit.noise_variance,
+             fit.condition[..., None], fit.ill_posed[..., None]]
+    if covariance:
+        parts.append(fit.G_cov.reshape(lead_m + (-1,)))
+    return np.concatenate([np.asarray(p, dtype=complex) for p in parts], axis=-1)
+
+
+def finish_packed(packed, *, nz: int, nr: int, n_fast: int, factor: int, nu: int, ny: int,
+                  closed_loop: str = "indirect", covariance: bool = True) -> dict:
+    """Unpack :func:`fit_packed` and recover the fast FRF (see :func:`identify_arrays`)."""
+    packed = np.asarray(packed)
+    lead_m = packed.shape[:-1]
+    g = nz * nr
+    G = packed[..., :g].reshape(lead_m + (nz, nr))
+    T = packed[..., g: g + nz]
+    noise_variance = packed[..., g + nz: g + 2 * nz].real
+    condition = packed[..., g + 2 * nz].real
+    ill_posed = packed[..., g + 2 * nz + 1].real != 0
+    G_cov = packed[..., g + 2 * nz + 2:].reshape(lead_m + (g, g)) if covariance else None
+    out = recover_frf(G, G_cov, n_fast=n_fast, factor=factor, nu=nu, ny=ny,
+                      closed_loop=closed_loop, ill_posed=ill_posed)
+    if covariance:
+        G_var = np.real(np.diagonal(G_cov, axis1=-2, axis2=-1)).reshape(G.shape)
+    else:
+        G_var = np.full(G.shape, np.nan)
+    out.update({"G": G, "G_var": G_var, "T": T, "noise_variance": noise_variance,
+                "condition": condition, "ill_posed": ill_posed})
+    return out
+
+
 def identify_arrays(r, u, y, *, factor: int, half_width: int, degrees=(3, 3, 3),
                     closed_loop: str = "indirect", covariance: bool = True) -> dict:
     """Fast FRF of a plant in multirate closed loop from ``r``, ``u`` (fast) and ``y`` (slow).
@@ -156,29 +203,10 @@ def identify_arrays(r, u, y, *, factor: int, half_width: int, degrees=(3, 3, 3),
         ``condition``, ``ill_posed``, ``s_condition``, ``s_singular`` (..., M).
     """
     R, Z = experiment_spectra(r, u, y, factor=factor, closed_loop=closed_loop)
-    n = np.shape(r)[-2]
-    nu = np.shape(r)[-1]
-    ny = np.shape(y)[-1]
-    fit = local_model(R, Z, half_width=half_width, degrees=tuple(degrees), circular=True,
-                      covariance="full" if covariance else None)
-    out = recover_frf(fit.G, fit.G_cov if covariance else None, n_fast=n, factor=factor,
-                      nu=nu, ny=ny, closed_loop=closed_loop, ill_posed=fit.ill_posed)
-    if covariance:
-        G_var = np.real(np.diagonal(fit.G_cov, axis1=-2, axis2=-1)).reshape(fit.G.shape)
-    else:
-        G_var = np.full(fit.G.shape, np.nan)
-    out.update({
-        "G": fit.G,
-        "G_var": G_var,
-        "T": fit.T,
-        "noise_variance": fit.noise_variance,
-        "condition": fit.condition,
-        "ill_posed": fit.ill_posed,
-        "dof": fit.dof,
-        "nz": Z.shape[-1],
-        "nr": R.shape[-1],
-    })
-    return out
+    packed = fit_packed(R, Z, half_width=half_width, degrees=degrees, covariance=covariance)
+    return finish_packed(packed, nz=Z.shape[-1], nr=R.shape[-1], n_fast=np.shape(r)[-2],
+                         factor=factor, nu=np.shape(r)[-1], ny=np.shape(y)[-1],
+                         closed_loop=closed_loop, covariance=covariance)
 
 
 def identify_single_rate_arrays(r, u, y, *, factor: int, half_width: int,

@@ -118,7 +118,7 @@ def fpe_scores(noise_variance: np.ndarray, Z: np.ndarray, R: np.ndarray,
     Examples
     --------
     >>> s2 = np.full((4, 1), 0.03)
-    >>> float(fpe_scores(s2, np.ones((4, 1)), np.ones((4, 1)), np.array(1), np.array(3)))
+    >>> round(float(fpe_scores(s2, np.ones((4, 1)), np.ones((4, 1)), np.array(1), np.array(3))), 12)
     0.2
     """
     inflation = 1.0 + np.asarray(parameters, float) / np.asarray(window_bins, float)
