@@ -1,0 +1,115 @@
+"""The main job (``lcmr-xr demo``), the command line, and the HDD benchmark identified."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import xarray as xr
+
+import lcmr_xr
+from lcmr_xr import cli, hdd
+from lcmr_xr.demo import find_bundled_experiment, relative_error_table, resonance_peaks, run_demo
+
+
+@pytest.fixture(scope="module")
+def noiseless_hdd_frf():
+    exp = hdd.simulate(n_samples=3600, noise=False, seed=1)
+    frf = lcmr_xr.identify(exp, window=30, degrees=(3, 3, 3))
+    truth = hdd.true_frf(frf.frequency[1:]).reindex(frequency=frf.frequency)
+    return frf, truth
+
+
+def test_noiseless_benchmark_identified_within_one_percent(noiseless_hdd_frf):
+    """Paper settings on the noiseless benchmark: median relative error below 1 % per actuator."""
+    frf, truth = noiseless_hdd_frf
+    rel = (abs(frf.P - truth) / abs(truth)).isel(frequency=slice(1, -1))
+    median = rel.median("frequency").isel(output=0)
+    assert float(median.sel(input="vcm")) < 0.01
+    assert float(median.sel(input="pzt")) < 0.01
+    # beyond the slow Nyquist frequency too: the point of the method
+    above = rel.where(rel.frequency > frf.attrs["slow_nyquist"]).median("frequency").isel(output=0)
+    assert float(above.max()) < 0.02
+
+
+def test_error_table_and_resonance_peaks_against_truth(noiseless_hdd_frf):
+    frf, truth = noiseless_hdd_frf
+    table = relative_error_table(frf, truth)
+    assert set(table.data_vars) == {"below", "above"}
+    assert table.below.dims == ("output", "input")
+    exact = relative_error_table(frf.assign(P=truth), truth)  # the truth scores zero
+    assert float(exact.below.max()) == 0.0 and float(exact.above.max()) == 0.0
+    peaks = resonance_peaks(frf, truth)
+    assert len(peaks) >= 3
+    df = float(frf.frequency[1])
+    for true_hz, est_hz in peaks:
+        assert 38000 <= true_hz <= 50400
+        assert abs(est_hz - true_hz) <= df  # within one bin (28 Hz) without noise
+
+
+def test_demo_writes_frf_and_pictures(tmp_path):
+    bundled = find_bundled_experiment()
+    assert bundled is not None and bundled.name == "hdd_case2_N3600.nc"
+    lines = []
+    result = run_demo(bundled, tmp_path, echo=lines.append)
+    assert [p.name for p in result["files"]] == ["hdd_frf.nc", "hdd_bode.png", "hdd_pzt_zoom.png"]
+    for p in result["files"]:
+        assert p.stat().st_size > 0
+    for png in result["files"][1:]:
+        assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    saved = lcmr_xr.open_frf(result["files"][0])
+    xr.testing.assert_allclose(saved.P, result["frf"].P)
+    text = "\n".join(lines)
+    assert "median relative error" in text and "pzt" in text and "vcm" in text
+    assert "main PZT resonance peaks" in text
+    # the table printed is the one computed
+    assert f"{float(result['errors'].below.sel(input='pzt').item()):.2e}" in text
+
+
+def test_cli_identify_and_plot(tmp_path, capsys):
+    exp_path = tmp_path / "exp.nc"
+    assert cli.main(["simulate", "-o", str(exp_path), "--samples", "1200", "--noiseless",
+                     "--seed", "3"]) == 0
+    out = tmp_path / "frf.nc"
+    png = tmp_path / "bode.png"
+    assert cli.main(["identify", str(exp_path), "-o", str(out), "--window", "20",
+                     "--degrees", "2", "2", "2", "--plot", str(png)]) == 0
+    frf = lcmr_xr.open_frf(out)
+    assert list(frf.attrs["degrees"]) == [2, 2, 2] and frf.attrs["window"] == 20
+    direct = lcmr_xr.identify(lcmr_xr.open_experiment(exp_path), window=20, degrees=(2, 2, 2))
+    np.testing.assert_allclose(frf.P.values, direct.P.values)
+    assert png.read_bytes()[:4] == b"\x89PNG"
+    assert "wrote" in capsys.readouterr().out
+
+
+def test_cli_errors_are_one_line_and_write_nothing(tmp_path, capsys):
+    out = tmp_path / "frf.nc"
+    assert cli.main(["identify", str(tmp_path / "missing.nc"), "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("lcmr-xr identify: error:") and "missing.nc" in err
+    bad = tmp_path / "corrupt.nc"
+    bad.write_bytes(b"CDF\x01 this is not a netcdf file")
+    assert cli.main(["identify", str(bad), "-o", str(out)]) == 2
+    assert "corrupt.nc" in capsys.readouterr().err
+    exp_path = tmp_path / "exp.nc"
+    cli.main(["simulate", "-o", str(exp_path), "--samples", "400", "--noiseless"])
+    capsys.readouterr()
+    assert cli.main(["identify", str(exp_path), "-o", str(out), "--window", "200"]) == 2
+    assert "wider than the spectrum" in capsys.readouterr().err
+    assert not out.exists()
+
+
+def test_cli_rejects_unknown_options():
+    with pytest.raises(SystemExit) as info:
+        cli.main(["identify", "x.nc", "-o", "y.nc", "--windw", "3"])
+    assert info.value.code == 2
+
+
+def test_accessor_forwards_without_state():
+    exp = hdd.simulate(n_samples=400, noise=False, seed=2)
+    a = exp.lcmr.identify(window=12, degrees=(2, 2, 2))
+    b = lcmr_xr.identify(exp, window=12, degrees=(2, 2, 2))
+    xr.testing.assert_identical(a, b)
+    xr.testing.assert_identical(exp.r.lcmr.lift(2), lcmr_xr.lift(exp.r, 2))
+    xr.testing.assert_identical(exp.r.lcmr.lift(2).lcmr.unlift(), exp.r)
+    assert exp.lcmr.validate() is exp
+    assert not vars(exp.lcmr).keys() - {"_obj"}
