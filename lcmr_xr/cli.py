@@ -1,9 +1,11 @@
-"""Command line: ``lcmr-xr identify | demo | simulate``.
+"""Command line: ``lcmr-xr identify | demo | simulate | sweep``.
 
     lcmr-xr identify EXPERIMENT.nc -o FRF.nc [--method lrm|lpm] [--window N]
                      [--degrees RN RM RD] [--closed-loop indirect|direct] [--plot FILE.png]
     lcmr-xr demo [--experiment FILE.nc] [--output-dir DIR]
     lcmr-xr simulate -o EXPERIMENT.nc [--samples N] [--case 1..9] [--seed S] [--noiseless]
+    lcmr-xr sweep ARCHIVE_DIR -o RESULT.nc --window 10 20 30 [--degrees 3-3-3 ...]
+                  [--method lrm lpm] [--scheduler threads|processes|ADDRESS]
 
 Errors in the input (a missing or foreign file, bad settings) print one line that says
 what is wrong and exit with status 2; nothing is written then.
@@ -46,6 +48,10 @@ def _parser() -> argparse.ArgumentParser:
     sim.add_argument("--case", type=int, default=2, choices=range(1, 10))
     sim.add_argument("--seed", type=int, default=0)
     sim.add_argument("--noiseless", action="store_true")
+
+    from lcmr_xr.scaleout.cli import add_sweep_parser
+
+    add_sweep_parser(sub)
     return p
 
 
@@ -95,6 +101,8 @@ def main(argv=None) -> int:
             return 0
         if args.command == "simulate":
             return _simulate(args)
+        if args.command == "sweep":
+            return args.func(args)
     except (ValueError, TypeError, FileNotFoundError, OSError) as exc:
         print(f"lcmr-xr {args.command}: error: {exc}", file=sys.stderr)
         return 2

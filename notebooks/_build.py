@@ -584,7 +584,20 @@ NOTEBOOKS = {
 
 
 def build_notebooks() -> dict:
-    """Return ``{file name: nbformat.NotebookNode}`` for every notebook, outputs empty."""
+    """Build every tutorial notebook in memory, with empty outputs and fixed cell ids.
+
+    Returns
+    -------
+    dict
+        ``{file name: nbformat.NotebookNode}`` in the order of ``NOTEBOOKS``; kernel
+        spec ``python3``.
+
+    Examples
+    --------
+    >>> nbs = build_notebooks()
+    >>> sorted(nbs)[0], nbs["01_hdd_benchmark.ipynb"].cells[0].cell_type
+    ('01_hdd_benchmark.ipynb', 'markdown')
+    """
     out = {}
     for name, spec in NOTEBOOKS.items():
         nb = new_notebook(cells=_cells(spec))
@@ -595,7 +608,24 @@ def build_notebooks() -> dict:
 
 
 def main(argv=None) -> int:
-    """Write every notebook next to this script (or only the names given)."""
+    """Write the notebooks next to this script.
+
+    Parameters
+    ----------
+    argv : list of str, optional
+        Notebook file names to write; default (None) ``sys.argv[1:]``, and when that is
+        empty every notebook.
+
+    Returns
+    -------
+    int
+        Exit status: 0, or 2 (nothing written) when a name is not a known notebook.
+
+    Examples
+    --------
+    >>> main(["no_such.ipynb"])
+    2
+    """
     names = list(argv if argv is not None else sys.argv[1:]) or list(NOTEBOOKS)
     unknown = sorted(set(names) - set(NOTEBOOKS))
     if unknown:

@@ -38,8 +38,7 @@ def lifted_loop(P, C, Fi, factor):
 
     ``P`` (N, ny, nu) and ``Fi`` (N, nu, nu) on all fast bins; ``C`` (M, nu, ny) on slow bins.
     """
-    n, ny, nu = P.shape
-    m = n // factor
+    _, ny, nu = P.shape
     Pbar = lifted_frf(P, factor)
     Fbar = lifted_frf(Fi, factor)
     hold = np.kron(np.ones((factor, 1)), np.eye(nu))  # ZOH upsampler, lifted

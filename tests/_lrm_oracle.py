@@ -15,11 +15,23 @@ def oracle_local_model(R, Z, half_width, degrees, circular=True, bins=None):
     """Per-bin ``lstsq`` fit of ``D(r) Z_i(k+r) - N_i(r) R(k+r) - Mt_i(r) = e_i(r)``.
 
     ``R`` (M, nr), ``Z`` (M, nz) (no batch dims).  Returns a dict with ``G`` (M, nz, nr),
-    ``T`` (M, nz), ``noise_variance`` (M, nz), ``noise_covariance`` (M, nz, nz) with
-    ``C[i, j] = sum_r e_i(r) conj(e_j(r)) / dof``, ``G_cov`` (M, nz nr, nz nr)
-    ``= C[i, j] (K_i^+ K_j^+^H)`` restricted to the G entries, and ``singular`` values of
-    the column-scaled regression (M, nz, p).  Bins without a full window (non-circular)
-    or not in ``bins`` are NaN.
+    ``T`` (M, nz), ``noise_covariance`` (M, nz, nz) and ``noise_variance`` (M, nz) (its
+    diagonal), ``G_cov`` (M, nz nr, nz nr), ``residual_covariance`` (M, nz, nz), ``tau``
+    (M, nz, nz) and ``singular`` values of the column-scaled regression (M, nz, p).  Bins
+    without a full window (non-circular) or not in ``bins`` are NaN.
+
+    Everything is written literally from first-order perturbation theory, with explicit
+    matrices over the window (``W`` = 2n+1 bins):
+
+    * equation error at the true parameters ``e_i = D_i V_i``, ``D_i = diag(d_i(r))``,
+      ``d_i(r) = 1 + sum_s d_is rho^s`` (``V_i`` the noise on ``Z_i``, white over bins,
+      ``E[V_i V_j^H] = s_ij I``); ``d`` is taken at its estimate;
+    * ``theta_i - theta_i0 = K_i^+ e_i``, so the sandwich
+      ``Cov(G_i, G_j) = s_ij g_i D_i D_j^H g_j^H`` with ``g_i`` the G-rows of ``K_i^+``;
+    * the residual ``r_i = P_i D_i V_i`` (``P_i = I - K_i K_i^+``), so
+      ``E[r_j^H r_i] = s_ij tau_ij`` with ``tau_ij = tr(D_j^H P_j P_i D_i)`` and the noise
+      estimate ``s_ij = (sum_r r_i conj(r_j)) / tau_ij`` (``residual_covariance`` holds the
+      plain ``sum_r r_i conj(r_j) / dof``).  For the LPM ``D = I``, ``tau = dof``.
     """
     R = np.asarray(R, dtype=complex)
     Z = np.asarray(Z, dtype=complex)
@@ -31,12 +43,15 @@ def oracle_local_model(R, Z, half_width, degrees, circular=True, bins=None):
     rho = r / n
     p_row = nr * (rn + 1) + rm + 1 + rd
     dof = 2 * n + 1 - p_row
+    nan_c = complex(np.nan, np.nan)
     out = {
-        "G": np.full((m, nz, nr), np.nan + 0j),
-        "T": np.full((m, nz), np.nan + 0j),
+        "G": np.full((m, nz, nr), nan_c),
+        "T": np.full((m, nz), nan_c),
         "noise_variance": np.full((m, nz), np.nan),
-        "noise_covariance": np.full((m, nz, nz), np.nan + 0j),
-        "G_cov": np.full((m, nz * nr, nz * nr), np.nan + 0j),
+        "noise_covariance": np.full((m, nz, nz), nan_c),
+        "residual_covariance": np.full((m, nz, nz), nan_c),
+        "tau": np.full((m, nz, nz), nan_c),
+        "G_cov": np.full((m, nz * nr, nz * nr), nan_c),
         "singular": np.full((m, nz, p_row), np.nan),
         "dof": dof,
     }
@@ -47,6 +62,8 @@ def oracle_local_model(R, Z, half_width, degrees, circular=True, bins=None):
         Rw, Zw = R[idx], Z[idx]
         resid = np.empty((nz, 2 * n + 1), dtype=complex)
         gain = []  # rows of K_i^+ that give G_i
+        proj = []  # P_i = I - K_i K_i^+
+        dwin = []  # D_i = diag(d_i(r))
         for i in range(nz):
             columns = []
             for p in range(nr):  # N(r) R(k+r): G_p + sum_s N_s,p rho^s
@@ -63,15 +80,28 @@ def oracle_local_model(R, Z, half_width, degrees, circular=True, bins=None):
             resid[i] = Zw[:, i] - K @ theta
             pinv = np.linalg.pinv(K)
             gain.append(pinv[0 : nr * (rn + 1) : rn + 1])
+            proj.append(np.eye(2 * n + 1) - K @ pinv)
+            d_coef = theta[p_row - rd :]  # d(r) = 1 + sum_s d_s rho^s (empty for the LPM)
+            d_r = np.ones(2 * n + 1, dtype=complex)
+            for s in range(1, rd + 1):
+                d_r = d_r + d_coef[s - 1] * rho**s
+            dwin.append(np.diag(d_r))
             Ks = K / np.linalg.norm(K, axis=0)
             out["singular"][k, i] = np.linalg.svd(Ks, compute_uv=False)
-        C = resid @ resid.conj().T / dof
-        out["noise_covariance"][k] = C
-        out["noise_variance"][k] = np.real(np.diag(C))
+        raw = resid @ resid.conj().T  # raw[i, j] = sum_r r_i conj(r_j)
+        # tau_ij = tr(D_j^H P_j P_i D_i) = sum of conj(P_j D_j) * (P_i D_i) (P Hermitian)
+        pd = [proj[i] @ dwin[i] for i in range(nz)]
+        tau = np.array([[np.sum(np.conj(pd[j]) * pd[i]) for j in range(nz)] for i in range(nz)])
+        s = raw / tau
+        out["residual_covariance"][k] = raw / dof
+        out["tau"][k] = tau
+        out["noise_covariance"][k] = s
+        out["noise_variance"][k] = np.real(np.diag(s))
+        gd = [gain[i] @ dwin[i] for i in range(nz)]  # g_i D_i
         for i in range(nz):
             for j in range(nz):
                 out["G_cov"][k, i * nr : (i + 1) * nr, j * nr : (j + 1) * nr] = (
-                    C[i, j] * gain[i] @ gain[j].conj().T
+                    s[i, j] * gd[i] @ gd[j].conj().T
                 )
     return out
 

@@ -9,8 +9,6 @@ types recorded in a JSON attribute ``lcmr_attr_types`` on the same object, so th
 from __future__ import annotations
 
 import json
-import os
-import tempfile
 from numbers import Number
 from pathlib import Path
 
@@ -18,6 +16,7 @@ import numpy as np
 import xarray as xr
 
 from lcmr_xr.conventions import CONVENTIONS, FREQUENCY, INPUT, OUTPUT
+from lcmr_xr.io._atomic import atomic_write
 from lcmr_xr.experiment.dataset import validate_experiment
 
 __all__ = ["open_dataset", "open_experiment", "open_frf", "save"]
@@ -158,29 +157,8 @@ def save(ds: xr.Dataset, path) -> Path:
             f"save writes an xarray.Dataset, got {type(ds).__name__}; for a DataArray use "
             "x.to_dataset(name='...')."
         )
-    path = Path(path)
-    directory = path.parent if str(path.parent) else Path(".")
-    if not directory.is_dir():
-        raise FileNotFoundError(
-            f"cannot save to {path}: directory {directory} does not exist; create it first."
-        )
     flat = _map_attrs(ds, _flatten_attrs)
-    fd, tmp = tempfile.mkstemp(dir=directory, prefix=f".{path.name}.", suffix=".tmp")
-    os.close(fd)
-    try:
-        flat.to_netcdf(tmp, engine=_ENGINE, auto_complex=True)
-        with open(tmp, "rb+") as fh:  # make the bytes durable before the rename
-            os.fsync(fh.fileno())
-        # mkstemp creates the file 0600; give it the mode a plain open() would have
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.remove(tmp)
-        raise
-    return path
+    return atomic_write(path, lambda tmp: flat.to_netcdf(tmp, engine=_ENGINE, auto_complex=True))
 
 
 def open_dataset(path, chunks=None) -> xr.Dataset:

@@ -28,6 +28,10 @@ contiguous vectors.  Measured on this project's machine: numpy's batched ``linal
 ``(M, 20, 20)`` stacks cost microseconds *per matrix* (``solve`` ~20 us), which is slower
 than the whole bins-last elimination.
 
+The LRM covariance is the first-order sandwich (the equation error is ``d(r) V(r)``,
+not white): see :func:`local_model`, Notes.  Its weighted Grams are built from a table
+of moments with powers raised by ``2 Rd`` (``_sandwich``, bins-first ``np.matmul``).
+
 Numerics.  An FFT correlation has an absolute error of about ``eps`` times the norm of the
 block it transforms, so a bin whose local energy is far below that of its neighbours loses
 relative accuracy.  The blocks are therefore short (``_fft_length``: about four windows), which
@@ -58,6 +62,7 @@ CONDITION_LIMIT = 1e6
 # moment tables (about 60 series x 7 powers x 16 bytes per element); measured fastest
 # among 2**11..2**14 on 2**16 bins (temporaries stay cache-sized).
 _CHUNK_ELEMENTS = 1 << 12
+_CHUNK_ELEMENTS_SANDWICH = 1 << 9
 
 
 class LocalModelFit(NamedTuple):
@@ -70,9 +75,13 @@ class LocalModelFit(NamedTuple):
     T : ndarray, complex, shape (..., M, nz)
         Local estimate of the transient at each bin (units of Z).
     noise_variance : ndarray, float, shape (..., M, nz)
-        Residual variance per output row, ``sum_r |e_i(r)|^2 / dof`` (units of Z squared).
+        Estimated variance of the noise on ``Z`` per output row (units of Z squared): the
+        diagonal of ``noise_covariance``.
     noise_covariance : ndarray, complex, shape (..., M, nz, nz)
-        Residual covariance ``C[i, j] = sum_r e_i(r) conj(e_j(r)) / dof``.
+        Estimated covariance ``s_ij = E[V_i V_j^*]`` of the noise ``V`` on the rows of
+        ``Z``: ``sum_r e_i(r) conj(e_j(r)) / tau_ij`` with the residuals ``e`` and their
+        expected energy ``tau_ij`` (see :func:`local_model`, Notes).  For the LPM
+        ``tau_ij = dof``, the plain residual covariance.
     dof : int
         Degrees of freedom per row, ``2 n + 1 - (nr (Rn + 1) + Rm + 1 + Rd)``.
     G_cov : ndarray or None
@@ -300,9 +309,27 @@ def local_model(R, Z, *, half_width: int, degrees=(3, 3, 3), circular: bool = Tr
 
     Notes
     -----
-    The covariance of ``G`` treats the regressors as exact (the LPM case; for the LRM it
-    is the usual first-order approximation): for rows ``i, j`` with regressions ``K_i, K_j``
-    ``Cov(theta_i, theta_j) = C[i, j] K_i^+ K_j^{+H}``.  The moments are computed by FFT in
+    Covariance (first order in the noise ``V`` on ``Z``, white over bins,
+    ``E[V_i V_j^*] = s_ij``).  At the true parameters the equation error of row ``i`` is
+    ``e_i(r) = d_i(r) V_i(k+r)`` (the ``-rho^s Z_i`` regressors carry noise too), so with
+    ``D_i = diag(d_i(r))`` and ``theta_i - theta_i0 = K_i^+ e_i`` the sandwich is::
+
+        Cov(theta_i, theta_j) = s_ij (K_i^H K_i)^-1 K_i^H D_i D_j^H K_j (K_j^H K_j)^-1
+
+    (``d`` at its estimate; for the LPM ``D = I`` and it reduces to
+    ``s_ij K_i^+ K_j^{+H}``).  The residual is ``r_i = P_i D_i V_i`` with
+    ``P_i = I - K_i K_i^+``, so ``E[sum_r r_i conj(r_j)] = s_ij tau_ij`` with
+    ``tau_ij = tr(D_j^H P_j P_i D_i)``, and ``s_ij`` is estimated as
+    ``sum_r r_i conj(r_j) / tau_ij`` (unbiased to first order; ``tau = dof`` for the
+    LPM).  Every entry of ``K_i^H D_i D_j^H K_j`` and of ``tau`` is a combination of the
+    same windowed moments with powers raised by up to ``2 Rd``, so the cost stays
+    independent of the window width.  With ``covariance=None`` and ``Rd > 0`` the exact
+    ``tau`` is skipped for speed and ``tau_ij ~ dof * mean_r d_i(r) conj(d_j(r))`` is
+    used (measured 2-30 % too large where ``d`` varies strongly in the window, so the
+    noise estimate is then biased low by as much).  Beyond first order (noise comparable
+    to the local signal) the LRM's errors-in-variables effects are not covered.
+
+    The moments are computed by FFT in
     short blocks (cost independent of ``n``; see the module docstring for the accuracy
     argument); the 1e-6 agreement with a per-bin ``lstsq`` is tested.
 
@@ -381,7 +408,9 @@ def local_model(R, Z, *, half_width: int, degrees=(3, 3, 3), circular: bool = Tr
 
     out = _allocate(batch, m, nz, nr, covariance)
     n_batch = int(np.prod(batch, dtype=int))
-    chunk = max(1, _CHUNK_ELEMENTS // max(1, n_batch))
+    # the LRM sandwich keeps a (basis x basis) moment table per bin: smaller chunks
+    elements = _CHUNK_ELEMENTS if (rd == 0 or covariance is None) else _CHUNK_ELEMENTS_SANDWICH
+    chunk = max(1, elements // max(1, n_batch))
     with np.errstate(all="ignore"):
         for c0 in range(0, n_valid, chunk):
             c1 = min(n_valid, c0 + chunk)
@@ -439,13 +468,16 @@ def _fit_chunk(rt, zt, n, degrees, covariance):
 
     # ---- windowed moments of the product series (index [.., power, ..., bins])
     iu_r = np.triu_indices(nr)
-    m_rr = _window_moments(np.conj(rt[iu_r[0]]) * rt[iu_r[1]], rho_n, 2 * rn)
-    m_r1 = _window_moments(np.conj(rt), rho_n, rn + rm)
-    m_rz = _window_moments(np.conj(rt)[:, None] * zt[None], rho_n, rn + rd)
-    m_1z = _window_moments(zt, rho_n, rm + rd)
+    # the sandwich covariance multiplies every Gram by d_i(r) conj(d_j(r)) (degree 2 Rd):
+    # only then are moments with powers raised by up to 2 Rd needed
+    ext = 2 * rd if (covariance is not None and rd > 0) else 0
+    m_rr = _window_moments(np.conj(rt[iu_r[0]]) * rt[iu_r[1]], rho_n, 2 * rn + ext)
+    m_r1 = _window_moments(np.conj(rt), rho_n, rn + rm + ext)
+    m_rz = _window_moments(np.conj(rt)[:, None] * zt[None], rho_n, rn + rd + ext)
+    m_1z = _window_moments(zt, rho_n, rm + rd + ext)
     iu_z = np.triu_indices(nz)
-    m_zz = _window_moments(np.conj(zt[iu_z[0]]) * zt[iu_z[1]], rho_n, 2 * rd)
-    m_11 = _analytic_moments(n, 2 * rm)
+    m_zz = _window_moments(np.conj(zt[iu_z[0]]) * zt[iu_z[1]], rho_n, 2 * rd + ext)
+    m_11 = _analytic_moments(n, 2 * rm + ext)
     pair_r = {(int(a), int(b)): j for j, (a, b) in enumerate(zip(*iu_r))}
     pair_z = {(int(a), int(b)): j for j, (a, b) in enumerate(zip(*iu_z))}
     shape = m_r1.shape[2:]  # (*batch, K)
@@ -548,44 +580,232 @@ def _fit_chunk(rt, zt, n, degrees, covariance):
             uu[i, ii] = acc
     ehe = uu - np.einsum("qi...,qj...->ij...", np.conj(v), v)
     dof = 2 * n + 1 - (q + rd)
-    noise_cov = np.conj(ehe) / dof  # C[i, j] = sum_r e_i conj(e_j) / dof
-    noise_var = np.maximum(ehe[np.arange(nz), np.arange(nz)].real, 0.0) / dof
+    raw = np.conj(ehe)  # raw[i, j] = sum_r e_i(r) conj(e_j(r))
 
     # ---- condition estimate: pivots of the column-scaled Gram (unit diagonal) bound
     # lambda_min from above, so 1/min pivot is a lower bound of its condition number
     min_piv = np.minimum(np.min(piv_a, axis=0), np.min(piv_s, axis=(0, 1)) if rd else 1.0)
     condition = np.sqrt(1.0 / min_piv)
+    if rd > 0:
+        if covariance is None:
+            # no covariance requested: the cheap approximation of the residual's
+            # expected energy, tau_ij ~ dof * mean_r d_i(r) conj(d_j(r)) (local_model Notes)
+            noise_cov = raw / (dof * _mean_weight(delta, n))
+            noise_var = np.maximum(np.real(noise_cov[np.arange(nz), np.arange(nz)]), 0.0)
+            return {"G": G, "T": T, "condition": condition, "noise_variance": noise_var,
+                    "noise_covariance": noise_cov}
+        moments = dict(rr=rr, r1=m_r1, rz=m_rz, one_z=m_1z, zz=zz, one=m_11)
+        bqb = bhb - np.einsum("qis...,qjt...->ijst...", np.conj(wmat), wmat)
+        res = _sandwich(moments, cols, low, dscale, wmat, tscale, s_low, bqb, delta, raw,
+                        (nr, nz, rn, rm, rd), covariance)
+        res.update(G=G, T=T, condition=condition)
+        return res
 
+    # ---- LPM (d = 1): the equation error is the noise itself, tau_ij = dof exactly
+    noise_cov = raw / dof
+    noise_var = np.maximum(np.real(noise_cov[np.arange(nz), np.arange(nz)]), 0.0)
     res = {"G": G, "T": T, "noise_variance": noise_var, "noise_covariance": noise_cov,
            "condition": condition}
     if covariance is None:
         return res
-
-    # ---- covariance of G: C_ij [Lam Lam^H + beta_i S_i^-1 (B_i^H Q B_j) S_j^-1 beta_j^H]
+    # Cov(G_i, G_j) = s_ij sg Lam Lam^H sg with Lam = L22^-H (the G block of Gaa^-1)
     lam = _tail_inverse(low, nr)  # (nr, nr, ...) = L22^-H
     base = np.einsum("ab...,cb...->ac...", lam, np.conj(lam))  # (nr, nr, ...)
     sg = dscale[q - nr :]  # (nr, ...)
     if covariance == "diag":
-        var = np.broadcast_to(np.real(base[np.arange(nr), np.arange(nr)]), (nz, nr) + shape)
-        var = np.array(var)
-        if rd > 0:
-            beta = np.einsum("ab...,bis...->ais...", lam, wmat[q - nr :])  # (nr, nz, rd, .)
-            sinv_bt = _small_solve(s_low, np.moveaxis(np.conj(beta), 2, 0))  # S^-1 beta^H
-            # Q projects out A; B_i^H Q B_i = S_i, so the term is beta S^-1 beta^H
-            var = var + np.real(np.einsum("ais...,sai...->ia...", beta, sinv_bt))
+        var = np.real(base[np.arange(nr), np.arange(nr)])[None]
         res["G_cov"] = var * noise_var[:, None] * sg[None] ** 2
         return res
-
-    cov = np.broadcast_to(base[None, :, None, :], (nz, nr, nz, nr) + shape).copy()
-    if rd > 0:
-        beta = np.einsum("ab...,bis...->ais...", lam, wmat[q - nr :])  # (nr, nz, rd, ...)
-        # F_i = S_i^-1 beta_i^H  (rd, nr) per row
-        f = _small_solve(s_low, np.moveaxis(np.conj(beta), 2, 0))  # (rd, nr, nz, ...)
-        # B_i^H Q B_j = B~_i^H B~_j - W_i^H W_j
-        bqb = bhb - np.einsum("qis...,qjt...->ijst...", np.conj(wmat), wmat)
-        # beta_i S_i^-1 (B_i^H Q B_j) S_j^-1 beta_j^H = F_i^H bqb_ij F_j
-        cross = np.einsum("sai...,ijst...,tbj...->iajb...", np.conj(f), bqb, f)
-        cov = cov + cross
-    cov = cov * noise_cov[:, None, :, None] * (sg[None, :, None, None] * sg[None, None, None, :])
-    res["G_cov"] = cov
+    cov = base[None, :, None, :] * noise_cov[:, None, :, None]
+    res["G_cov"] = cov * (sg[None, :, None, None] * sg[None, None, None, :])
     return res
+
+
+# ------------------------------------------------------------ LRM sandwich covariance
+def _mean_weight(delta: np.ndarray, half_width: int) -> np.ndarray:
+    """``mean_r d_i(r) conj(d_j(r))`` over the window; ``delta`` (nz, Rd+1, ...) bins-last."""
+    rd = delta.shape[1] - 1
+    mean_pow = _analytic_moments(half_width, 2 * rd) / (2 * half_width + 1)
+    out = 0
+    for s in range(rd + 1):
+        for t in range(rd + 1):
+            out = out + delta[:, None, s] * np.conj(delta[None, :, t]) * mean_pow[s + t]
+    return out
+
+
+def _sandwich(moments, cols, low, dscale, wmat, tscale, s_low, bqb, delta, raw, dims,
+              covariance):
+    """First-order (sandwich) covariance of ``G`` and the noise estimate of the LRM.
+
+    Every quantity is a weighted Gram ``sum_r x(r) w(r) conj(y(r))`` of window vectors
+    that are combinations of the *basis* ``conj(rho^e R_p)``, ``rho^e``, ``conj(rho^e Z_i)``
+    (degrees raised by up to ``Rd`` when multiplied by ``d(r)``).  With coefficient rows
+    ``x``, ``y`` on that basis the Gram is ``x Psi y^H``, ``Psi[a, b] = sum_r conj(psi_a)
+    psi_b`` a table of windowed moments, so the cost does not depend on the window.
+    Arrays are bins-first here (``np.matmul`` on stacks of small matrices).
+
+    Returns ``noise_covariance`` ``s_ij = raw_ij / tau_ij``, ``noise_variance``, ``G_cov``.
+    """
+    nr, nz, rn, rm, rd = dims
+    rr, m_r1, m_rz, m_1z, zz, m_11 = (moments[k] for k in ("rr", "r1", "rz", "one_z", "zz",
+                                                           "one"))
+    shape = low.shape[2:]
+    nb = int(np.prod(shape, dtype=int))
+    q = low.shape[0]
+
+    def bf(x, nmat):  # bins-last (mat..., *shape) -> bins-first (B, mat...)
+        return np.moveaxis(np.reshape(x, x.shape[:nmat] + (nb,)), -1, 0)
+
+    # ---- moment table tab[B, base_a, base_b, P] = sum_r rho^P conj(base_a) base_b
+    one = nr
+    zb = nr + 1
+    n_base = nr + 1 + nz
+    p_max = max(2 * (rn + rd), rn + rm + 2 * rd, rn + 3 * rd, rm + 3 * rd, 4 * rd,
+                2 * (rm + rd))
+    tab = np.zeros((nb, n_base, n_base, p_max + 1), dtype=complex)
+    for p in range(nr):
+        for pp in range(nr):
+            for a in range(2 * (rn + rd) + 1):
+                tab[:, p, pp, a] = np.reshape(rr(p, pp, a), nb)
+        for a in range(rn + rm + 2 * rd + 1):
+            tab[:, p, one, a] = np.reshape(m_r1[a, p], nb)
+        for j in range(nz):
+            for a in range(rn + 3 * rd + 1):
+                tab[:, p, zb + j, a] = np.reshape(m_rz[a, p, j], nb)
+    for j in range(nz):
+        for a in range(rm + 3 * rd + 1):
+            tab[:, one, zb + j, a] = np.reshape(m_1z[a, j], nb)
+        for jj in range(nz):
+            for a in range(4 * rd + 1):
+                tab[:, zb + j, zb + jj, a] = np.reshape(zz(j, jj, a), nb)
+    tab[:, one, one, : 2 * (rm + rd) + 1] = m_11[: 2 * (rm + rd) + 1]
+    lower = np.tril_indices(n_base, -1)
+    tab[:, lower[0], lower[1]] = np.conj(tab[:, lower[1], lower[0]])
+
+    # ---- the basis: shared functions, then 2 Rd functions rho^e Z_i (e >= 1) per row
+    basis = [(p, e) for p in range(nr) for e in range(rn + rd + 1)]
+    basis += [(one, e) for e in range(rm + rd + 1)]
+    n_sh = len(basis)
+    n_zb = 2 * rd
+    for i in range(nz):
+        basis += [(zb + i, e) for e in range(1, n_zb + 1)]
+    where = {be: k for k, be in enumerate(basis)}
+    b_base = np.array([b for b, _ in basis])
+    b_pow = np.array([e for _, e in basis])
+    psi = tab[:, b_base[:, None], b_base[None, :], b_pow[:, None] + b_pow[None, :]]
+
+    # regression columns of A on the basis (shifted by t when multiplied by rho^t)
+    a_base = np.array([p if kind == "R" else one for kind, p, _ in cols])
+    a_pow = np.array([b for _, _, b in cols])
+    a_at = [np.array([where[(b, e + t)] for b, e in zip(a_base, a_pow)]) for t in range(rd + 1)]
+
+    def z_at(i, t):  # basis index of rho^(s+t) Z_i for s = 1..Rd
+        return np.arange(rd) + n_sh + i * n_zb + t
+
+    # ---- factors, bins-first
+    eye_q = np.broadcast_to(np.eye(q, dtype=complex).reshape((q, q) + (1,) * len(shape)),
+                            (q, q) + shape)
+    linv = bf(_forward(low, eye_q), 2)  # (B, q, q) = L^-1
+    ginv = np.conj(np.swapaxes(linv, -1, -2)) @ linv  # scaled Gaa^-1
+    ds = bf(dscale, 1)  # (B, q)
+    sg = ds[:, q - nr:]
+    ts = bf(tscale, 2)  # (B, nz, rd)
+    w = np.moveaxis(bf(wmat, 3), 2, 1)  # (B, nz, q, rd) = L^-1 D A^H B~_i
+    tt = np.conj(np.swapaxes(linv, -1, -2))[:, None] @ w  # T~_i = Gaa~^-1 A~^H B~_i
+    eye_d = np.broadcast_to(np.eye(rd).reshape((rd, rd, 1) + (1,) * len(shape)),
+                            (rd, rd, nz) + shape)
+    # S~_i = L_i L_i^H; products with S^-1 go through L_i^-1 (whitened B columns): an
+    # explicit S^-1 X S^-1 loses eps cond(S)^2, the whitened form only eps cond(S)
+    lsinv = np.moveaxis(bf(_forward(s_low, eye_d), 3), 3, 1)  # (B, nz, rd, rd) = L_i^-1
+    sinv = np.conj(np.swapaxes(lsinv, -1, -2)) @ lsinv
+    dl = bf(delta, 2)  # (B, nz, Rd+1)
+    bqb_bf = bf(bqb, 4)  # (B, nz, nz, rd, rd) = B~_i^H Q B~_j
+
+    # ---- G rows of the inverse Gram of [A~, B~_i] (block inverse via the Schur complement)
+    g_rows = np.arange(q - nr, q)
+    ets = tt[:, :, g_rows, :] @ sinv  # (B, nz, nr, rd)
+    xa = ginv[:, None, g_rows, :] + ets @ np.conj(np.swapaxes(tt, -1, -2))
+    # gain g_i(r) on the basis, times d_i(r): h_i = d_i g_i  (rows (B, nz, nr, basis))
+    ga = sg[:, None, :, None] * xa * ds[:, None, None, :]
+    gz = sg[:, None, :, None] * ets * ts[:, :, None, :]  # -X_B * (-tscale)
+    n_all = len(basis)
+    hy = np.zeros((nb, nz, nr, n_all), dtype=complex)
+    for t in range(rd + 1):
+        hy[..., a_at[t]] += dl[:, :, t, None, None] * ga
+        for i in range(nz):
+            hy[:, i][..., z_at(i, t)] += dl[:, i, t, None, None] * gz[:, i]
+    # conj of Q B~_i on the basis: -D T~_i on A, -tscale on rho^s Z_i  (rows (.., rd, basis))
+    qa = -ds[:, None, None, :] * np.conj(np.swapaxes(tt, -1, -2))  # (B, nz, rd, q)
+
+    # rows of conj(f_ii) = d_i conj(Q B~_i): (B, nz, rd, basis)
+    f_diag = np.zeros((nb, nz, rd, n_all), dtype=complex)
+    for t in range(rd + 1):
+        f_diag[..., a_at[t]] += dl[:, :, t, None, None] * qa
+        for i in range(nz):
+            f_diag[:, i][:, np.arange(rd), z_at(i, t)] -= dl[:, i, t, None] * ts[:, i]
+
+    # left rows times Psi, as one (rows x basis) @ (basis x basis) product per bin: the
+    # shared block once for all rows, then each row's own Z block
+    n_left = nr + rd
+    left = np.concatenate([hy, f_diag], axis=2).reshape(nb, nz * n_left, n_all)
+    pl = left[:, :, :n_sh] @ psi[:, :n_sh, :]
+    for i in range(nz):
+        zi = slice(n_sh + i * n_zb, n_sh + (i + 1) * n_zb)
+        rows = slice(i * n_left, (i + 1) * n_left)
+        pl[:, rows] += left[:, rows, zi] @ psi[:, zi, :]
+    pl = pl.reshape(nb, nz, n_left, n_all)
+    py, pf = pl[:, :, :nr], pl[:, :, nr:]
+
+    # ---- expected residual energies tau_ij = tr(D_j^H P_j P_i D_i) (first order)
+    u_max = 2 * rd
+    cw = np.zeros((nb, nz, nz, u_max + 1), dtype=complex)  # c_ij,u
+    for s in range(rd + 1):
+        for t in range(rd + 1):
+            cw[..., s + t] += dl[:, :, None, s] * np.conj(dl[:, None, :, t])
+    # tr(H_A P^u) = tr(Gaa^-1 Gaa^(u)) for every u (shared by the rows), unscaled Gaa^(u)
+    gu = tab[:, a_base[:, None], a_base[None, :],
+             (a_pow[:, None] + a_pow[None, :])[None, :, :] + np.arange(u_max + 1)[:, None, None]]
+    # the scaling D~ of the Gram goes onto ginv once (not onto all U moment matrices)
+    t_u = np.einsum("bxy,buyx->bu", ginv * (ds[:, :, None] * ds[:, None, :]), gu)
+    tr_w = cw @ m_11[: u_max + 1]
+    tr_ha = np.einsum("biju,bu->bij", cw, t_u)
+    # f_ii^H f_ij = sum_t conj(delta_jt) f_ii^H (rho^t Q B~_i): Q B~_i's basis shifted by t
+    shifted = np.empty((nb, nz, rd + 1, rd, rd), dtype=complex)
+    qa_h = np.conj(np.swapaxes(qa, -1, -2))  # (B, nz, q, rd)
+    for t in range(rd + 1):
+        shifted[:, :, t] = pf[..., a_at[t]] @ qa_h
+        for i in range(nz):
+            shifted[:, i, t] -= pf[:, i][..., z_at(i, t)] * ts[:, i, None, :]
+    gam = np.einsum("bitsu,bjt->bijsu", shifted, np.conj(dl))
+    phi_f = (pf.reshape(nb, nz * rd, n_all)
+             @ np.conj(f_diag.reshape(nb, nz * rd, n_all)).swapaxes(-1, -2))
+    phi_f = phi_f.reshape(nb, nz, rd, nz, rd).transpose(0, 1, 3, 2, 4)  # f_ii^H f_jj
+    term3 = np.einsum("bist,bijts->bij", sinv, gam)  # tr(S_i^-1 f_ii^H f_ij)
+    term4 = np.conj(np.swapaxes(term3, 1, 2))  # tr(S_j^-1 f_ji^H f_jj)
+    # tr(S_j^-1 (B_j^H Q B_i) S_i^-1 f_ii^H f_jj)
+    # tr(H_QBj H_QBi W_ij) with orthonormal U_i = Q B~_i L_i^-H:
+    # tr[(L_j^-1 B_j^H Q B_i L_i^-H) (L_i^-1 f_ii^H f_jj L_j^-H)]
+    lsinv_h = np.conj(np.swapaxes(lsinv, -1, -2))
+    uu_ji = lsinv[:, :, None] @ bqb_bf @ lsinv_h[:, None, :]  # [b, j, i]
+    vv_ij = lsinv[:, :, None] @ phi_f @ lsinv_h[:, None, :]  # [b, i, j]
+    term5 = np.einsum("bjist,bijts->bij", uu_ji, vv_ij)
+    tau = tr_w - tr_ha - term3 - term4 + term5
+    s_ij = np.moveaxis(raw.reshape((nz, nz, nb)), -1, 0) / tau  # (B, nz, nz)
+
+    def bl(x, nmat):  # bins-first (B, mat...) -> bins-last (mat..., *shape)
+        return np.moveaxis(x, 0, -1).reshape(x.shape[1:1 + nmat] + shape)
+
+    out = {"noise_covariance": bl(s_ij, 2)}
+    out["noise_variance"] = np.maximum(np.real(out["noise_covariance"][np.arange(nz),
+                                                                        np.arange(nz)]), 0.0)
+    if covariance == "diag":
+        own = np.sum(py * np.conj(hy), axis=-1)  # (B, nz, nr); hy_i is 0 off its basis
+        var = np.real(own) * np.real(s_ij[:, np.arange(nz), np.arange(nz)])[:, :, None]
+        out["G_cov"] = bl(var, 2)
+        return out
+    sig = (py.reshape(nb, nz * nr, n_all)
+           @ np.conj(hy.reshape(nb, nz * nr, n_all)).swapaxes(-1, -2))
+    sig = sig.reshape(nb, nz, nr, nz, nr)
+    cov = sig * s_ij[:, :, None, :, None]
+    out["G_cov"] = bl(cov, 4)
+    return out

@@ -8,10 +8,10 @@ chooses a matplotlib backend.
 
 from __future__ import annotations
 
-import os
-import tempfile
 from numbers import Real
 from pathlib import Path
+
+from lcmr_xr.io._atomic import atomic_write
 
 from lcmr_xr.plot.bode import BodePlot, bode
 from lcmr_xr.plot.lifted import LiftedPlot, NoisePlot, lifted, noise
@@ -77,22 +77,4 @@ def save_figure(result_or_fig, path, *, dpi=150):
         )
     if isinstance(dpi, bool) or not isinstance(dpi, Real) or not dpi > 0:
         raise ValueError(f"dpi must be a positive number (dots per inch, e.g. 150), got {dpi!r}.")
-    directory = path.parent if str(path.parent) else Path(".")
-    if not directory.is_dir():
-        raise FileNotFoundError(
-            f"Directory {str(directory)!r} for {path.name!r} does not exist; create it first "
-            "(os.makedirs)."
-        )
-    # Same directory as the target: os.replace is atomic only within one file system.
-    fd, temporary = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=directory)
-    try:
-        with os.fdopen(fd, "wb") as stream:
-            figure.savefig(stream, format="png", dpi=dpi)
-        # mkstemp creates the file private (0600); an image is an ordinary file.
-        os.chmod(temporary, 0o644)
-        os.replace(temporary, path)
-    except BaseException:
-        if os.path.exists(temporary):
-            os.unlink(temporary)
-        raise
-    return path
+    return atomic_write(path, lambda tmp: figure.savefig(tmp, format="png", dpi=dpi))

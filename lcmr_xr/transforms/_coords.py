@@ -75,7 +75,6 @@ def time_inverse_attrs(name: str, values, attrs: dict) -> dict:
     """Flat attributes from which :func:`rebuild_time` restores this time coordinate exactly."""
     t = np.asarray(values)
     start, spacing = even_spacing(t, name)
-    n = np.arange(t.size)
     out = {"time_name": name, "n_time": int(t.size), "time_dtype": str(t.dtype),
            "time_start": start, "time_spacing": spacing}
     rate = float(f"{1.0 / spacing:.12g}")
