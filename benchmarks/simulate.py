@@ -37,12 +37,15 @@ def main():
     r = rng.standard_normal((n, 2)) * hdd.PAPER_RMS
     d_y = hdd.fan_vibration(n, rng)[:, None]
     t_oracle, slow = best_of(1, lambda: simulate_multirate_oracle(*parts, r, d_y=d_y))
+    # the first call also builds the block matrices of the loop (memoised per loop object)
+    t_cold, _ = best_of(1, lambda: simulate_multirate(loop, r, d_y=d_y))
     t_fast, fast = best_of(3, lambda: simulate_multirate(loop, r, d_y=d_y))
     err = max(np.max(np.abs(a - b)) / np.max(np.abs(b)) for a, b in zip(fast, slow))
     print(f"HDD multirate loop, N = 2**14 fast samples ({loop.system.n_states} states)")
     print(f"  oracle (sample by sample): {t_oracle:8.4f} s")
-    print(f"  fast simulator:            {t_fast:8.4f} s")
-    print(f"  speed-up:                  {t_oracle / t_fast:8.1f} x   (goal >= 100 x)")
+    print(f"  fast simulator, first call:{t_cold:8.4f} s   (speed-up {t_oracle / t_cold:6.1f} x)")
+    print(f"  fast simulator, repeated:  {t_fast:8.4f} s")
+    print(f"  speed-up (repeated runs):  {t_oracle / t_fast:8.1f} x   (goal >= 100 x)")
     print(f"  max relative difference:   {err:8.1e}")
 
     n = 2**20

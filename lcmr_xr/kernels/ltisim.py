@@ -19,6 +19,8 @@ here as ONE slow-rate state-space system and simulated with the same fast simula
 
 from __future__ import annotations
 
+import functools
+
 from dataclasses import dataclass
 from typing import NamedTuple, Sequence
 
@@ -699,6 +701,13 @@ def _default_block_length(sys: StateSpace) -> int:
     return int(np.clip(2 * n / width, 16, 256))
 
 
+@functools.lru_cache(maxsize=16)
+def _lifted_for_blocks(sys: StateSpace, block_length: int) -> StateSpace:
+    """:func:`lift_statespace` memoised per system object (hashed by identity: systems are
+    immutable), so Monte-Carlo runs on one loop pay for the block matrices once."""
+    return lift_statespace(sys, block_length)
+
+
 def simulate_lti(sys: StateSpace, u, x0=None, *, block_length: int | None = None) -> np.ndarray:
     """Response of a discrete LTI system to an input signal, without a per-sample Python loop.
 
@@ -749,7 +758,7 @@ def simulate_lti(sys: StateSpace, u, x0=None, *, block_length: int | None = None
     ub[:, :N] = u.reshape(batch, N, nu)
     ub = ub.reshape(batch, nb, L * nu)  # lifted by L: channel = phase nu + input
 
-    lifted = lift_statespace(sys, L)
+    lifted = _lifted_for_blocks(sys, L)
     yb = ub @ lifted.D.T  # (batch, nb, L ny)
     x = np.zeros((batch, n)) if x0 is None else np.broadcast_to(
         np.asarray(x0, dtype=float), lead + (n,)).reshape(batch, n).copy()
