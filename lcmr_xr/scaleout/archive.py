@@ -305,16 +305,23 @@ def open_archive(directory, chunks=None) -> xr.Dataset:
             f"archive directory {directory} holds no {SUFFIX} files; write experiments into it "
             "with lcmr_xr.scaleout.save_archive."
         )
-    shapes = {}
+    # Every file is opened once, lazily (metadata only), and these handles are both checked
+    # and combined: opening the same HDF5 file again with a second handle while the first
+    # is alive has crashed netCDF4/HDF5 in this environment (segfault on a second open).
+    parts, shapes = [], {}
     for path in files:
-        with xr.open_dataset(path, engine="netcdf4") as ds:
-            if ds.attrs.get("conventions") != cv.CONVENTIONS or any(v not in ds for v in ("r", "u", "y")):
-                raise ValueError(
-                    f"{path} is not an lcmr-xr-1 experiment file (conventions "
-                    f"{ds.attrs.get('conventions')!r}, variables {sorted(ds.data_vars)}); move it "
-                    "out of the archive directory."
-                )
-            shapes[path] = _shape(ds)
+        ds = open_dataset(path, chunks={} if chunks is None else chunks)
+        if ds.attrs.get("conventions") != cv.CONVENTIONS or any(v not in ds for v in ("r", "u", "y")):
+            raise ValueError(
+                f"{path} is not an lcmr-xr-1 experiment file (conventions "
+                f"{ds.attrs.get('conventions')!r}, variables {sorted(ds.data_vars)}); move it "
+                "out of the archive directory."
+            )
+        shapes[path] = _shape(ds)
+        ds.attrs.pop(ORDER_ATTR, None)
+        if cv.EXPERIMENT not in ds.coords:  # a file written by another tool
+            ds = ds.assign_coords({cv.EXPERIMENT: ((), path.stem, cv.label_attrs("experiment"))})
+        parts.append(ds)
     lengths = {}
     for path, shape in shapes.items():
         lengths.setdefault(shape["N"], []).append(path.name)
@@ -328,14 +335,6 @@ def open_archive(directory, chunks=None) -> xr.Dataset:
                 f"({_describe(first)}); an archive holds experiments of one shape. Move it to "
                 "another directory."
             )
-
-    parts = []
-    for i, path in enumerate(files):
-        ds = open_dataset(path, chunks={} if chunks is None else chunks)
-        ds.attrs.pop(ORDER_ATTR, None)
-        if cv.EXPERIMENT not in ds.coords:  # a file written by another tool
-            ds = ds.assign_coords({cv.EXPERIMENT: ((), path.stem, cv.label_attrs("experiment"))})
-        parts.append(ds)
     # The files were checked to agree on coords and shape, so "override" skips re-comparing
     # the (identical) time coordinates of every file; join="exact" still refuses misalignment.
     # Attributes that differ between files (a seed, a date) are dropped, not taken from the
