@@ -148,8 +148,6 @@ def main(argv=None):
             save_archive(exps, tmp / "sweep")
             print(f"simulated and archived {n_exp} HDD experiments (N=3600) in "
                   f"{time.perf_counter() - t0:.1f} s")
-            # opened once: a second open of the same files in one process has segfaulted in
-            # netCDF4/HDF5 here (see the scale-out report)
             archived = open_archive(tmp / "sweep")
             t1 = _time_sweep(archived, windows, 1, repeats)
             t2 = _time_sweep(archived, windows, 2, repeats)

@@ -172,3 +172,32 @@ def test_save_refuses_unstorable_attributes(tmp_path):
         save(ds["r"], tmp_path / "x.nc")
     with pytest.raises(FileNotFoundError, match="does not exist"):
         save(_experiment(), tmp_path / "missing_dir" / "x.nc")
+
+
+def test_lazy_reopen_of_held_files_does_not_crash(tmp_path):
+    """Regression: reopening files that a lazy dataset still holds, after a threaded compute.
+
+    With netCDF4 handles on both sides this crashed HDF5 (segmentation fault, xarray
+    issue 8289); lazy reads now use h5netcdf.  Run in a subprocess so a crash fails the
+    test instead of killing the test session.
+    """
+    import subprocess
+    import sys
+    import textwrap
+
+    script = textwrap.dedent(f"""
+        import xarray as xr
+        from lcmr_xr import hdd
+        from lcmr_xr.scaleout import open_archive, save_archive
+        exps = xr.concat([hdd.simulate(400, seed=s) for s in range(4)], dim="experiment")
+        save_archive(exps, r"{tmp_path}")
+        held = []
+        for _ in range(4):
+            held.append(open_archive(r"{tmp_path}"))
+            held[-1].r.mean().compute(scheduler="threads")
+        print("ok")
+    """)
+    run = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                         timeout=120)
+    assert run.returncode == 0, run.stderr[-2000:]
+    assert run.stdout.strip() == "ok"

@@ -21,6 +21,7 @@ from lcmr_xr.experiment.dataset import validate_experiment
 
 __all__ = ["open_dataset", "open_experiment", "open_frf", "save"]
 
+_LAZY_ENGINE = "h5netcdf"
 _ENGINE = "netcdf4"
 _TYPES_ATTR = "lcmr_attr_types"
 
@@ -196,12 +197,18 @@ def open_dataset(path, chunks=None) -> xr.Dataset:
     if not path.is_file():
         raise FileNotFoundError(f"no such file: {path}; check the path.")
     try:
+        # Lazy files stay open; a second netCDF4 handle on a file that another netCDF4 handle
+        # holds can crash HDF5 (xarray issue 8289), so lazy reads go through h5netcdf, which
+        # reads the same NetCDF-4 files (complex values included) and has no such problem.
+        if chunks is None:
+            options = {"engine": _ENGINE, "auto_complex": True}
+        else:
+            options = {"engine": _LAZY_ENGINE}
         ds = xr.open_dataset(
             path,
-            engine=_ENGINE,
             chunks=chunks,
-            auto_complex=True,
             decode_timedelta=False,  # 's' time coordinates are plain floats in seconds
+            **options,
         )
         if chunks is None:
             ds.load()
