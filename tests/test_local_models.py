@@ -459,3 +459,111 @@ def test_scaling_equivariance_and_oracle(seed, nr, nz, degrees, alpha, beta):
     ref = oracle_local_model(R, Z, n, degrees, bins=bins)
     assert _max_rel(fit.G[bins], ref["G"][bins]) < 1e-6
     assert _max_rel(fit.noise_variance[bins], ref["noise_variance"][bins]) < 1e-6
+
+
+# ---------------------------------------------------------- internals of the fast kernel
+# (the speed work replaced whole-array passes by blocked, table-driven steps; these pin
+# each step to an independent reference so that a wrong index cannot hide in the tails)
+from lcmr_xr.kernels import local_models as lm
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), q=st.integers(1, 11), extra=st.integers(0, 5),
+       split_extra=st.integers(0, 3), block=st.integers(1, 6))
+def test_blocked_augmented_cholesky_matches_numpy(seed, q, extra, split_extra, block):
+    rng = np.random.default_rng(seed)
+    nb = 3
+    a = rng.standard_normal((nb, 3 * q, q)) + 1j * rng.standard_normal((nb, 3 * q, q))
+    gram = np.conj(a.swapaxes(-1, -2)) @ a
+    rhs = rng.standard_normal((nb, q, extra + split_extra)) + 0j
+    m = np.concatenate([gram, rhs], axis=2)
+    m[:, np.tril_indices(q, -1)[0], np.tril_indices(q, -1)[1]] = np.nan  # never read
+    old = lm._CHOL_BLOCK
+    lm._CHOL_BLOCK = block
+    try:
+        piv = lm._augmented_cholesky(m, q, q + extra)
+    finally:
+        lm._CHOL_BLOCK = old
+    low = np.linalg.cholesky(gram)
+    np.testing.assert_allclose(np.triu(m[:, :, :q]), np.conj(low.swapaxes(-1, -2)),
+                               rtol=1e-10, atol=1e-10 * np.abs(low).max())
+    np.testing.assert_allclose(m[:, :, q:], np.linalg.solve(low, rhs), rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(piv, np.abs(np.diagonal(low, axis1=1, axis2=2)) ** 2,
+                               rtol=1e-10)
+
+
+def test_augmented_cholesky_nan_pivot_stays_in_its_bin():
+    rng = np.random.default_rng(3)
+    a = rng.standard_normal((4, 12, 6)) + 1j * rng.standard_normal((4, 12, 6))
+    gram = np.conj(a.swapaxes(-1, -2)) @ a
+    gram[2, 4] = gram[2, :, 4] = 0.0  # bin 2: column 4 is zero, not positive definite
+    m = np.concatenate([gram, np.ones((4, 6, 2), complex)], axis=2)
+    with np.errstate(invalid="ignore"):
+        piv = lm._augmented_cholesky(m, 6, 8)
+    assert np.isnan(piv[2, 4:]).all() and np.isnan(m[2, 5, 5:]).all()
+    keep = [0, 1, 3]
+    np.testing.assert_allclose(np.triu(m[keep, :, :6]),
+                               np.conj(np.linalg.cholesky(gram[keep]).swapaxes(-1, -2)),
+                               rtol=1e-10, atol=1e-10 * np.abs(gram).max())
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), k=st.integers(1, 6))
+def test_small_factorisations_match_numpy(seed, k):
+    rng = np.random.default_rng(seed)
+    a = rng.standard_normal((5, 2, 2 * k, k)) + 1j * rng.standard_normal((5, 2, 2 * k, k))
+    gram = np.conj(a.swapaxes(-1, -2)) @ a
+    b = rng.standard_normal((5, 2, k)) + 1j * rng.standard_normal((5, 2, k))
+    low, piv = lm._small_cholesky(gram)
+    ref = np.linalg.cholesky(gram)
+    np.testing.assert_allclose(low, ref, rtol=1e-10, atol=1e-12 * np.abs(ref).max())
+    np.testing.assert_allclose(piv, np.diagonal(ref, axis1=-2, axis2=-1).real ** 2, rtol=1e-10)
+    x = lm._small_solve(low, b)
+    np.testing.assert_allclose(gram @ x[..., None], b[..., None], rtol=1e-8, atol=1e-9)
+    np.testing.assert_allclose(lm._lower_inverse(low) @ low,
+                               np.broadcast_to(np.eye(k), low.shape), atol=1e-9)
+
+
+@pytest.mark.parametrize("n,degrees,ext",
+                         [(6, (2, 1, 1), 0), (5, (3, 3, 3), 6), (40, (1, 2, 0), 0)])
+def test_moment_table_matches_direct_sums(n, degrees, ext):
+    """Every table entry the readers use equals the literal windowed sum."""
+    rng = np.random.default_rng(11)
+    nr, nz, nbat, k_out = 2, 3, 2, 150
+    length = k_out + 2 * n
+    R = rng.standard_normal((nbat, length, nr)) + 1j * rng.standard_normal((nbat, length, nr))
+    Z = rng.standard_normal((nbat, length, nz)) + 1j * rng.standard_normal((nbat, length, nz))
+    tab, floor = lm._moment_table(R, Z, n, degrees, ext)
+    base = np.concatenate([R, np.ones((nbat, length, 1)), Z], axis=-1)
+    rho = np.arange(-n, n + 1) / n
+    top = lm._top_powers(degrees, ext)
+    kind = ["R"] * nr + ["1"] + ["Z"] * nz
+    slots = lm._table_slots(nr, nz, degrees, ext)
+    for i in range(nr + 1 + nz):
+        for j in range(nr + 1 + nz):
+            powers = np.arange(top["".join(sorted([kind[i], kind[j]], key="R1Z".index))] + 1)
+            index, conj = lm._table_index(slots, np.full(powers.shape, i),
+                                          np.full(powers.shape, j), powers)
+            got = tab.gather(index, conj).reshape(nbat, k_out, -1)
+            x = np.conj(base[..., i]) * base[..., j]
+            windows = np.lib.stride_tricks.sliding_window_view(x, 2 * n + 1, axis=1)
+            want = np.einsum("bkr,ar->bka", windows, rho[None, :] ** powers[:, None])
+            np.testing.assert_allclose(got, want, rtol=0, atol=1e-12 * np.abs(want).max())
+    # the rounding floor bounds the FFT error of the energies |R_p|^2 from above
+    assert floor.shape == (nbat * k_out, nr) and np.all(floor > 0)
+
+
+def test_chunking_and_batch_grouping_do_not_change_results(monkeypatch):
+    rng = np.random.default_rng(5)
+    R = np.exp(2j * np.pi * rng.random((3, 150, 2)))
+    Z = rng.standard_normal((3, 150, 2)) + 1j * rng.standard_normal((3, 150, 2))
+    kw = {"half_width": 6, "degrees": (2, 1, 1)}
+    ref = [local_model(R[b], Z[b], **kw) for b in range(3)]
+    # one step per chunk, per batch element; one step, 3 batch elements; all in one chunk
+    for elements in (1, 200, 10**6):
+        monkeypatch.setattr(lm, "_CHUNK_BYTES", elements * 16 * 400)
+        fit = local_model(R, Z, **kw)
+        for b in range(3):
+            for name in ("G", "T", "noise_covariance", "G_cov", "condition"):
+                np.testing.assert_allclose(getattr(fit, name)[b], getattr(ref[b], name),
+                                           rtol=1e-9, atol=1e-300)
