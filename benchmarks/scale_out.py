@@ -128,15 +128,19 @@ def main(argv=None):
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="smaller sizes (a smoke run)")
-    ap.add_argument("--memory-limit", default="350MB", help="per-worker limit of part 2")
+    ap.add_argument("--memory-limit", default="400MB", help="per-worker limit of part 2")
+    ap.add_argument("--long-n", type=int, default=36000, help="samples per archived experiment")
+    ap.add_argument("--copies", type=int, default=520, help="experiments in the big archive")
     ap.add_argument("--skip-speedup", action="store_true", help="only the memory part")
     args = ap.parse_args(argv)
 
     n_exp, windows, repeats = (4, [20, 30], 1) if args.quick else (16, [20, 30, 40], 2)
-    # One identify task on N=18000 peaks at about 140 MB above the worker's ~150 MB base
-    # (measured), so a 350 MB limit leaves room for one task per worker; 700 copies of
-    # 0.58 MB are ~400 MB of data, more than one worker may hold.
-    long_n, copies, sims = (18000, 40, 2) if args.quick else (18000, 700, 4)
+    # One identify task (N=36000, no covariance) peaks about 30 MB above a process's
+    # ~135 MB base (measured; a worker process sits near 240 MB), so 520 such experiments
+    # (~900 MB of data) are more than both workers' limits together (2 x 400 MB).  Dask
+    # pauses a worker at 80 % of its limit, and a worker's own unmanaged memory cannot be
+    # spilled: a limit below ~300 MB stalls the run instead of failing it.
+    long_n, copies, sims = (args.long_n, 40, 2) if args.quick else (args.long_n, args.copies, 4)
     tmp = Path(tempfile.mkdtemp(prefix="lcmr-scaleout-"))
     try:
         # ---- 1. speed-up
