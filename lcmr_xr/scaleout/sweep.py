@@ -64,6 +64,17 @@ def parse_degrees(value) -> tuple[int, int, int]:
 def degrees_label(degrees) -> str:
     """The ``"Rn-Rm-Rd"`` label of a degrees triple (the ``degrees`` coordinate of a sweep).
 
+    Parameters
+    ----------
+    degrees : tuple of int or str
+        ``(Rn, Rm, Rd)`` or a label such as ``"3-3-3"`` (anything :func:`parse_degrees`
+        accepts).
+
+    Returns
+    -------
+    str
+        ``"Rn-Rm-Rd"``.
+
     Examples
     --------
     >>> degrees_label((3, 3, 0))
