@@ -18,11 +18,11 @@ from lcmr_xr.kernels.identification import (
     finish_packed,
     fit_packed,
     identify_arrays,
-    packed_width,
     identify_single_rate_arrays,
     lifted_spectra,
-    parameters_per_row,
+    packed_width,
 )
+from lcmr_xr.kernels.local_models import parameters_per_row
 
 METHODS = {"lrm": None, "lpm": 0}
 DEFAULT_DEGREES = {"lrm": (3, 3, 3), "lpm": (3, 3, 0)}

@@ -91,15 +91,6 @@ def indirect_first_row(G: np.ndarray, n_lifted_inputs: int, G_cov: np.ndarray | 
     return IndirectResult(P1, cov, cond, singular)
 
 
-def direct_first_row(G: np.ndarray) -> np.ndarray:
-    """Direct estimate: the local model from lifted ``u`` to ``y_l`` *is* ``P_1``.
-
-    Kept for comparison only: under feedback ``u`` is correlated with the noise,
-    so this estimate is biased (paper, Section 3.1; Pintelon and Schoukens 2012, 2.6).
-    """
-    return np.asarray(G)
-
-
 def frf_variance_from_first_row(first_row_cov: np.ndarray, n_fast: int, factor: int,
                                 bins: np.ndarray, ny: int, nu: int) -> np.ndarray:
     """Variance ``E|dP(k)|^2`` of the recovered fast FRF at fast ``bins``.

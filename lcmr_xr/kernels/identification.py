@@ -23,16 +23,6 @@ EXCITATION_RANK_TOL = 1e-9
 CLOSED_LOOP_METHODS = ("indirect", "direct")
 
 
-def parameters_per_row(n_excitation: int, degrees) -> int:
-    """Unknowns per row of ``Z`` in the local model with a diagonal denominator.
-
-    ``nr (Rn + 1)`` numerator, ``Rm + 1`` transient and ``Rd`` denominator coefficients
-    (the paper's count: 23 per row, 115 in all, for the HDD with ``nr = 4``, degrees 3, 3, 3).
-    """
-    rn, rm, rd = (int(d) for d in degrees)
-    return int(n_excitation) * (rn + 1) + rm + 1 + rd
-
-
 def lifted_spectra(x: np.ndarray, factor: int) -> np.ndarray:
     """DFT of the lifted signal: ``(..., N, c) -> (..., M, F c)``, phase-major channels."""
     x = np.asarray(x)

@@ -243,7 +243,7 @@ def sweep(experiments: xr.Dataset, *, window=(30,), degrees=None, method=("lrm",
     """
     from lcmr_xr.experiment import validate_experiment
     from lcmr_xr.identification import identify
-    from lcmr_xr.kernels.identification import parameters_per_row
+    from lcmr_xr.kernels.local_models import parameters_per_row
 
     if not isinstance(experiments, xr.Dataset):
         raise TypeError(f"sweep expects an experiment Dataset, got {type(experiments).__name__}; "
