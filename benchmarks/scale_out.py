@@ -133,14 +133,15 @@ def main(argv=None):
     ap.add_argument("--quick", action="store_true", help="smaller sizes (a smoke run)")
     ap.add_argument("--memory-limit", default="400MB", help="per-worker limit of part 2")
     ap.add_argument("--long-n", type=int, default=36000, help="samples per archived experiment")
-    ap.add_argument("--copies", type=int, default=470, help="experiments in the big archive")
+    ap.add_argument("--copies", type=int, default=700, help="experiments in the big archive")
     ap.add_argument("--skip-speedup", action="store_true", help="only the memory part")
     args = ap.parse_args(argv)
 
     n_exp, windows, repeats = (4, [20, 30], 1) if args.quick else (16, [20, 30, 40], 2)
     # One identify task (N=36000, no covariance) peaks about 30 MB above a process's
-    # ~135 MB base (measured; a worker process sits near 240 MB), so 470 such experiments
-    # (~820 MB of data) are more than both workers' limits together (2 x 400 MB).  Dask
+    # ~135 MB base (measured; a worker process sits near 240 MB), so 700 such experiments
+    # (~910 MB in memory, ~1.2 GB on disk) are more than both workers' limits together
+    # (2 x 400 MB).  Measured with 470 (610 MB in memory): peak worker RSS 297 MB, 762 s.  Dask
     # pauses a worker at 80 % of its limit, and a worker's own unmanaged memory cannot be
     # spilled: a limit below ~300 MB stalls the run instead of failing it.
     long_n, copies, sims = (args.long_n, 40, 2) if args.quick else (args.long_n, args.copies, 4)
