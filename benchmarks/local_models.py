@@ -66,8 +66,9 @@ def main(argv=None):
     rows.append(("max rel diff noise variance", f"{rel(fit.noise_variance, ref['noise_variance']):.1e}"))
     rows.append(("ill-posed bins", f"{int(fit.ill_posed.sum())}"))
 
-    t10 = best_time(lambda: local_model(R, Z, half_width=10, degrees=(1, 1, 1)))
-    t100 = best_time(lambda: local_model(R, Z, half_width=100, degrees=(1, 1, 1)))
+    # best of 9: this shared machine's timings vary by 30 % from run to run
+    t10 = best_time(lambda: local_model(R, Z, half_width=10, degrees=(1, 1, 1)), repeat=9)
+    t100 = best_time(lambda: local_model(R, Z, half_width=100, degrees=(1, 1, 1)), repeat=9)
     t30_333 = t_kernel
     t100_333 = best_time(lambda: local_model(R, Z, half_width=100, degrees=(3, 3, 3)))
     rows.append(("time n=100 / n=10, degrees (1,1,1) (goal <= 1.5)", f"{t100 / t10:.2f}"))

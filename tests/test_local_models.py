@@ -522,6 +522,10 @@ def test_small_factorisations_match_numpy(seed, k):
     np.testing.assert_allclose(gram @ x[..., None], b[..., None], rtol=1e-8, atol=1e-9)
     np.testing.assert_allclose(lm._lower_inverse(low) @ low,
                                np.broadcast_to(np.eye(k), low.shape), atol=1e-9)
+    low2, inv2, piv2 = lm._small_cholesky(gram, inverse=True)
+    np.testing.assert_array_equal(low2, low)
+    np.testing.assert_array_equal(piv2, piv)
+    np.testing.assert_allclose(inv2, lm._lower_inverse(low), rtol=1e-12, atol=1e-14)
 
 
 @pytest.mark.parametrize("n,degrees,ext",
@@ -542,15 +546,25 @@ def test_moment_table_matches_direct_sums(n, degrees, ext):
     for i in range(nr + 1 + nz):
         for j in range(nr + 1 + nz):
             powers = np.arange(top["".join(sorted([kind[i], kind[j]], key="R1Z".index))] + 1)
-            index, conj = lm._table_index(slots, np.full(powers.shape, i),
-                                          np.full(powers.shape, j), powers)
-            got = tab.gather(index, conj).reshape(nbat, k_out, -1)
+            index = lm._table_index(slots, np.full(powers.shape, i),
+                                    np.full(powers.shape, j), powers)
+            got = tab.gather(index).reshape(nbat, k_out, -1)
             x = np.conj(base[..., i]) * base[..., j]
             windows = np.lib.stride_tricks.sliding_window_view(x, 2 * n + 1, axis=1)
             want = np.einsum("bkr,ar->bka", windows, rho[None, :] ** powers[:, None])
             np.testing.assert_allclose(got, want, rtol=0, atol=1e-12 * np.abs(want).max())
-    # the rounding floor bounds the FFT error of the energies |R_p|^2 from above
+            if i == j < nr:  # the rounding floor bounds the FFT error of |R_p|^2 from above
+                err = np.abs(got[..., 0] - want[..., 0]).reshape(-1)
+                assert np.all(err <= floor[:, i])
     assert floor.shape == (nbat * k_out, nr) and np.all(floor > 0)
+    # the floor is eps nfft times the sum of |R_p|^2 over the FFT block holding the bin
+    nfft = lm._fft_length(n)
+    step = nfft - 2 * n
+    energy = np.abs(R) ** 2
+    for b, k in [(0, 0), (1, min(step, k_out) - 1), (1, min(step, k_out - 1)), (0, k_out - 1)]:
+        j0 = (k // step) * step
+        want = np.finfo(float).eps * nfft * energy[b, j0 : j0 + nfft].sum(axis=0)
+        np.testing.assert_allclose(floor[b * k_out + k], want, rtol=1e-12)
 
 
 def test_chunking_and_batch_grouping_do_not_change_results(monkeypatch):

@@ -44,8 +44,8 @@ block it transforms, so a bin whose local energy is far below that of its neighb
 relative accuracy.  The blocks are therefore short (``_fft_length``: about four windows), which
 keeps the error local: a bin is only polluted by data within about two windows of it.  For
 the same reason an excitation energy ``sum_r |R_p|^2`` at or below that rounding level
-(``_fft_noise_floor``: the data are zero there) is treated as zero, so unexcited bins are
-flagged instead of being fitted to rounding noise.  The
+(``eps nfft`` times the block's sum of ``|R_p|^2``: the data are zero there) is treated as
+zero, so unexcited bins are flagged instead of being fitted to rounding noise.  The
 Schur-complement form of the residual (``||D z||^2 - ||L^-1 A^H D z||^2``) is exact for
 the computed ``D`` and stationary in it, so the residual variance keeps the accuracy of the
 moments.  Normal equations square the condition number; ``condition`` reports an estimate
@@ -201,25 +201,17 @@ def _blocks(x: np.ndarray, half_width: int):
     return np.moveaxis(blocks, -1, 2), n_blocks, step
 
 
-def _fft_noise_floor(x: np.ndarray, half_width: int) -> np.ndarray:
-    """Bound on the FFT moments' rounding error per output bin, ``eps nfft sum_block |x|``.
-
-    ``x`` (nbat, L, S) with its halo (as for ``_blocks``); returns (nbat, L - 2n, S).  A
-    windowed energy (a Gram diagonal) at or below it is numerically zero: FFT rounding of
-    the block's other bins can make it any tiny number, even positive, where the data are 0.
-    """
-    blocks, _, step = _blocks(np.abs(x), half_width)
-    sums = np.sum(blocks, axis=2)  # (nbat, n_blocks, S)
-    n_out = x.shape[1] - 2 * half_width
-    floor = np.repeat(sums, step, axis=1)[:, :n_out]
-    return floor * (blocks.shape[2] * np.finfo(float).eps)
-
-
+@functools.lru_cache(maxsize=32)
 def _analytic_moments(half_width: int, max_power: int) -> np.ndarray:
-    """``sum_{r=-n..n} rho^a`` for ``a = 0..max_power`` (the constant-column moments)."""
+    """``sum_{r=-n..n} rho^a`` for ``a = 0..max_power`` (the constant-column moments).
+
+    Cached; read-only.
+    """
     n = half_width
     rho = np.arange(-n, n + 1) / n if n > 0 else np.zeros(1)
-    return np.array([np.sum(rho**a) for a in range(max_power + 1)])
+    out = np.array([np.sum(rho**a) for a in range(max_power + 1)])
+    out.flags.writeable = False
+    return out
 
 
 def _top_powers(degrees, ext):
@@ -267,38 +259,31 @@ def _table_slots(nr, nz, degrees, ext):
 
 
 def _table_index(slots: _Slots, b1, b2, power):
-    """Flat row index of ``sum_r rho^power conj(base_b1) base_b2`` (arrays broadcast) and
-    the flat positions (of the raveled result) that must be conjugated (``b1 > b2``: the
-    table holds the upper triangle only)."""
+    """Flat row index of ``sum_r rho^power conj(base_b1) base_b2`` (arrays broadcast).
+
+    The FFTs give the upper triangle of base pairs (``b1 <= b2``); a lower-triangle entry
+    is the conjugate of its mirror, read from the table's conjugated half (offset
+    ``n_slots p1``), so that a gather is one ``np.take`` with no fix-up pass.
+    """
     b1, b2, power = np.broadcast_arrays(b1, b2, power)
     lo, hi = np.minimum(b1, b2), np.maximum(b1, b2)
     index = slots.slot[lo, hi] * slots.p1 + power
+    index = index + np.where(b1 > b2, slots.n_slots * slots.p1, 0)
     index.flags.writeable = False
-    conj = np.nonzero((b1 > b2).ravel())[0]
-    conj.flags.writeable = False
-    return index, conj
+    return index
 
 
 class _MomentTable(NamedTuple):
-    """Windowed moments of a chunk: row ``(b, j, t)`` is output bin ``k = j step + t``."""
+    """Windowed moments of a chunk: row ``(b, k)`` is output bin ``k`` of batch element
+    ``b``; its first ``n_slots p1`` entries are the moments, the rest their conjugates."""
 
-    data: np.ndarray  # (nbat, n_blocks, nfft, n_slots p1); rows t < step are valid
+    data: np.ndarray  # (nbat, n_blocks step, 2 n_slots p1); rows k < n_out are valid
     n_out: int  # output bins per batch element (K)
-    step: int
 
-    def gather(self, index, conj=()):
-        """``out[b k, ...] = row(b, k)[index]`` (bins-first, (nbat K, *index.shape)),
-        conjugated at the flat positions ``conj``."""
-        nbat, n_blocks = self.data.shape[:2]
-        out = np.take(self.data[:, :, : self.step], index, axis=-1)
-        out = out.reshape((nbat, n_blocks * self.step) + index.shape)
-        if n_blocks * self.step != self.n_out:
-            out = out[:, : self.n_out]
-        out = out.reshape((nbat * self.n_out,) + index.shape)
-        if len(conj):
-            flat = out.reshape(out.shape[0], -1)
-            flat[:, conj] = np.conj(flat[:, conj])
-        return out
+    def gather(self, index):
+        """``out[b k, ...] = row(b, k)[index]`` (bins-first, (nbat K, *index.shape))."""
+        out = np.take(self.data[:, : self.n_out], index, axis=-1)
+        return out.reshape((self.data.shape[0] * self.n_out,) + index.shape)
 
 
 def _moment_table(rt, zt, half_width, degrees, ext):
@@ -307,7 +292,7 @@ def _moment_table(rt, zt, half_width, degrees, ext):
     The bases are ``R_0..R_{nr-1}``, the constant ``1``, ``Z_0..Z_{nz-1}``; ``rt`` (nbat,
     K + 2n, nr) and ``zt`` (nbat, K + 2n, nz) are the haloed chunk.  Returns the table
     (read it with ``_MomentTable.gather`` and ``_table_index``) and the rounding floor
-    (nbat K, nr) of the energies ``sum_r |R_p|^2`` (see ``_fft_noise_floor``).  Each FFT
+    (nbat K, nr) of the energies ``sum_r |R_p|^2`` (see the module notes).  Each FFT
     batch multiplies and inverse-transforms in place in its slice of the table (no copy);
     powers a pair does not need (``_top_powers``) are left uninitialised and never read.
     """
@@ -321,10 +306,14 @@ def _moment_table(rt, zt, half_width, degrees, ext):
     n_blocks = -(-k_out // step)
     data = np.empty((nbat, n_blocks, nfft, slots.n_slots, p1), dtype=complex)
     base = np.concatenate([rt, np.ones((nbat, length, 1), dtype=complex), zt], axis=-1)
+    energy = np.empty((nbat, n_blocks, nr))  # sum over each FFT block of |R_p|^2
     for power, start, ia, ib in slots.groups:
         blocks, _, _ = _blocks(np.conj(base[..., ia]) * base[..., ib], half_width)
         # scipy.fft: measured ~1.4x faster than numpy.fft on these short batched transforms
         spectra = sp_fft.fft(blocks, axis=2, workers=1)  # (nbat, n_blocks, nfft, S)
+        own = np.nonzero((ia == ib) & (ia < nr))[0]
+        if len(own):  # the DC bin of |R_p|^2 >= 0 is its block sum (the rounding floor)
+            energy[..., ia[own]] = spectra[:, :, 0, own].real
         kernels = _kernel_spectra(half_width, power, nfft).T  # (nfft, A)
         view = data[:, :, :, start : start + len(ia), : power + 1]
         np.multiply(spectra[..., None], kernels[:, None, :], out=view)
@@ -332,9 +321,17 @@ def _moment_table(rt, zt, half_width, degrees, ext):
         if not np.may_share_memory(corr, data):  # scipy may decline to work in place
             view[...] = corr
     top11 = _top_powers(degrees, ext)["11"]
-    data[:, :, :, -1, : top11 + 1] = _analytic_moments(half_width, top11)
-    floor = _fft_noise_floor(np.abs(rt) ** 2, half_width)  # (nbat, K, nr)
-    table = _MomentTable(data.reshape(nbat, n_blocks, nfft, -1), k_out, step)
+    n_flat = slots.n_slots * p1
+    # the valid rows (t < step) of every block, then their conjugates (lower triangle)
+    table = np.empty((nbat, n_blocks, step, 2, n_flat), dtype=complex)
+    table[:, :, :, 0] = data[:, :, :step].reshape(nbat, n_blocks, step, n_flat)
+    const = table[:, :, :, 0].reshape(nbat, n_blocks, step, slots.n_slots, p1)
+    const[..., -1, : top11 + 1] = _analytic_moments(half_width, top11)
+    np.conjugate(table[:, :, :, 0], out=table[:, :, :, 1])
+    # FFT rounding floor of the windowed energies: eps nfft (block sum of |R_p|^2), the
+    # same bound for every output bin of a block (see the module notes)
+    floor = np.repeat(energy * (nfft * np.finfo(float).eps), step, axis=1)[:, :k_out]
+    table = _MomentTable(table.reshape(nbat, n_blocks * step, 2 * n_flat), k_out)
     return table, floor.reshape(nbat * k_out, nr)
 
 
@@ -343,10 +340,8 @@ class _Layout(NamedTuple):
 
     a_base: np.ndarray  # base index of every shared column
     a_pow: np.ndarray  # its power of rho
-    aug_index: np.ndarray  # (q, q + nx) flat table index of [Gaa | A^H X] (or its conj)
-    aug_conj: np.ndarray  # flat positions in aug_index (raveled) that need a conjugate
-    zz_index: np.ndarray  # (nz, nz, Rd+1, Rd+1) flat index of X_i^H X_j (or its conj)
-    zz_conj: np.ndarray  # flat positions in zz_index (raveled) that need a conjugate
+    aug_index: np.ndarray  # (q, q + nx) flat table index of [Gaa | A^H X]
+    zz_index: np.ndarray  # (nz, nz, Rd+1, Rd+1) flat table index of X_i^H X_j
 
 
 @functools.lru_cache(maxsize=32)
@@ -364,16 +359,16 @@ def _layout(nr, nz, degrees, ext):
     a_pow = np.array([c[1] for c in cols])
     x_base = np.repeat(zb + np.arange(nz), rd + 1)
     x_pow = np.tile(np.arange(rd + 1), nz)
-    aug, aug_conj = _table_index(
+    aug = _table_index(
         slots, a_base[:, None], np.concatenate([a_base, x_base])[None, :],
         a_pow[:, None] + np.concatenate([a_pow, x_pow])[None, :])
     s = np.arange(rd + 1)
     zi = zb + np.arange(nz)
-    zz, zz_conj = _table_index(slots, zi[:, None, None, None], zi[None, :, None, None],
+    zz = _table_index(slots, zi[:, None, None, None], zi[None, :, None, None],
                                s[None, None, :, None] + s[None, None, None, :])
     for arr in (a_base, a_pow):
         arr.flags.writeable = False
-    return _Layout(a_base, a_pow, aug, aug_conj, zz, zz_conj)
+    return _Layout(a_base, a_pow, aug, zz)
 
 
 # ------------------------------------------------------------------ bins-first linear algebra
@@ -405,10 +400,10 @@ def _augmented_cholesky(m: np.ndarray, q: int, split: int) -> np.ndarray:
     for j0 in range(0, q, _CHOL_BLOCK):
         j1 = min(q, j0 + _CHOL_BLOCK)
         # the block's Hermitian matrix from its upper triangle (the lower one is scratch)
-        low, piv[:, j0:j1] = _small_cholesky(np.conj(m[:, j0:j1, j0:j1]).swapaxes(-1, -2))
+        low, linv, piv[:, j0:j1] = _small_cholesky(
+            np.conj(m[:, j0:j1, j0:j1]).swapaxes(-1, -2), inverse=True)
         m[:, j0:j1, j0:j1] = np.conj(low).swapaxes(-1, -2)
         if j1 < width:
-            linv = _lower_inverse(low)
             # separate products for the extra columns: BLAS rounding may depend on the
             # operand width, and the fit must not change when they are appended
             m[:, j0:j1, j1:split] = linv @ m[:, j0:j1, j1:split]
@@ -445,29 +440,37 @@ def _to_bins_first(a: np.ndarray, nmat: int) -> np.ndarray:
     return np.moveaxis(a, tuple(range(nmat)), tuple(range(-nmat, 0)))
 
 
-def _small_cholesky(a: np.ndarray):
+def _small_cholesky(a: np.ndarray, inverse: bool = False):
     """Lower Cholesky factor of Hermitian ``a`` (..., k, k) for small ``k`` (lower triangle
-    and diagonal read).
+    and diagonal read), and with ``inverse=True`` also ``L^-1``.
 
-    Non-positive pivots become NaN.  Returns ``(L, pivots)``, pivots (..., k) real.
+    Column by column, every column in one numpy call per step (bins last): ``L^-1`` row
+    ``j`` needs only ``L[j, :j+1]``, known once column ``j`` is, so it comes out of the
+    same loop.  Non-positive pivots become NaN.  Returns ``(L, pivots)`` or
+    ``(L, L^-1, pivots)``; pivots (..., k) real.
     """
     k = a.shape[-1]
     at = _to_bins_last(a, 2)
     low = np.zeros_like(at)
+    inv = np.zeros_like(at) if inverse else None
     piv = np.empty((k,) + at.shape[2:])
     for j in range(k):
-        p = at[j, j].real.copy()
-        for c in range(j):
-            p -= low[j, c].real ** 2 + low[j, c].imag ** 2
+        col = at[j:, j]
+        if j:  # col -= L[j:, :j] conj(L[j, :j])
+            col = col - np.sum(low[j:, :j] * np.conj(low[j, :j]), axis=1)
+        p = col[0].real
         p[~(p > 0)] = np.nan
         piv[j] = p
         d = np.sqrt(p)
         low[j, j] = d
-        for i in range(j + 1, k):
-            acc = at[i, j].copy()
-            for c in range(j):
-                acc -= low[i, c] * np.conj(low[j, c])
-            low[i, j] = acc / d
+        if j + 1 < k:
+            low[j + 1 :, j] = col[1:] / d
+        if inverse:  # inv[j, :j] = -L[j, :j] inv[:j, :j] / L[j, j]
+            inv[j, j] = 1.0 / d
+            if j:
+                inv[j, :j] = np.sum(low[j, :j, None] * inv[:j, :j], axis=0) * (-1.0 / d)
+    if inverse:
+        return _to_bins_first(low, 2), _to_bins_first(inv, 2), _to_bins_first(piv, 1)
     return _to_bins_first(low, 2), _to_bins_first(piv, 1)
 
 
@@ -495,11 +498,8 @@ def _lower_inverse(low: np.ndarray) -> np.ndarray:
     inv = np.zeros_like(lt)
     for j in range(k):
         inv[j, j] = 1.0 / lt[j, j]
-        for c in range(j):  # inv[j, c] = -sum_{c <= m < j} L[j, m] inv[m, c] / L[j, j]
-            acc = lt[j, c] * inv[c, c]
-            for mm in range(c + 1, j):
-                acc += lt[j, mm] * inv[mm, c]
-            inv[j, c] = -acc * inv[j, j]
+        if j:  # inv[j, :j] = -L[j, :j] inv[:j, :j] / L[j, j]
+            inv[j, :j] = np.sum(lt[j, :j, None] * inv[:j, :j], axis=0) * -inv[j, j]
     return _to_bins_first(inv, 2)
 
 
@@ -735,7 +735,7 @@ def _fit_chunk(rt, zt, n, degrees, covariance):
     # scaling itself), and y = L^-1 A^H X does not depend on it; the scaled quantities
     # (pivots for the condition estimate, L~^-1 for the sandwich) are derived from ds.
     m = np.empty((nbin, q, n_aug), dtype=complex)
-    m[:, :, : q + nx] = tab.gather(lay.aug_index, lay.aug_conj)
+    m[:, :, : q + nx] = tab.gather(lay.aug_index)
     qi = np.arange(q)
     diag = m[:, qi, qi].real
     # an R column whose energy is within FFT rounding of zero is unexcited: NaN (flagged)
@@ -751,16 +751,16 @@ def _fit_chunk(rt, zt, n, degrees, covariance):
     piv_a = _augmented_cholesky(m, q, q + nx) * ds**2  # pivots of the scaled Gram
     u = m[:, :, :q]  # L^H (upper triangle)
     yx = m[:, :, q : q + nx]  # L^-1 A^H rho^s z_i, column i (Rd+1) + s: (B, q, nx)
-    xx = tab.gather(lay.zz_index, lay.zz_conj)  # (B, nz, nz, Rd+1, Rd+1) X_i^H X_j
-    # the Gram of all columns rho^s Z_i projected off the shared columns (one product):
-    # C = X^H X - (L^-1 A^H X)^H (L^-1 A^H X), blocks C_ij (B, nz, Rd+1, nz, Rd+1)
-    cx = xx.transpose(0, 1, 3, 2, 4).reshape(nbin, nx, nx)
-    cx = cx - np.conj(yx).swapaxes(-1, -2) @ yx
-    c5 = cx.reshape(nbin, nz, rd + 1, nz, rd + 1)
+    xx = tab.gather(lay.zz_index)  # (B, nz, nz, Rd+1, Rd+1) X_i^H X_j
     rows = np.arange(nz)
+    # each row's columns rho^s Z_i projected off the shared ones: the Gram
+    # C_ii = X_i^H X_i - Y_i^H Y_i with Y_i = L^-1 A^H X_i (B, nz, q, Rd+1).  Only the own
+    # rows' blocks are needed for the fit (the cross-row residual products come from
+    # v_i = Y_i delta_i below), a fifth of the full projected Gram's products for nz = 5.
+    y_rows = np.ascontiguousarray(yx.reshape(nbin, q, nz, rd + 1).transpose(0, 2, 1, 3))
+    c = xx[:, rows, rows] - np.conj(y_rows).swapaxes(-1, -2) @ y_rows  # (B, nz, Rd+1, Rd+1)
 
     if rd > 0:
-        c = np.moveaxis(c5[:, rows, :, rows, :], 0, 1)  # own rows: (B, nz, Rd+1, Rd+1)
         # D columns B_i[:, s] = -rho^s Z_i, scaled by tscale = 1 / ||rho^s Z_i||
         s_idx = np.arange(1, rd + 1)
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -777,17 +777,19 @@ def _fit_chunk(rt, zt, n, degrees, covariance):
         delta = np.ones((nbin, nz, 1), dtype=complex)
         piv_s = np.ones((nbin, 1))
 
-    # ---- estimates: the tail of a = L^-H v, v = L^-1 A^H (D z), holds T and G
+    # ---- estimates: the tail of a = L^-H v, v_i = L^-1 A^H (D z_i) = Y_i delta_i, holds
+    # T and G
     nt = nr + 1
-    v_tail = np.sum(yx[:, q - nt :].reshape(nbin, nt, nz, rd + 1) * delta[:, None], axis=-1)
-    tail = _upper_tail_solve(u[:, q - nt :, q - nt :], v_tail.swapaxes(1, 2))  # (B, nz, nt)
+    v = (y_rows @ delta[..., None])[..., 0]  # (B, nz, q)
+    tail = _upper_tail_solve(u[:, q - nt :, q - nt :], v[:, :, q - nt :])  # (B, nz, nt)
     T = tail[:, :, 0]
     G = tail[:, :, 1:]  # (B, nz, nr)
 
-    # ---- residual (cross) products: e_i^H e_j = delta_i^H C_ij delta_j
-    dmat = np.zeros((nbin, nx, nz), dtype=complex)  # block diagonal: column i holds delta_i
-    dmat.reshape(nbin, nz, rd + 1, nz)[:, rows, :, rows] = np.moveaxis(delta, 0, 1)
-    ehe = np.conj(dmat).swapaxes(-1, -2) @ (cx @ dmat)  # (B, nz, nz)
+    # ---- residual (cross) products: e_i^H e_j = (D z_i)^H P (D z_j)
+    #      = delta_i^H X_i^H X_j delta_j - v_i^H v_j  (P: projector off the shared columns)
+    xd = (xx @ delta[:, None, :, :, None])[..., 0]  # (B, i, j, s): (X_i^H X_j delta_j)_s
+    ehe = np.sum(np.conj(delta)[:, :, None, :] * xd, axis=-1)
+    ehe -= np.conj(v) @ v.swapaxes(-1, -2)
     dof = 2 * n + 1 - (q + rd)
     raw = np.conj(ehe)  # raw[i, j] = sum_r e_i(r) conj(e_j(r))
 
@@ -806,8 +808,12 @@ def _fit_chunk(rt, zt, n, degrees, covariance):
                     "noise_covariance": noise_cov}
         # W_i = L^-1 A~^H B~_i: (B, nz, q, Rd)
         w = -yx.reshape(nbin, q, nz, rd + 1).transpose(0, 2, 1, 3)[..., 1:] * tsc[:, :, None, :]
-        # B~_i^H Q B~_j = tscale tscale C_ij (cross rows), (B, nz, nz, Rd, Rd)
-        bqb = (c5[:, :, 1:, :, 1:].transpose(0, 1, 3, 2, 4)
+        # B~_i^H Q B~_j = tscale tscale C_ij (cross rows), (B, nz, nz, Rd, Rd) with
+        # C_ij = X_i^H X_j - Y_i^H Y_j over the columns s >= 1
+        y1 = y_rows[..., 1:].transpose(0, 2, 1, 3).reshape(nbin, q, nz * rd)  # cols (j, t)
+        c_cross = np.conj(y1).swapaxes(-1, -2) @ y1  # rows (i, s), cols (j, t)
+        c_cross = c_cross.reshape(nbin, nz, rd, nz, rd).transpose(0, 1, 3, 2, 4)
+        bqb = ((xx[:, :, :, 1:, 1:] - c_cross)
                * (tsc[:, :, None, :, None] * tsc[:, None, :, None, :]))
         linv = m[:, :, q + nx :] * np.sqrt(diag)[:, None, :]  # L~^-1 = L^-1 D^-1
         res = _sandwich(tab, ext, lay, linv, ds, w, tsc, _lower_inverse(s_low), bqb,
@@ -855,10 +861,8 @@ class _SandwichLayout(NamedTuple):
     grid_col: np.ndarray  # shared column j -> flat (base, power) grid position
     grid_basis: np.ndarray  # shared basis function -> flat (base, power + t) grid position
     psi_index: np.ndarray  # (basis, basis) moment-table index of Psi
-    psi_conj: np.ndarray  # its flat positions to conjugate
     a_at_all: np.ndarray  # basis index of every shared column times rho^t, t = 0..Rd
     gu_index: np.ndarray  # (2 Rd + 1, q, q) table index of the moment matrices Gaa^(u)
-    gu_conj: np.ndarray  # its flat positions to conjugate
     one_index: np.ndarray  # (2 Rd + 1,) table index of sum_r rho^u (the constant pair)
 
 
@@ -877,15 +881,15 @@ def _sandwich_layout(nr, nz, degrees, ext):
     where = {be: k for k, be in enumerate(basis)}
     b_base = np.array([b for b, _ in basis])
     b_pow = np.array([e for _, e in basis])
-    psi, psi_conj = _table_index(slots, b_base[:, None], b_base[None, :],
+    psi = _table_index(slots, b_base[:, None], b_base[None, :],
                                  b_pow[:, None] + b_pow[None, :])
     lay = _layout(nr, nz, degrees, ext)
     a_base, a_pow = lay.a_base, lay.a_pow
     a_at = [np.array([where[(b, e + t)] for b, e in zip(a_base, a_pow)]) for t in range(rd + 1)]
     u = np.arange(2 * rd + 1)
-    gu, gu_conj = _table_index(slots, a_base[None, :, None], a_base[None, None, :],
+    gu = _table_index(slots, a_base[None, :, None], a_base[None, None, :],
                                a_pow[None, :, None] + a_pow[None, None, :] + u[:, None, None])
-    one_index, _ = _table_index(slots, one, one, u)
+    one_index = _table_index(slots, one, one, u)
     # the (base, power) grids of the shared part: bases R_0.., 1 (index nr); powers up to
     # max(Rn, Rm) for the columns, plus Rd after multiplying by d(r)
     n_pow = max(rn, rm) + 1
@@ -894,7 +898,7 @@ def _sandwich_layout(nr, nz, degrees, ext):
     a_at_all = np.concatenate(a_at)
     for arr in (grid_col, grid_basis, a_at_all):
         arr.flags.writeable = False
-    return _SandwichLayout(n_sh, grid_col, grid_basis, psi, psi_conj, a_at_all, gu, gu_conj,
+    return _SandwichLayout(n_sh, grid_col, grid_basis, psi, a_at_all, gu,
                            one_index)
 
 
@@ -924,7 +928,7 @@ def _sandwich(tab, ext, lay, linv, ds, w, ts, lsinv, bqb_bf, dl, raw, dims, cova
     assert ext == 2 * rd, "the moment table lacks the powers the sandwich reads"
     sl = _sandwich_layout(nr, nz, (rn, rm, rd), ext)
     n_sh, n_zb = sl.n_shared, 2 * rd
-    psi = tab.gather(sl.psi_index, sl.psi_conj)  # (B, basis, basis)
+    psi = tab.gather(sl.psi_index)  # (B, basis, basis)
 
     # ---- factors, bins-first: linv = L^-1 of the scaled shared Gram, lsinv = L_i^-1 of
     # each row's Schur complement S~_i = L_i L_i^H (products with S^-1 go through L_i^-1,
@@ -979,11 +983,11 @@ def _sandwich(tab, ext, lay, linv, ds, w, ts, lsinv, bqb_bf, dl, raw, dims, cova
         for t in range(rd + 1):
             cw[..., s + t] += dl[:, :, None, s] * np.conj(dl[:, None, :, t])
     # tr(H_A P^u) = tr(Gaa^-1 Gaa^(u)) for every u (shared by the rows), unscaled Gaa^(u)
-    gu = tab.gather(sl.gu_index, sl.gu_conj)  # (B, U, q, q)
+    gu = tab.gather(sl.gu_index)  # (B, U, q, q)
     # the scaling D~ of the Gram goes onto ginv once (not onto all U moment matrices)
     g_un = (ginv * (ds[:, :, None] * ds[:, None, :])).swapaxes(-1, -2)
     t_u = (gu.reshape(nb, u_max + 1, q * q) @ g_un.reshape(nb, q * q, 1))[..., 0]
-    tr_w = cw @ tab.data[0, 0, 0, sl.one_index]  # the constant-column moments
+    tr_w = cw @ tab.data[0, 0, sl.one_index]  # the constant-column moments
     tr_ha = np.einsum("biju,bu->bij", cw, t_u)
     # f_ii^H f_ij = sum_t conj(delta_jt) f_ii^H (rho^t Q B~_i): Q B~_i's basis shifted by t
     # all shifts t at once: the A part with one gather and one product per row i ...
