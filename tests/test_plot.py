@@ -338,6 +338,12 @@ def test_bode_reuses_axes_for_overlay_and_legend():
     assert second.lines[("position", "vcm")]["band"][0].get_color() == c2
     labels = [t.get_text() for t in first.axes[0, 0].get_legend().get_texts()]
     assert sorted(labels) == sorted(["LRM", "doubled", "95% confidence", "slow Nyquist"])
+    # an overlay with another long_name does not relabel the axes: the legend tells them apart
+    ylabel = first.axes[0, 0].get_ylabel()
+    other = frf.copy()
+    other["P"].attrs["long_name"] = "something else"
+    bode(other, ax=first.axes, label="other")
+    assert first.axes[0, 0].get_ylabel() == ylabel and "something else" not in ylabel
     # plt.subplots squeezes a single column: shape (2,) is accepted for a (2, 1) grid.
     _, squeezed = plt.subplots(2, 1)
     assert bode(frf.sel(input=["vcm"]), ax=squeezed).axes.shape == (2, 1)

@@ -508,7 +508,7 @@ def _style_bode_axes(axes, estimate, db, hz, phase, rows_per_output, xlim, to_ax
             is_phase = phase and r % rows_per_output == 1
             if not db and not is_phase:
                 a.set_yscale("log")
-            if c == 0:
+            if c == 0 and not a.get_ylabel():  # an overlay keeps the first estimate's label
                 a.set_ylabel(
                     phase_label(estimate.attrs, name)
                     if is_phase
