@@ -293,8 +293,9 @@ def _moment_table(rt, zt, half_width, degrees, ext):
     K + 2n, nr) and ``zt`` (nbat, K + 2n, nz) are the haloed chunk.  Returns the table
     (read it with ``_MomentTable.gather`` and ``_table_index``) and the rounding floor
     (nbat K, nr) of the energies ``sum_r |R_p|^2`` (see the module notes).  Each FFT
-    batch multiplies and inverse-transforms in place in its slice of the table (no copy);
-    powers a pair does not need (``_top_powers``) are left uninitialised and never read.
+    batch multiplies and inverse-transforms in place in its slice of a scratch array, whose
+    valid rows are then copied into the table beside their conjugates; powers a pair does
+    not need (``_top_powers``) are left uninitialised and never read.
     """
     nr, nz = rt.shape[-1], zt.shape[-1]
     nbat, length = rt.shape[:2]
@@ -674,8 +675,9 @@ def _chunk_elements(nr, nz, degrees, half_width, sandwich):
     nfft = _fft_length(half_width)
     q = parameters_per_row(nr, degrees) - rd
     nx = nz * (rd + 1)
-    per_bin = slots.n_slots * slots.p1 * nfft / (nfft - 2 * half_width)
-    per_bin += q * (q + nx + (q if sandwich else 0)) + nx * nx
+    # FFT scratch (nfft rows per step) and the table with its conjugated half
+    per_bin = slots.n_slots * slots.p1 * (nfft / (nfft - 2 * half_width) + 2)
+    per_bin += q * (q + nx + (q if sandwich else 0)) + q * nx  # [Gaa | A^H X], Y rows
     if sandwich:  # the basis Gram Psi
         per_bin += (nr * (degrees[0] + rd + 1) + degrees[1] + rd + 1 + nz * 2 * rd) ** 2
     return max(1, int(_CHUNK_BYTES // (16 * per_bin)))
