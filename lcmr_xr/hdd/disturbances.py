@@ -20,6 +20,7 @@ import functools
 import numpy as np
 
 from lcmr_xr.hdd.plants import FAST_PERIOD
+from lcmr_xr.kernels.excitation import check_rng
 from lcmr_xr.kernels.ltisim import StateSpace, continuous_zoh, modal_zoh, simulate_lti
 
 #: Fan-vibration modes (k, zeta, f Hz) of ``sum k / (s^2 + 2 zeta w s + w^2)``.
@@ -137,14 +138,6 @@ def _shaped_uniform_noise(filter_name: str, n_samples: int, rng: np.random.Gener
     return simulate_lti(sys, noise, x0)[:, 0]
 
 
-def _check_rng(rng):
-    if not isinstance(rng, np.random.Generator):
-        raise TypeError(
-            f"rng must be a numpy.random.Generator, got {type(rng).__name__}; "
-            "pass numpy.random.default_rng(seed)."
-        )
-
-
 def fan_vibration(n_samples: int, rng: np.random.Generator) -> np.ndarray:
     """Fan-induced vibration ``d_p`` of the head position (m) at ``Th``, stationary.
 
@@ -169,7 +162,7 @@ def fan_vibration(n_samples: int, rng: np.random.Generator) -> np.ndarray:
     >>> d.shape
     (1000,)
     """
-    _check_rng(rng)
+    check_rng(rng)
     return _shaped_uniform_noise("fan", n_samples, rng)
 
 
@@ -195,7 +188,7 @@ def rotational_vibration(n_samples: int, rng: np.random.Generator) -> np.ndarray
     >>> rotational_vibration(10, np.random.default_rng(0)).shape
     (10,)
     """
-    _check_rng(rng)
+    check_rng(rng)
     return _shaped_uniform_noise("rotational", n_samples, rng)
 
 
@@ -224,7 +217,7 @@ def repeatable_runout(n_slow_samples: int, rng: np.random.Generator) -> np.ndarr
     >>> bool(np.allclose(d[:420], d[420:]))
     True
     """
-    _check_rng(rng)
+    check_rng(rng)
     spectrum = np.zeros(RRO_PERIOD // 2 + 1, dtype=complex)
     phases = rng.uniform(0, 2 * np.pi, RRO_HARMONICS.size)
     # irfft of (N/2) a e^{j phi} on harmonic h gives a cos(2 pi h l / N + phi)

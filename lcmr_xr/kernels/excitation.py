@@ -26,6 +26,7 @@ import numpy as np
 
 __all__ = [
     "check_bins",
+    "check_rng",
     "crest_factor",
     "multisine_from_phasors",
     "orthogonal_random_phase_multisines",
@@ -33,6 +34,30 @@ __all__ = [
     "schroeder_multisine",
     "schroeder_phases",
 ]
+
+
+def check_rng(rng) -> None:
+    """Refuse anything but a ``numpy.random.Generator`` (seeds are the caller's business).
+
+    Parameters
+    ----------
+    rng : numpy.random.Generator
+        The random generator to check.
+
+    Raises
+    ------
+    TypeError
+        If ``rng`` is not a ``numpy.random.Generator``; the message names the remedy.
+
+    Examples
+    --------
+    >>> check_rng(np.random.default_rng(0))
+    """
+    if not isinstance(rng, np.random.Generator):
+        raise TypeError(
+            f"rng must be a numpy.random.Generator, got {type(rng).__name__}; "
+            "pass numpy.random.default_rng(seed)."
+        )
 
 
 def check_bins(n_samples: int, bins) -> np.ndarray:
@@ -188,11 +213,7 @@ def random_phase_multisine(n_samples: int, n_channels: int, bins, rms, rng) -> n
     """
     n_channels = _check_channels(n_channels)
     bins = check_bins(n_samples, bins)
-    if not isinstance(rng, np.random.Generator):
-        raise TypeError(
-            f"rng must be a numpy.random.Generator, got {type(rng).__name__}; "
-            "pass numpy.random.default_rng(seed)."
-        )
+    check_rng(rng)
     phasors = np.exp(2j * np.pi * rng.random((bins.size, n_channels)))
     if n_samples % 2 == 0 and bins[-1] == n_samples // 2:
         phasors[-1] = rng.choice([-1.0, 1.0], size=n_channels)
@@ -312,11 +333,7 @@ def orthogonal_random_phase_multisines(
     """
     n_channels = _check_channels(n_channels)
     bins = check_bins(n_samples, bins)
-    if not isinstance(rng, np.random.Generator):
-        raise TypeError(
-            f"rng must be a numpy.random.Generator, got {type(rng).__name__}; "
-            "pass numpy.random.default_rng(seed)."
-        )
+    check_rng(rng)
     c = np.arange(n_channels)
     # (c * e) mod C keeps the angles exact for larger C.
     t = np.exp(-2j * np.pi * ((c[:, None] * c[None, :]) % n_channels) / n_channels)
