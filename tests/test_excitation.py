@@ -9,6 +9,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from lcmr_xr.excitation import bins_for_band, multisine, orthogonal_multisines
+from lcmr_xr.hdd import disturbances as hdd_disturbances
 from lcmr_xr.kernels import excitation as ke
 
 
@@ -221,3 +222,16 @@ def test_orthogonal_multisines_labelled():
     again = orthogonal_multisines(64, sampling_period=0.01, rms=[1.0, 0.5], channels=["a", "b"],
                                   band=(1, 30), periods=2, seed=3)
     xr.testing.assert_identical(u, again)
+
+
+@pytest.mark.parametrize("call", [
+    lambda rng: ke.random_phase_multisine(16, 1, [1, 2], 1.0, rng),
+    lambda rng: ke.orthogonal_random_phase_multisines(16, 2, [1, 2], 1.0, rng),
+    lambda rng: hdd_disturbances.fan_vibration(10, rng),
+    lambda rng: hdd_disturbances.rotational_vibration(10, rng),
+    lambda rng: hdd_disturbances.repeatable_runout(10, rng),
+])
+def test_random_signals_refuse_a_seed_in_place_of_a_generator(call):
+    with pytest.raises(TypeError, match=r"numpy.random.Generator, got int; pass numpy.random.default_rng"):
+        call(3)
+    assert np.all(np.isfinite(call(np.random.default_rng(0))))
