@@ -71,7 +71,7 @@ def _identify(args) -> int:
         matplotlib.use("Agg")
         from lcmr_xr.plot import bode, save_figure
 
-        save_figure(bode(frf), args.plot)
+        save_figure(bode(frf, title=f"{Path(args.experiment).name}: {frf.attrs['title']} (window {frf.attrs['window']}, degrees {', '.join(str(int(d)) for d in frf.attrs['degrees'])})"), args.plot)
         print(f"wrote {args.plot}")
     return 0
 

@@ -39,13 +39,28 @@ def quantity_label(attrs: dict, fallback_name: str, *, units: str | None = None)
 
 
 def magnitude_label(attrs: dict, fallback_name: str, *, db: bool) -> str:
-    """Label of a magnitude axis: decibels are relative to one unit of the quantity."""
+    """Label of a frequency-response magnitude: output units per input unit.
+
+    A response's ``units`` are output units over input units (``"m/N"``); a plain unit
+    (``"m"``) or a ``"/1"`` denominator means a dimensionless input, shown as ``m/unit``
+    (metres per unit of input).  Decibels are relative to one of these; a dimensionless
+    response (``"1"``) is plain dB.
+    """
     long_name, units = long_name_and_units(attrs, fallback_name)
+    ratio = None
+    if units not in (None, "1"):
+        numerator, slash, denominator = units.rpartition("/")
+        if not slash:  # "m": per unit of a dimensionless input
+            ratio = f"{units}/unit"
+        elif denominator.strip() in ("1", ""):  # "m/1"
+            ratio = f"{numerator}/unit"
+        else:
+            ratio = units
     if db:
-        # 20 log10 |x| is only meaningful relative to a reference: one unit of x
-        # (implicit for a dimensionless quantity).
-        return f"{long_name} [dB re 1 {units}]" if units not in (None, "1") else f"{long_name} [dB]"
-    return f"{long_name} [{units}]" if units else long_name
+        # 20 log10 |x| is only meaningful relative to a reference: one output unit per
+        # input unit (implicit for a dimensionless response).
+        return f"{long_name} [dB re 1 {ratio}]" if ratio else f"{long_name} [dB]"
+    return f"{long_name} [{ratio or units}]" if (ratio or units) else long_name
 
 
 def phase_label(attrs: dict, fallback_name: str) -> str:

@@ -25,9 +25,15 @@ from lcmr_xr.plot._labels import (
 )
 
 _P_DIMS = (FREQUENCY, OUTPUT, INPUT)
-# Below this fraction of the smallest plotted magnitude a band edge that reaches zero is
-# drawn (a log axis cannot show zero): 20 dB under the lowest point of the panel.
+# The band is drawn down to this fraction of the smallest magnitude of the estimate, 20 dB
+# under its lowest point: a lower edge that reaches zero (or comes close) is clipped there,
+# so the band fills to the bottom of the panel instead of spiking far below it (a log axis
+# cannot show zero).
 _BAND_FLOOR_RATIO = 0.1
+# Wrapped phase axis: ticks every 90 degrees over (-180, 180]; the axis runs to +-225 deg
+# so an estimate drawn next to a truth at +-180 deg stays in view.
+_PHASE_TICKS = (-180, -90, 0, 90, 180)
+_PHASE_LIMIT = 225.0
 
 
 @dataclass
@@ -64,10 +70,11 @@ def bode(
     db=True,
     hz=True,
     phase=True,
-    unwrap=True,
+    unwrap=False,
     label=None,
     color=None,
     xlim=None,
+    title=None,
 ):
     """Bode plot of the fast-rate FRF ``P`` for every output/input pair.
 
@@ -76,7 +83,9 @@ def bode(
     an optional exact FRF as a dashed line and the slow Nyquist frequency as a
     vertical dashed line.  The DC bin is skipped (a log axis cannot show 0 Hz), and
     bins where the estimate is zero or not finite (for example not excited) are left
-    as gaps instead of producing ``log(0)``.
+    as gaps instead of producing ``log(0)``.  The magnitude is labelled in output units
+    per input unit (``m/unit`` for a ``P`` in metres per unit command), the phase is
+    wrapped to (-180, 180] by default, and the legend lists only what is in view.
 
     Parameters
     ----------
@@ -97,9 +106,11 @@ def bode(
     band : float or None, optional
         Confidence level (0 < band < 1) of the band on the magnitude, from the
         circular complex Gaussian error model: ``|P_hat - P| <= sqrt(-ln(1 - band)) * P_std``
-        (1.731 ``P_std`` for the default 0.95).  Where the lower edge reaches zero it
-        is drawn 20 dB below the smallest magnitude of the panel.  None (or False)
-        draws no band; no band is drawn either when ``frf`` has no ``P_std``.
+        (1.731 ``P_std`` for the default 0.95).  The band is clipped 20 dB below the
+        smallest magnitude of the estimate in the panel: where the lower edge reaches
+        zero (or falls below that floor) the band fills down to it and the edge line
+        stops.  None (or False) draws no band; no band is drawn either when ``frf`` has
+        no ``P_std``.
     nyquist : bool or float, optional
         True (default) draws the slow Nyquist frequency from the attrs (``slow_nyquist``,
         else ``1 / (2 factor sampling_period)``) and draws nothing when neither is
@@ -113,7 +124,11 @@ def bode(
     phase : bool, optional
         Draw the phase rows, in degrees (default True).
     unwrap : bool, optional
-        Unwrap the phase along frequency, across gaps (default True).
+        Default False: the phase is wrapped to (-180, 180] deg, with ticks every 90 deg
+        and the line broken where it wraps; with a truth, an estimate bin is moved by a
+        turn where that puts it next to the truth within +-225 deg (so an estimate at
+        -179 deg is drawn at 181 deg beside a truth at 179 deg).  True unwraps it along frequency, across
+        gaps, and moves the truth by whole turns onto the estimate's branch.
     label : str, optional
         Legend label of the estimate (default None: not in the legend).
     color : color, optional
@@ -121,7 +136,10 @@ def bode(
         axes' cycle).
     xlim : tuple of float, optional
         ``(f_lo, f_hi)`` in Hz (whatever ``hz``): only bins in this range are drawn and
-        the axes are zoomed to it.  Default None: all bins above DC.
+        the axes are zoomed to it (a span under a decade gets linear ticks with
+        engineering labels, e.g. ``40k``).  Default None: all bins above DC.
+    title : str, optional
+        Figure title (``Figure.suptitle``); default None leaves the title alone.
 
     Returns
     -------
@@ -201,11 +219,22 @@ def bode(
                 )
             if phase:
                 est_phase = _phase_deg(values[:, o, i], unwrap)
-                pair["estimate"] += phase_ax.plot(x, est_phase, color=color)
+                true_phase = None
                 if truth_values is not None:
-                    true_phase = _align_phase(_phase_deg(truth_values[:, o, i], unwrap), est_phase)
+                    true_phase = _phase_deg(truth_values[:, o, i], unwrap)
+                    if unwrap:
+                        true_phase = _align_phase(true_phase, est_phase)
+                    else:
+                        # +179 and -179 deg agree: where a turn puts the estimate next to the
+                        # truth and still inside the axis (|phase| <= 225), draw it there
+                        shifted = est_phase - 360.0 * np.round((est_phase - true_phase) / 360.0)
+                        closer = np.isfinite(shifted) & (np.abs(shifted) <= _PHASE_LIMIT)
+                        est_phase = np.where(closer, shifted, est_phase)
+                pair["estimate"] += phase_ax.plot(*_phase_line(x, est_phase, unwrap), color=color)
+                if true_phase is not None:
                     pair["truth"] += phase_ax.plot(
-                        x, true_phase, color="k", linestyle="--", linewidth=1.0
+                        *_phase_line(x, true_phase, unwrap), color="k", linestyle="--",
+                        linewidth=1.0,
                     )
             if nyquist_hz is not None:
                 for k, target in enumerate(a for a in (mag_ax, phase_ax) if a is not None):
@@ -219,8 +248,14 @@ def bode(
             lines[(out_label, in_label)] = pair
 
     _style_bode_axes(axes, estimate, db, hz, phase, rows_per_output, xlim, to_axis)
+    if phase and not unwrap:
+        for a in axes[1::rows_per_output].flat:
+            a.set_yticks(_PHASE_TICKS)
+            a.set_ylim(-_PHASE_LIMIT, _PHASE_LIMIT)
     if label is not None or truth is not None or sigma is not None or nyquist_hz is not None:
         _deduplicated_legend(axes[0, 0])
+    if title is not None:
+        figure.suptitle(str(title))
     return BodePlot(figure=figure, axes=axes, lines=lines)
 
 
@@ -446,8 +481,28 @@ def _phase_deg(values: np.ndarray, unwrap: bool) -> np.ndarray:
     ok = np.isfinite(values) & (values != 0)
     out = np.full(values.shape, np.nan)
     angle = np.angle(values[ok])
-    out[ok] = np.degrees(np.unwrap(angle) if unwrap else angle)
+    if unwrap:
+        out[ok] = np.degrees(np.unwrap(angle))
+    else:
+        degrees = np.degrees(angle)
+        out[ok] = np.where(degrees <= -180.0, degrees + 360.0, degrees)  # (-180, 180]
     return out
+
+
+def _phase_line(x: np.ndarray, phase: np.ndarray, unwrap: bool):
+    """``(x, phase)`` to draw; a wrapped phase gets a NaN point between bins where it wraps.
+
+    Without the break, a jump from +179 to -179 deg would be drawn as a vertical line
+    across the whole axis.  Only the breaks are added: the bins keep their values.
+    """
+    if unwrap:
+        return x, phase
+    finite = np.flatnonzero(np.isfinite(phase))
+    jumps = finite[1:][np.abs(np.diff(phase[finite])) > 180.0]
+    if jumps.size == 0:
+        return x, phase
+    # a break just before each bin that follows a wrap (between it and its finite predecessor)
+    return np.insert(x, jumps, np.nan), np.insert(phase, jumps, np.nan)
 
 
 def _align_phase(phase: np.ndarray, reference: np.ndarray) -> np.ndarray:
@@ -465,29 +520,33 @@ def _align_phase(phase: np.ndarray, reference: np.ndarray) -> np.ndarray:
 
 
 def _band_edges(values: np.ndarray, sigma: np.ndarray, factor: float):
-    """Magnitude edges ``|x| +- factor sigma`` (linear); a lower edge <= 0 goes to a floor.
+    """Magnitude edges ``|x| +- factor sigma`` (linear); a lower edge under the floor is clipped.
 
-    The floor is ``_BAND_FLOOR_RATIO`` times the smallest positive magnitude or lower
-    edge of the curve, so the band visibly reaches "zero" without stretching the axis.
+    The floor is ``_BAND_FLOOR_RATIO`` times the smallest positive magnitude of the
+    curve, so the band visibly reaches "zero" without stretching the axis down to a
+    lower edge that merely comes close to zero.  Returns ``(upper, lower, floor)``.
     """
     mag = np.abs(values)
     radius = factor * np.asarray(sigma, dtype=float)
     valid = np.isfinite(mag) & (mag > 0) & np.isfinite(radius)
     upper = np.where(valid, mag + np.where(valid, radius, 0.0), np.nan)
     lower = np.where(valid, mag - np.where(valid, radius, 0.0), np.nan)
-    positive = valid & (lower > 0)
-    floor = _BAND_FLOOR_RATIO * np.min(
-        np.concatenate([mag[valid], lower[positive]]), initial=np.inf
-    )
-    lower = np.where(valid & ~positive, floor, lower)
-    return upper, lower
+    floor = _BAND_FLOOR_RATIO * np.min(mag[valid], initial=np.inf)
+    lower = np.where(valid, np.maximum(lower, floor), np.nan)
+    return upper, lower, floor
 
 
 def _draw_band(axis, x, values, sigma, factor, db, color, label):
-    """Upper and lower edge lines plus the fill between them; returns the artists."""
-    upper, lower = _band_edges(values, sigma, factor)
+    """Upper and lower edge lines plus the fill between them; returns the artists.
+
+    The lower edge line stops where the edge is clipped at the floor; the fill goes on
+    down to the floor there (the band contains magnitudes down to zero).
+    """
+    upper, lower, floor = _band_edges(values, sigma, factor)
+    clipped = lower <= floor
     upper, lower = _magnitude(upper, db), _magnitude(lower, db)
-    edges = axis.plot(x, upper, x, lower, color=color, linewidth=0.5, alpha=0.5)
+    edges = axis.plot(x, upper, x, np.where(clipped, np.nan, lower), color=color,
+                      linewidth=0.5, alpha=0.5)
     fill = axis.fill_between(x, lower, upper, color=color, alpha=0.2, linewidth=0, label=label)
     return edges + [fill]
 
@@ -519,11 +578,49 @@ def _style_bode_axes(axes, estimate, db, hz, phase, rows_per_output, xlim, to_ax
             a.grid(True, which="both", alpha=0.3)
             if xlim is not None:
                 a.set_xlim(xlim[0] * to_axis, xlim[1] * to_axis)
+            _ticks_for_short_log_span(a)
+
+
+def _ticks_for_short_log_span(axis) -> None:
+    """Linear ticks with engineering labels (``40k``) on a log x axis spanning under a decade.
+
+    On such a span a log axis has at most one labelled decade tick; the data there are
+    close to linear in frequency, so evenly spaced round values read best.
+    """
+    from matplotlib.ticker import EngFormatter, MaxNLocator, NullFormatter
+
+    lo, hi = axis.get_xlim()
+    if lo > 0 and hi / lo < 10.0:
+        axis.xaxis.set_major_locator(MaxNLocator(nbins=6, steps=[1, 2, 2.5, 5, 10]))
+        axis.xaxis.set_major_formatter(EngFormatter(sep=""))
+        axis.xaxis.set_minor_formatter(NullFormatter())
 
 
 def _deduplicated_legend(axis) -> None:
-    """Legend of ``axis`` with one entry per label (overlays repeat band/Nyquist labels)."""
+    """Legend of ``axis``: one entry per label, only for artists with data in view.
+
+    Overlays repeat the band and Nyquist labels; a zoom can leave the Nyquist line or the
+    truth outside the axes, and a legend entry for what is not drawn misleads.
+    """
     handles, labels = axis.get_legend_handles_labels()
-    unique = dict(zip(labels, handles))
+    lo, hi = sorted(axis.get_xlim())
+    unique = {}
+    for handle, text in zip(handles, labels):
+        if text not in unique and _in_view(handle, lo, hi):
+            unique[text] = handle
+    legend = axis.get_legend()
     if unique:
         axis.legend(unique.values(), unique.keys(), fontsize="small")
+    elif legend is not None:
+        legend.remove()
+
+
+def _in_view(artist, lo: float, hi: float) -> bool:
+    """True when ``artist`` has a finite point with x in ``[lo, hi]`` (data coordinates)."""
+    if hasattr(artist, "get_xydata"):  # Line2D; axvline's y is in axes coordinates
+        xy = np.asarray(artist.get_xydata(), dtype=float)
+    else:  # the band's PolyCollection
+        paths = artist.get_paths()
+        xy = np.concatenate([p.vertices for p in paths]) if paths else np.empty((0, 2))
+    ok = np.isfinite(xy).all(axis=1) & (xy[:, 0] >= lo) & (xy[:, 0] <= hi)
+    return bool(ok.any())

@@ -35,6 +35,7 @@ from lcmr_xr.plot.bode import (
     _magnitude,
     _prepare_axes,
     _require_dims,
+    _ticks_for_short_log_span,
 )
 
 # Row dims of each lifted estimate; the columns are always (lift_phase2, input2),
@@ -324,3 +325,4 @@ def _style_slow_axes(axes, x_label: str, y_labels: list, *, log_y: bool, xlim) -
             a.grid(True, which="both", alpha=0.3)
             if xlim is not None:
                 a.set_xlim(*xlim)
+            _ticks_for_short_log_span(a)
