@@ -591,7 +591,8 @@ def _ticks_for_short_log_span(axis) -> None:
 
     lo, hi = axis.get_xlim()
     if lo > 0 and hi / lo < 10.0:
-        axis.xaxis.set_major_locator(MaxNLocator(nbins=6, steps=[1, 2, 2.5, 5, 10]))
+        # at most 5 intervals: the labels of a narrow panel (lifted grids) must not collide
+        axis.xaxis.set_major_locator(MaxNLocator(nbins=5, steps=[1, 2, 2.5, 5, 10], min_n_ticks=3))
         axis.xaxis.set_major_formatter(EngFormatter(sep=""))
         axis.xaxis.set_minor_formatter(NullFormatter())
 
