@@ -89,6 +89,8 @@ def test_frf_for_matlab_frd(tmp_path):
     assert m["FrequencyUnit"].item() == "Hz" and m["P_units"].item() == "m"
     assert [c.item() for c in m["InputName"].ravel()] == ["vcm", "pzt"]
     assert [c.item() for c in m["OutputName"].ravel()] == ["position"]
+    with pytest.raises(ValueError, match="is a MATLAB file.*ending in .nc"):
+        lcmr_xr.open_frf(path)
     with pytest.raises(ValueError, match="sampling_period"):
         lcmr_xr.save(frf.drop_attrs(), tmp_path / "bare.mat")
     with pytest.raises(ValueError, match=r"isel\(experiment=0\)"):

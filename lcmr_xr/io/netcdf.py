@@ -324,6 +324,12 @@ def open_frf(path, chunks=None) -> xr.Dataset:
     ...     open_frf(save(frf, os.path.join(d, "f.nc"))).sizes["frequency"]
     3
     """
+    if is_mat_path(path):
+        raise ValueError(
+            f"{path} is a MATLAB file: FRFs are written to .mat for MATLAB's frd "
+            "(scipy.io.loadmat reads it); open_frf reads the NetCDF file that lcmr_xr.save "
+            "writes to a path ending in .nc."
+        )
     ds = open_dataset(path, chunks=chunks)
     _check_conventions(ds, path, "FRF")
     if "P" not in ds.data_vars:
