@@ -496,3 +496,44 @@ def identify_single_rate(experiment: xr.Dataset, *, method: str = "lrm", window:
                   "title": f"single-rate closed-loop {s.method.upper()} FRF estimate (ignores lifting)"})
     out.attrs.update(attrs)
     return out
+
+
+def result_template(ds: xr.Dataset, s, *, stacked: bool = False) -> xr.Dataset:
+    """Lazy zeros shaped, labelled and chunked like ``identify(ds, ...)``, computing nothing.
+
+    Derived from :func:`output_specs` and :func:`output_sizes`: what
+    :func:`xarray.map_blocks` needs as the template of a blockwise ``identify``
+    (:func:`lcmr_xr.scaleout.sweep`).  Leading dims of ``ds["r"]`` keep their chunks.
+
+    Parameters
+    ----------
+    ds : xarray.Dataset
+        Experiment dataset (may be dask-backed).
+    s : lcmr_xr.settings.EstimatorSettings
+        Validated settings (:func:`lcmr_xr.settings.estimator_settings`).
+    stacked : bool, default False
+        As in :func:`identify`.
+
+    Returns
+    -------
+    xarray.Dataset
+        Dask zeros with the variables, dims, coords and attributes of the result.
+    """
+    import dask.array as dsa
+
+    factor = int(ds.attrs[cv.FACTOR])
+    th = float(ds[cv.TIME][1] - ds[cv.TIME][0])
+    r = ds["r"]
+    lead = [d for d in r.dims if d not in (cv.TIME, cv.INPUT)]
+    lead_shape = tuple(ds.sizes[d] for d in lead)
+    lead_chunks = tuple(r.chunks[r.get_axis_num(d)] if r.chunks else (ds.sizes[d],) for d in lead)
+    sizes = output_sizes(factor=factor, n=ds.sizes[cv.TIME], nu=ds.sizes[cv.INPUT],
+                         ny=ds.sizes[cv.OUTPUT], closed_loop=s.closed_loop)
+    variables = {}
+    for name, dims, dtype in output_specs(s.closed_loop, stacked):
+        shape = tuple(sizes[d] for d in dims)
+        data = dsa.zeros(lead_shape + shape, dtype=dtype, chunks=lead_chunks + tuple((k,) for k in shape))
+        variables[name] = (tuple(lead) + tuple(dims), data)
+    out = _label(xr.Dataset(variables), ds, factor=factor, th=th)
+    out.attrs.update(_settings_attrs(ds, s, factor=factor, th=th))
+    return out
