@@ -537,3 +537,52 @@ def result_template(ds: xr.Dataset, s, *, stacked: bool = False) -> xr.Dataset:
     out = _label(xr.Dataset(variables), ds, factor=factor, th=th)
     out.attrs.update(_settings_attrs(ds, s, factor=factor, th=th))
     return out
+
+
+def stacked_local_model(result: xr.Dataset) -> tuple[xr.DataArray, xr.DataArray]:
+    """The local-model estimate ``G`` and the residual variances of its rows, stacked.
+
+    ``G`` (..., ``slow_frequency``, ``response``, ``excitation``) maps the lifted excitation
+    spectra to the spectra ``[U; Y]`` (``Y`` alone for ``closed_loop="direct"``);
+    ``noise_variance`` (..., ``slow_frequency``, ``response``).  Taken as they are from a
+    result of ``identify(..., stacked=True)``; otherwise (a result of
+    :func:`lcmr_xr.scaleout.sweep`, say) rebuilt from its blocks ``S``, ``PS``,
+    ``noise_variance_u`` and ``noise_variance_y`` -- the inverse of how :func:`identify`
+    cuts them.
+
+    Parameters
+    ----------
+    result : xarray.Dataset
+        A result of :func:`identify` or :func:`lcmr_xr.scaleout.sweep` (extra leading dims
+        such as ``experiment`` or the sweep's settings are kept, in front).
+
+    Returns
+    -------
+    (xarray.DataArray, xarray.DataArray)
+        ``G`` and ``noise_variance``, computed if ``result`` is.
+    """
+    if "G" in result and "noise_variance" in result:
+        return (result["G"].transpose(..., SF, RESPONSE, EXCITATION),
+                result["noise_variance"].transpose(..., SF, RESPONSE))
+    ps = result["PS"].transpose(..., SF, cv.OUTPUT, LP2, IN2)
+    lead = list(ps.dims[:-4])
+    G = ps.data.reshape(ps.shape[:-2] + (-1,))
+    noise = result["noise_variance_y"].transpose(*lead, SF, cv.OUTPUT).data
+    if "S" in result:  # indirect: the rows of the lifted u come first
+        S = result["S"].transpose(*lead, SF, LP, cv.INPUT, LP2, IN2)
+        rows = S.shape[-4] * S.shape[-3]
+        G = _concat([S.data.reshape(S.shape[:-4] + (rows, -1)), G], axis=-2)
+        nu_ = result["noise_variance_u"].transpose(*lead, SF, LP, cv.INPUT).data
+        noise = _concat([nu_.reshape(nu_.shape[:-2] + (rows,)), noise], axis=-1)
+    coords = {d: result[d] for d in lead + [SF] if d in result.coords}
+    return (xr.DataArray(G, dims=lead + [SF, RESPONSE, EXCITATION], coords=coords),
+            xr.DataArray(noise, dims=lead + [SF, RESPONSE], coords=coords))
+
+
+def _concat(arrays, axis):
+    """``numpy.concatenate`` that stays lazy for dask arrays."""
+    if any(hasattr(a, "dask") for a in arrays):
+        import dask.array as dsa
+
+        return dsa.concatenate(arrays, axis=axis)
+    return np.concatenate(arrays, axis=axis)
