@@ -21,7 +21,8 @@ import numpy as np
 
 __all__ = [
     "METHODS", "CLOSED_LOOP", "ERRORS", "EstimatorSettings", "estimator_settings",
-    "parse_degrees", "degrees_label", "as_integer", "as_bool", "as_choice", "check_window_fits",
+    "parse_degrees", "degrees_label", "degrees_arguments", "as_integer", "as_bool", "as_choice",
+    "check_window_fits",
 ]
 
 
@@ -287,3 +288,21 @@ def check_window_fits(window: int, degrees, n_excitation: int, n_bins: int) -> N
             f"the local window (2n+1 = {2 * window + 1} bins for window={window}) is wider than the "
             f"spectrum ({n_bins} slow bins). Use window <= {(n_bins - 1) // 2} or a longer experiment."
         )
+
+
+def degrees_arguments(tokens) -> list[str]:
+    """The degrees settings of a command line's ``--degrees`` tokens (syntax ``RN-RM-RD``).
+
+    Each token is one setting ``RN-RM-RD`` (or ``RN,RM,RD``); bare integers ``RN RM RD``
+    are read as one setting too (the older ``lcmr-xr identify`` spelling).  The settings
+    are parsed with the method's rule by :func:`estimator_settings` (or the sweep).
+
+    Examples
+    --------
+    >>> degrees_arguments(["3-3-3", "2,2,0"]), degrees_arguments(["2", "2", "2"])
+    (['3-3-3', '2,2,0'], ['2-2-2'])
+    """
+    tokens = [str(t).strip() for t in tokens]
+    if tokens and all(t.isdigit() for t in tokens):
+        return ["-".join(tokens)]
+    return tokens

@@ -8,6 +8,9 @@ the arrays that come back are labelled per ``shared/conventions.md``.
 
 from __future__ import annotations
 
+__all__ = ["identify", "identify_single_rate", "output_specs", "output_sizes", "result_template",
+           "stacked_local_model"]
+
 import numpy as np
 import xarray as xr
 
@@ -191,6 +194,19 @@ def output_specs(closed_loop: str, stacked: bool = False) -> list[tuple[str, lis
 
     The one description of the result's layout: :func:`identify` fills it, and
     :func:`lcmr_xr.scaleout.sweep` derives its lazy template from it without computing.
+
+    Parameters
+    ----------
+    closed_loop : {"indirect", "direct"}
+        The estimator (``"direct"`` has no ``S`` and its by-products).
+    stacked : bool, default False
+        Include the stacked local model ``G``, ``G_std``, ``noise_variance``.
+
+    Returns
+    -------
+    list of (str, list of str, type)
+        Variable name, its core dims (leading dims such as ``experiment`` come in front),
+        its dtype.
     """
     specs = [
         ("P", [FQ, cv.OUTPUT, cv.INPUT], complex),
@@ -222,7 +238,23 @@ def output_specs(closed_loop: str, stacked: bool = False) -> list[tuple[str, lis
 
 
 def output_sizes(*, factor: int, n: int, nu: int, ny: int, closed_loop: str) -> dict:
-    """Size of every core dim of :func:`output_specs` (``n``: fast samples ``N``)."""
+    """Size of every core dim of :func:`output_specs`.
+
+    Parameters
+    ----------
+    factor : int
+        Multirate factor ``F`` of the estimate.
+    n : int
+        Fast samples ``N`` of the experiment.
+    nu, ny : int
+        Plant inputs and outputs.
+    closed_loop : {"indirect", "direct"}
+        The estimator (sets the rows of ``G``).
+
+    Returns
+    -------
+    dict of str to int
+    """
     fnu = factor * nu
     return {FQ: n // 2 + 1, SF: n // factor, LP: factor, LP2: factor, IN2: nu,
             cv.INPUT: nu, cv.OUTPUT: ny, RESPONSE: fnu + ny if closed_loop == "indirect" else ny,

@@ -23,7 +23,9 @@ import xarray as xr
 
 from lcmr_xr import conventions as cv
 from lcmr_xr.settings import (
+    CLOSED_LOOP,
     METHODS,
+    as_bool,
     as_choice,
     as_integer,
     check_window_fits,
@@ -32,7 +34,7 @@ from lcmr_xr.settings import (
     parse_degrees,
 )
 
-__all__ = ["sweep", "parse_degrees", "degrees_label", "SETTING_DIMS"]
+__all__ = ["sweep", "sweep_settings", "parse_degrees", "degrees_label", "SETTING_DIMS"]
 
 #: Dims a sweep adds, outermost first.
 SETTING_DIMS = ("method", "degrees", "window")
@@ -94,29 +96,69 @@ def _identify_block(block: xr.Dataset, **settings) -> xr.Dataset:
     return identify(block, errors="ignore", **settings)
 
 
-def _check_settings(ds, windows, degrees_list, methods, closed_loop, covariance):
-    """Every (method, degrees, window) through the rules of ``identify``; all problems at once."""
-    factor = int(np.asarray(ds.attrs[cv.FACTOR]).item())
-    n_excitation, n_bins = factor * ds.sizes[cv.INPUT], ds.sizes[cv.SLOW_TIME]
+def sweep_settings(*, window=(30,), degrees=None, method=("lrm",), closed_loop="indirect",
+                   covariance=True, experiments: xr.Dataset | None = None) -> dict:
+    """Check every (method, degrees, window) of a sweep by the rules of ``identify``.
+
+    All invalid combinations are reported at once, before anything is computed.  Without
+    ``experiments`` only what does not depend on the data is checked (the command line
+    does that before it opens the archive); with it, also that each window fits the
+    number of local parameters and the length of the spectrum.
+
+    Parameters
+    ----------
+    window, degrees, method, closed_loop, covariance
+        As in :func:`sweep`.
+    experiments : xarray.Dataset, optional
+        The experiments (only sizes and the ``factor`` attribute are read).
+
+    Returns
+    -------
+    dict
+        ``{(method, degrees, window): EstimatorSettings}`` in sweep order, ``degrees`` as
+        the requested triple.
+
+    Raises
+    ------
+    TypeError, ValueError
+        A malformed list or value, or (``ValueError``) the list of invalid combinations.
+
+    Examples
+    --------
+    >>> list(sweep_settings(window=[20, 30], degrees=["3-3-0"], method=["lrm", "lpm"]))[:2]
+    [('lrm', (3, 3, 0), 20), ('lrm', (3, 3, 0), 30)]
+    """
+    windows = _unique([as_integer(w, "window", minimum=1, example=30)
+                       for w in _as_list(window, "window")], "window")
+    methods = _unique([as_choice(m, "method", METHODS) for m in _as_list(method, "method")], "method")
+    degrees_list = _unique(_degrees_list(degrees, methods), "degrees")
+    closed_loop = as_choice(closed_loop, "closed_loop", CLOSED_LOOP)
+    covariance = as_bool(covariance, "covariance")
+    fits = None
+    if experiments is not None:
+        factor = int(np.asarray(experiments.attrs[cv.FACTOR]).item())
+        fits = (factor * experiments.sizes[cv.INPUT], experiments.sizes[cv.SLOW_TIME])
     checked, problems = {}, []
     for m, deg, w in itertools.product(methods, degrees_list, windows):
         try:
             s = estimator_settings(method=m, window=w, degrees=deg, closed_loop=closed_loop,
                                    covariance=covariance, errors="ignore")
-            check_window_fits(s.window, s.degrees, n_excitation, n_bins)
+            if fits is not None:
+                check_window_fits(s.window, s.degrees, *fits)
             checked[m, deg, w] = s
         except ValueError as err:
             problems.append(f"method={m}, degrees={degrees_label(deg)}, window={w}: {err}")
     if problems:
         hint = ""
-        if any(not METHODS[m].has_denominator and d[2] != 0 for m, d, _ in
-               itertools.product(methods, degrees_list, windows)) and len(methods) > 1:
+        if len(methods) > 1 and any(not METHODS[m].has_denominator and d[2] != 0
+                                    for m in methods for d in degrees_list):
             hint = ("\nEvery degrees entry is combined with every method, and the LPM has Rd = 0: "
                     "give degrees with Rd = 0 (e.g. '3-3-0'), or sweep method='lrm' alone with "
                     "both '3-3-3' and '3-3-0' (the LRM with Rd = 0 is the LPM).")
+        where = "for these experiments " if experiments is not None else ""
         raise ValueError(
-            f"{len(problems)} of {len(checked) + len(problems)} sweep settings are invalid for "
-            f"these experiments (nothing was computed); remove them from the sweep:\n  - "
+            f"{len(problems)} of {len(checked) + len(problems)} sweep settings are invalid "
+            f"{where}(nothing was computed); remove them from the sweep:\n  - "
             + "\n  - ".join(problems) + hint
         )
     return checked
@@ -168,8 +210,9 @@ def sweep(experiments: xr.Dataset, *, window=(30,), degrees=None, method=("lrm",
     ValueError
         Before anything is computed, listing every invalid combination: a window too small
         for the number of local parameters, a window wider than the spectrum, ``Rd != 0``
-        with the LPM; or unknown methods, malformed degrees or non-integer windows.  Data errors (NaN in the data, an excitation that
-        does not excite every lifted channel) are raised by the tasks when computed.
+        with the LPM; or unknown methods, malformed degrees or non-integer windows (see
+        :func:`sweep_settings`).  Data errors (NaN in the data, an excitation that does not
+        excite every lifted channel) are raised by the tasks when computed.
 
     Examples
     --------
@@ -189,15 +232,14 @@ def sweep(experiments: xr.Dataset, *, window=(30,), degrees=None, method=("lrm",
     if not isinstance(experiments, xr.Dataset):
         raise TypeError(f"sweep expects an experiment Dataset, got {type(experiments).__name__}; "
                         "open an archive with lcmr_xr.scaleout.open_archive.")
-    windows = _unique([as_integer(w, "window", minimum=1, example=30)
-                       for w in _as_list(window, "window")], "window")
-    methods = _unique([as_choice(m, "method", METHODS) for m in _as_list(method, "method")], "method")
-    degrees_list = _unique(_degrees_list(degrees, methods), "degrees")
-
     ds = experiments
     if ds["r"].chunks is None:
         validate_experiment(ds)  # in memory: cheap, and errors surface here, not in a task
-    checked = _check_settings(ds, windows, degrees_list, methods, closed_loop, covariance)
+    checked = sweep_settings(window=window, degrees=degrees, method=method,
+                             closed_loop=closed_loop, covariance=covariance, experiments=ds)
+    methods = list(dict.fromkeys(m for m, _, _ in checked))
+    degrees_list = list(dict.fromkeys(d for _, d, _ in checked))
+    windows = list(dict.fromkeys(w for _, _, w in checked))
     ds = _chunked(ds)
 
     nested = []
