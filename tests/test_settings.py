@@ -236,3 +236,20 @@ def test_cli_sweep_takes_bare_integers_as_one_setting(tmp_path):
     assert cli.main(["sweep", str(tmp_path / "arc"), "-o", str(out), "--window", "12",
                      "--degrees", "2", "2", "2", "--scheduler", "synchronous"]) == 0
     assert lcmr_xr.open_dataset(out).degrees.values.tolist() == ["2-2-2"]
+
+
+@pytest.mark.parametrize("frequency_chunks", [None, 40])
+def test_eager_identify_computes_each_lifted_spectrum_once(exp, monkeypatch, frequency_chunks):
+    import lcmr_xr.kernels.identification as kid
+
+    calls = []
+    real = kid.lifted_spectra
+
+    def counting(x, factor):
+        calls.append(np.shape(x))
+        return real(x, factor)
+
+    monkeypatch.setattr(kid, "lifted_spectra", counting)
+    frf = identify(exp, window=12, degrees=(2, 2, 2), frequency_chunks=frequency_chunks)
+    frf.compute()
+    assert len(calls) == 2  # lifted r and lifted u, once each (the rank check reuses r's)

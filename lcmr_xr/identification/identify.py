@@ -21,7 +21,6 @@ from lcmr_xr.kernels.identification import (
     finish_packed,
     fit_packed,
     identify_spectra,
-    lifted_spectra,
     packed_width,
 )
 from lcmr_xr.kernels.local_models import parameters_per_row
@@ -326,11 +325,7 @@ def _estimate(r: xr.DataArray, u: xr.DataArray, y: xr.DataArray, s, *, factor: i
 
         results = xr.apply_ufunc(kernel, r, u, y, input_core_dims=core_in, **output_spec)
     else:
-        if check_rank and not lazy:
-            source = r if s.closed_loop == "indirect" else u
-            _check_excitation_rank(lifted_spectra(np.asarray(source.transpose(..., cv.TIME, cv.INPUT)),
-                                                  factor), "r" if s.closed_loop == "indirect" else "u")
-        packed = _fit_frequency_chunked(r, u, y, s, factor=factor)
+        packed = _fit_frequency_chunked(r, u, y, s, factor=factor, check_rank=check_rank)
         nz_, nr_ = packed.attrs["nz"], packed.attrs["nr"]
 
         def finish(p):
@@ -345,8 +340,11 @@ def _estimate(r: xr.DataArray, u: xr.DataArray, y: xr.DataArray, s, *, factor: i
     return xr.Dataset({name: da for (name, _, _), da in zip(specs, results)})
 
 
-def _fit_frequency_chunked(r, u, y, s, *, factor):
+def _fit_frequency_chunked(r, u, y, s, *, factor, check_rank):
     """Lazy local-model fit in chunks along ``slow_frequency`` with wrapped halos.
+
+    On eager data the spectra are computed here, once, and the excitation rank is checked
+    on them (``check_rank``).
 
     Returns a DataArray (..., ``slow_frequency``, ``_packed``) of :func:`fit_packed` columns.
     """
@@ -366,6 +364,8 @@ def _fit_frequency_chunked(r, u, y, s, *, factor):
         output_dtypes=[complex, complex],
         dask_gufunc_kwargs={"output_sizes": {SF: m, "_r": nr, "_z": nz}},
     )
+    if check_rank and R.chunks is None:
+        _check_excitation_rank(R.values, "r" if closed_loop == "indirect" else "u")
     lead_chunks = {d: "auto" for d in R.dims if d not in (SF, "_r")}
     Rd = R.chunk({**{d: R.chunks[R.get_axis_num(d)] if R.chunks else -1 for d in lead_chunks},
                   SF: chunk, "_r": -1}).data
