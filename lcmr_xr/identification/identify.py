@@ -70,10 +70,12 @@ def identify(experiment: xr.Dataset, *, method: str = "lrm", window: int = 30, d
         Local rational model, or local polynomial model (denominator degree ``Rd = 0``).
     window : int, default 30
         Half-width ``n`` of the local window: each estimate uses ``2 n + 1`` slow bins.
-    degrees : (int, int, int), optional
+        A whole number (``30.0`` is 30; ``30.5`` is refused, not rounded).
+    degrees : (int, int, int) or str, optional
         ``(Rn, Rm, Rd)``: degrees of the numerator, transient and (diagonal) denominator
-        polynomials in the local frequency variable.  Default ``(3, 3, 3)`` for LRM and
-        ``(3, 3, 0)`` for LPM (a pair ``(Rn, Rm)`` is accepted for LPM).
+        polynomials in the local frequency variable, or the label ``"Rn-Rm-Rd"``.  Default
+        ``(3, 3, 3)`` for LRM and ``(3, 3, 0)`` for LPM, whose ``Rd`` must be 0 (a pair
+        ``(Rn, Rm)`` is accepted for LPM).  The rules: :mod:`lcmr_xr.settings`.
     closed_loop : {"indirect", "direct"}, default "indirect"
         ``"indirect"`` (the paper): estimate ``[S; PS_1]`` from the lifted excitation and
         form ``PS_1 S^-1`` -- unbiased under feedback.  ``"direct"``: local model from the
@@ -499,8 +501,9 @@ def identify_single_rate(experiment: xr.Dataset, *, method: str = "lrm", window:
         Local rational or polynomial model.
     window : int, default 30
         Half-width ``n`` of the local window (``2 n + 1`` slow bins).
-    degrees : (int, int, int), optional
-        ``(Rn, Rm, Rd)``; default ``(3, 3, 3)`` (LRM) or ``(3, 3, 0)`` (LPM).
+    degrees : (int, int, int) or str, optional
+        ``(Rn, Rm, Rd)`` or ``"Rn-Rm-Rd"``; default ``(3, 3, 3)`` (LRM) or ``(3, 3, 0)`` (LPM),
+        the rules of :func:`identify`.
     covariance : bool, default True
         Return ``P_std`` from the local-model covariance.
 
