@@ -164,7 +164,7 @@ def _settings_first(da: xr.DataArray, core: list[str]) -> xr.DataArray:
 
 def _lifted_estimates(result: xr.Dataset, closed_loop: str) -> np.ndarray:
     """``G`` (settings..., [experiment], M, nz, nr) from ``S`` and ``PS`` of a sweep."""
-    lp, in2, lp2 = cv.LIFT_PHASE, cv.INPUT + cv.SECOND, cv.LIFT_PHASE + cv.SECOND
+    lp, in2, lp2 = cv.LIFT_PHASE, cv.INPUT2, cv.LIFT_PHASE2
     ps = _settings_first(result["PS"], [cv.SLOW_FREQUENCY, cv.OUTPUT, lp2, in2]).values
     ps = ps.reshape(ps.shape[:-2] + (-1,))
     if closed_loop != "indirect":
@@ -198,7 +198,7 @@ def _check_inputs(result, experiments):
         raise ValueError(f"experiments has leading dims {lead}; only 'experiment' is supported. "
                          "Select one value of the other dims first, e.g. experiments.isel(case=0).")
     extra = [d for d in result["PS"].dims if d not in SETTING_DIMS and d not in
-             (cv.EXPERIMENT, cv.SLOW_FREQUENCY, cv.OUTPUT, cv.LIFT_PHASE + cv.SECOND, cv.INPUT + cv.SECOND)]
+             (cv.EXPERIMENT, cv.SLOW_FREQUENCY, cv.OUTPUT, cv.LIFT_PHASE2, cv.INPUT2)]
     if extra:
         raise ValueError(f"sweep_result has dims {extra} that experiments does not explain; "
                          "select them away first.")
