@@ -236,9 +236,11 @@ def test_stacks_are_the_block_matrices_of_their_parts():
     np.testing.assert_array_equal(v.B, np.vstack([g3.B, g4.B]))
     np.testing.assert_array_equal(v.C, bd(g3.C, g4.C))
     np.testing.assert_array_equal(v.D, np.vstack([g3.D, g4.D]))
-    with pytest.raises(ValueError, match="hstack: every system must have the same number of outputs"):
+    with pytest.raises(ValueError,
+                       match="hstack: every system must have the same number of outputs"):
         hstack(g1, g4)
-    with pytest.raises(ValueError, match="vstack: every system must have the same number of inputs"):
+    with pytest.raises(ValueError,
+                       match="vstack: every system must have the same number of inputs"):
         vstack(g1, g2)
     with pytest.raises(ValueError, match="at least one system"):
         vstack()

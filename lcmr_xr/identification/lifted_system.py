@@ -114,9 +114,10 @@ def frf_from_first_block_row(first_row: xr.DataArray, factor: int | None = None)
         ``k = 0..N/2``, dims (..., ``frequency``, ``output``, ``input``).
     """
     in_dim = cv.INPUT if cv.INPUT in first_row.dims else cv.INPUT2
-    f_ = int(factor) if factor is not None else first_row.sizes[cv.LIFT_PHASE2]
-    if first_row.sizes[cv.LIFT_PHASE2] != f_:
-        raise ValueError(f"lift_phase2 has {first_row.sizes[cv.LIFT_PHASE2]} entries but factor is {f_}.")
+    n_phases = first_row.sizes[cv.LIFT_PHASE2]
+    f_ = int(factor) if factor is not None else n_phases
+    if n_phases != f_:
+        raise ValueError(f"lift_phase2 has {n_phases} entries but factor is {f_}.")
     arr = first_row.transpose(..., cv.SLOW_FREQUENCY, cv.OUTPUT, cv.LIFT_PHASE2, in_dim)
     m, ny, _, nu = arr.shape[-4:]
     n = m * f_
