@@ -107,7 +107,6 @@ def test_docs_name_only_real_modules_and_functions(page):
 def test_readme_links_the_docs_and_no_code_cites_an_outside_design_doc():
     readme = README.read_text()
     assert "docs/architecture.md" in readme and "docs/conventions.md" in readme
-    # identify.py still cites the old location; it is rewritten on another branch (issue 17)
     stale = [str(p.relative_to(ROOT)) for p in (ROOT / "lcmr_xr").rglob("*.py")
-             if "shared/conventions.md" in p.read_text() and p.name != "identify.py"]
+             if "shared/conventions.md" in p.read_text()]
     assert stale == [], f"{stale} cite shared/conventions.md; cite docs/conventions.md"
