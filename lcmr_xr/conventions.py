@@ -18,6 +18,9 @@ INPUT = "input"
 OUTPUT = "output"
 CHANNEL = "channel"
 EXPERIMENT = "experiment"
+# Repeated periods of one periodic excitation: ``time`` then runs within a period and
+# ``period`` counts the periods (the loop runs on across them).
+PERIOD = "period"
 
 # When a result carries the same dimension twice (a lifted matrix), the second copy
 # (the column side) gets this suffix, as in xarray-einstats.

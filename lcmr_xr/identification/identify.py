@@ -12,6 +12,7 @@ import numpy as np
 import xarray as xr
 
 from lcmr_xr import conventions as cv
+from lcmr_xr.identification import pooling
 from lcmr_xr.kernels.identification import (
     excitation_rank,
     experiment_spectra,
@@ -19,6 +20,7 @@ from lcmr_xr.kernels.identification import (
     fit_packed,
     identify_arrays,
     identify_single_rate_arrays,
+    identify_window0_arrays,
     lifted_spectra,
     packed_width,
 )
@@ -99,7 +101,8 @@ def _ratio_units(num: str, den: str) -> str:
 
 def identify(experiment: xr.Dataset, *, method: str = "lrm", window: int = 30, degrees=None,
              closed_loop: str = "indirect", covariance: bool = True, errors: str = "raise",
-             frequency_chunks: int | None = None) -> xr.Dataset:
+             frequency_chunks: int | None = None, transient_periods: int | None = None,
+             combine: str | None = None) -> xr.Dataset:
     """Identify the fast-rate FRF of a plant in multirate closed loop (paper, Procedure 1).
 
     The fast excitation ``r`` and plant input ``u`` are lifted by the factor ``F``, the
@@ -143,6 +146,22 @@ def identify(experiment: xr.Dataset, *, method: str = "lrm", window: int = 30, d
         rounding.  Default: one chunk (leading dims such as ``experiment`` are still
         parallel when the experiment is dask-backed).  The singular-``S`` check of
         ``errors="raise"`` runs only on computed (not lazy) results.
+    transient_periods : int, optional
+        Records with a ``period`` dim (repeated periods of one periodic excitation, e.g.
+        ``hdd.simulate(..., periods=P)``): number of leading periods dropped as transient;
+        default 1.  The steady-state periods left are averaged, and with two or more of
+        them the band uses the noise covariance estimated from the period-to-period spread
+        (Pintelon and Schoukens, *System Identification: A Frequency Domain Approach*, 2nd
+        ed., 2012, ch. 2 and 7: the robust LPM); see :mod:`lcmr_xr.identification.pooling`.
+    combine : {None, "experiment"}, default None
+        ``"experiment"``: one estimate from all experiments of the ``experiment`` dim.
+        Experiments with the same excitation are averaged (like periods).  Experiments with
+        different excitations: ``window=0`` with ``E >= F nu`` periodic experiments gives
+        ``G(k) = Z(k) R(k)^+`` at every slow bin, no local model, with the band from the
+        nonparametric noise (bins where the experiments' lifted excitations are not of full
+        rank, e.g. the slow bin 0 of multisines without DC, are NaN and flagged
+        ``ill_posed``); with a local window they need a pooled local-model kernel that does
+        not exist yet (refused with a message).
 
     Returns
     -------
@@ -156,6 +175,10 @@ def identify(experiment: xr.Dataset, *, method: str = "lrm", window: int = 30, d
         ``S_std``, ``PS_std``; residual noise variances ``noise_variance_u``,
         ``noise_variance_y``; transients ``transient_u``, ``transient_y``; ``condition``,
         ``ill_posed``, ``s_condition``, ``s_singular``.  Attributes record every setting.
+        Pooled estimates add ``period_noise_variance_u``, ``period_noise_variance_y`` (the
+        nonparametric noise variances of the averaged spectra, when estimated) and the
+        attributes ``combine``, ``periods``, ``transient_periods``, ``steady_periods``,
+        ``records_averaged``, ``noise_estimate`` ("periods" or "residual") and ``noise_dof``.
 
     Raises
     ------
@@ -176,20 +199,49 @@ def identify(experiment: xr.Dataset, *, method: str = "lrm", window: int = 30, d
     ('frequency', 'output', 'input')
     >>> float(frf.frequency[-1])  # fast Nyquist frequency, Hz
     50400.0
+    >>> pooled = lcmr_xr.identify(hdd.simulate(n_samples=1200, periods=3, seed=1), window=20,
+    ...                           transient_periods=1)
+    >>> pooled.attrs["steady_periods"], pooled.attrs["noise_estimate"]
+    (2, 'periods')
     """
     if errors not in ERRORS:
         raise ValueError(f"errors must be 'raise' or 'ignore', got {errors!r}.")
     ds = _validate(experiment)
+    if degrees is not None and not isinstance(window, (bool, np.bool_)) and window == 0:
+        raise ValueError(
+            f"window=0 fits no local model (G = Z R^+ bin by bin), so degrees={degrees!r} would "
+            "be ignored; leave degrees out."
+        )
     degrees = _resolve_degrees(method, degrees)
+    settings = dict(method=method, window=window, degrees=degrees, closed_loop=closed_loop,
+                    covariance=covariance, errors=errors, frequency_chunks=frequency_chunks)
+    # ---- pooling hook: periods / experiments (lcmr_xr.identification.pooling)
+    if not pooling.requested(ds, transient_periods, combine):
+        return _identify_prepared(ds, **settings)
+    plan = pooling.plan(ds, window=window, transient_periods=transient_periods, combine=combine,
+                        closed_loop=closed_loop, covariance=covariance,
+                        frequency_chunks=frequency_chunks)
+    out = _identify_prepared(plan.dataset, **settings, plan=plan)
+    return pooling.finish(out, plan, closed_loop=closed_loop, factor=int(ds.attrs[cv.FACTOR]),
+                          y_units=ds["y"].attrs.get("units", "1"),
+                          u_units=ds["u"].attrs.get("units", "1"))
+
+
+def _identify_prepared(ds, *, method, window, degrees, closed_loop, covariance, errors,
+                       frequency_chunks, plan=None):
+    """The body of :func:`identify` on a validated (and, with ``plan``, pooled) dataset."""
+    window0 = plan is not None and plan.window0
     factor = int(ds.attrs[cv.FACTOR])
     n = ds.sizes[cv.TIME]
     m = ds.sizes[cv.SLOW_TIME]
     nu = ds.sizes[cv.INPUT]
     ny = ds.sizes[cv.OUTPUT]
     nr = factor * nu  # lifted r (indirect) or lifted u (direct): F nu channels either way
-    window = _check_window(window, degrees, nr, m)
+    if not window0:
+        window = _check_window(window, degrees, nr, m)
     th = float(ds[cv.TIME][1] - ds[cv.TIME][0])
-    _check_excitation(ds, factor, closed_loop)
+    if not window0:  # window 0: the rank over experiments is checked per bin (ill_posed)
+        _check_excitation(ds, factor, closed_loop)
 
     core_in = [[cv.TIME, cv.INPUT], [cv.TIME, cv.INPUT], [cv.SLOW_TIME, cv.OUTPUT]]
     LP, IN2, LP2 = cv.LIFT_PHASE, cv.INPUT + cv.SECOND, cv.LIFT_PHASE + cv.SECOND
@@ -250,14 +302,28 @@ def identify(experiment: xr.Dataset, *, method: str = "lrm", window: int = 30, d
     output_spec = dict(output_core_dims=[dims for _, dims, _ in specs], dask="parallelized",
                        output_dtypes=[dt for _, _, dt in specs],
                        dask_gufunc_kwargs=gufunc_kwargs, keep_attrs=False)
-    if frequency_chunks is None:
+    if window0:  # G bin by bin over the experiments' steady-state periods
         def kernel(r, u, y):
+            return split(identify_window0_arrays(r, u, y, factor=factor, closed_loop=closed_loop,
+                                                 covariance=covariance))
+
+        pooled_dims = [cv.EXPERIMENT, cv.PERIOD]
+        results = xr.apply_ufunc(kernel, ds["r"], ds["u"], ds["y"],
+                                 input_core_dims=[pooled_dims + c for c in core_in],
+                                 **output_spec)
+    elif frequency_chunks is None:
+        noise = plan.noise_covariance if plan is not None else None
+
+        def kernel(r, u, y, *noise_cov):
             return split(identify_arrays(r, u, y, factor=factor, half_width=window,
                                          degrees=degrees, closed_loop=closed_loop,
-                                         covariance=covariance))
+                                         covariance=covariance,
+                                         noise_covariance=noise_cov[0] if noise_cov else None))
 
-        results = xr.apply_ufunc(kernel, ds["r"], ds["u"], ds["y"], input_core_dims=core_in,
-                                 **output_spec)
+        extra = [] if noise is None else [noise]
+        extra_core = [] if noise is None else [[cv.SLOW_FREQUENCY, "_z", "_z2"]]
+        results = xr.apply_ufunc(kernel, ds["r"], ds["u"], ds["y"], *extra,
+                                 input_core_dims=core_in + extra_core, **output_spec)
     else:
         packed = _fit_frequency_chunked(ds, factor=factor, window=window, degrees=degrees,
                                         closed_loop=closed_loop, covariance=covariance,
@@ -300,6 +366,10 @@ def identify(experiment: xr.Dataset, *, method: str = "lrm", window: int = 30, d
         "covariance": int(bool(covariance)),
         "title": f"lifted {closed_loop} closed-loop {method.upper()} FRF estimate",
     })
+    if window0:  # no local model: G = Z R^+ per bin, nr parameters per row
+        out.attrs.update({"method": "pooled", "degrees": np.array([0, -1, 0]),
+                          "parameters_per_row": nr,
+                          "title": f"lifted {closed_loop} closed-loop FRF, bin by bin over experiments"})
     return out
 
 
