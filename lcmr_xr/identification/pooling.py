@@ -44,16 +44,44 @@ _Z, _Z2 = "_z", "_z2"
 
 
 class Plan(NamedTuple):
-    """What :func:`lcmr_xr.identify` fits after pooling (see :func:`plan`)."""
+    """What :func:`lcmr_xr.identify` fits after pooling (see :func:`plan`).
 
-    dataset: xr.Dataset  #: averaged record (window > 0) or steady-state periods (window 0)
-    window0: bool  #: G bin by bin over experiments, no local model
-    noise_covariance: xr.DataArray | None  #: (..., slow_frequency, _z, _z2) from the spread
-    attrs: dict  #: settings and counts recorded on the result
+    Parameters
+    ----------
+    dataset : xarray.Dataset
+        The averaged record (window > 0), or the steady-state periods of every
+        experiment (window 0).
+    window0 : bool
+        ``G`` bin by bin over the experiments, no local model.
+    noise_covariance : xarray.DataArray or None
+        (..., ``slow_frequency``, ``_z``, ``_z2``): covariance of the noise on the averaged
+        spectra ``Z`` from the spread over the records; None when not estimated.
+    attrs : dict
+        Settings and counts recorded on the result.
+    """
+
+    dataset: xr.Dataset
+    window0: bool
+    noise_covariance: xr.DataArray | None
+    attrs: dict
 
 
 def requested(ds: xr.Dataset, transient_periods, combine) -> bool:
-    """Whether ``identify`` must pool: a ``period`` dim, or a pooling argument given."""
+    """Whether ``identify`` must pool: a ``period`` dim, or a pooling argument given.
+
+    Parameters
+    ----------
+    ds : xarray.Dataset
+        The experiment.
+    transient_periods : int or None
+        As given to :func:`lcmr_xr.identify`.
+    combine : str or None
+        As given to :func:`lcmr_xr.identify`.
+
+    Returns
+    -------
+    bool
+    """
     return cv.PERIOD in ds.dims or transient_periods is not None or combine is not None
 
 
@@ -253,7 +281,26 @@ def _spread_covariance(steady: xr.Dataset, pool: list[str], closed_loop: str) ->
 
 def finish(out: xr.Dataset, the_plan: Plan, *, closed_loop: str, factor: int, y_units: str,
            u_units: str) -> xr.Dataset:
-    """Add the nonparametric noise variances and the pooling attributes to the result."""
+    """Add the nonparametric noise variances and the pooling attributes to the result.
+
+    Parameters
+    ----------
+    out : xarray.Dataset
+        FRF dataset fitted from ``the_plan.dataset``.
+    the_plan : Plan
+        From :func:`plan`.
+    closed_loop : {"indirect", "direct"}
+        Which rows ``Z`` has (lifted ``u`` and ``y``, or ``y`` only).
+    factor : int
+        ``F``.
+    y_units, u_units : str
+        Units of ``y`` and ``u`` (the variances are in their squares).
+
+    Returns
+    -------
+    xarray.Dataset
+        ``out`` with ``period_noise_variance_y`` (and ``_u``) and the pooling attributes.
+    """
     noise = the_plan.noise_covariance
     if noise is not None:
         nu = out.sizes[cv.INPUT]
