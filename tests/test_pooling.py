@@ -263,6 +263,11 @@ def test_period_dim_with_leading_experiments_and_dask():
                                eager.period_noise_variance_y.values, rtol=1e-12)
     single = identify(exps.isel(experiment=1), window=15)
     np.testing.assert_allclose(eager.P.values[1], single.P.values, rtol=1e-12)
+    # frequency chunks with wrapped halos: the nonparametric band is haloed like the spectra
+    chunked = identify(exps, window=15, frequency_chunks=40)
+    assert chunked.P_std.chunks is not None
+    np.testing.assert_allclose(chunked.P_std.values, eager.P_std.values, rtol=1e-9)
+    np.testing.assert_allclose(chunked.P.values, eager.P.values, rtol=1e-9)
 
 
 # ------------------------------------------------------------------ identify: experiments
@@ -332,7 +337,8 @@ def test_pooling_refusals_name_the_remedy():
         (dict(experiment=ds, transient_periods=True), "integer >= 0"),
         (dict(experiment=ds, combine="experiments"), "combine must be"),
         (dict(experiment=ds, combine="experiment"), "do not all have it"),
-        (dict(experiment=ds, frequency_chunks=40), "frequency_chunks"),
+        (dict(experiment=exps, window=0, combine="experiment", frequency_chunks=40),
+         "frequency_chunks"),
         (dict(experiment=exps, window=0, combine="experiment", degrees=(2, 2, 2)), "leave degrees out"),
     ]
     for kwargs, message in cases:

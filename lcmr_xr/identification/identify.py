@@ -327,7 +327,8 @@ def _identify_prepared(ds, *, method, window, degrees, closed_loop, covariance, 
     else:
         packed = _fit_frequency_chunked(ds, factor=factor, window=window, degrees=degrees,
                                         closed_loop=closed_loop, covariance=covariance,
-                                        frequency_chunks=frequency_chunks)
+                                        frequency_chunks=frequency_chunks,
+                                        noise=plan.noise_covariance if plan is not None else None)
         nz_, nr_ = packed.attrs["nz"], packed.attrs["nr"]
 
         def finish(p):
@@ -374,9 +375,11 @@ def _identify_prepared(ds, *, method, window, degrees, closed_loop, covariance, 
 
 
 def _fit_frequency_chunked(ds, *, factor, window, degrees, closed_loop, covariance,
-                           frequency_chunks):
+                           frequency_chunks, noise=None):
     """Lazy local-model fit in chunks along ``slow_frequency`` with wrapped halos.
 
+    ``noise`` (..., ``slow_frequency``, ``_z``, ``_z2``), optional: the noise covariance
+    known per bin (periods), chunked and haloed like the spectra.
     Returns a DataArray (..., ``slow_frequency``, ``_packed``) of :func:`fit_packed` columns.
     """
     import dask.array as da
@@ -415,11 +418,20 @@ def _fit_frequency_chunked(ds, *, factor, window, degrees, closed_loop, covarian
     Rg = da.overlap.overlap(Rd, depth=depth, boundary=boundary)
     Zg = da.overlap.overlap(Zd, depth=depth, boundary=boundary)
     width = packed_width(nz, nr, covariance)
-    fitted = da.map_blocks(
-        lambda rb, zb: fit_packed(rb, zb, half_width=window, degrees=degrees, circular=False,
-                                  covariance=covariance),
-        Rg, Zg, dtype=complex, chunks=Rg.chunks[:-1] + ((width,),),
-    )
+    blocks = [Rg, Zg]
+    if noise is not None:  # (..., SF, nz nz) flat, so its blocks line up with R's and Z's
+        flat = noise.transpose(*R.dims[:-1], "_z", "_z2").stack(_zz=("_z", "_z2"))
+        flat = flat.drop_vars(["_zz", "_z", "_z2"], errors="ignore")
+        Nd = flat.chunk({**dict(zip(R.dims[:-1], Rd.chunks[:-1])), "_zz": -1}).data
+        blocks.append(da.overlap.overlap(Nd, depth=depth, boundary=boundary))
+
+    def fit_block(rb, zb, *nb):
+        known = nb[0].reshape(nb[0].shape[:-1] + (nz, nz)) if nb else None
+        return fit_packed(rb, zb, half_width=window, degrees=degrees, circular=False,
+                          covariance=covariance, noise_covariance=known)
+
+    fitted = da.map_blocks(fit_block, *blocks, dtype=complex,
+                           chunks=Rg.chunks[:-1] + ((width,),))
     trimmed = da.overlap.trim_internal(fitted, {**depth}, boundary=boundary)
     # a float view (pairs of re, im) so dask builds real metadata for the real outputs
     out = xr.DataArray(trimmed.view(float), dims=R.dims[:-1] + ("_packed",),

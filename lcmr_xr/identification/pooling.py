@@ -122,7 +122,7 @@ def plan(ds: xr.Dataset, *, window, transient_periods, combine, closed_loop: str
     covariance : bool
         Whether a band is wanted (window 0 then needs a noise estimate).
     frequency_chunks : int or None
-        Not combined with pooling yet (refused).
+        Refused with ``window=0`` (no local windows to chunk).
 
     Returns
     -------
@@ -148,11 +148,11 @@ def plan(ds: xr.Dataset, *, window, transient_periods, combine, closed_loop: str
             "(repeated periods of one excitation, e.g. hdd.simulate(..., periods=P)); this "
             "experiment has none: drop the argument."
         )
-    if frequency_chunks is not None:
+    window0 = not isinstance(window, (bool, np.bool_)) and window == 0
+    if frequency_chunks is not None and window0:
         raise ValueError(
-            "frequency_chunks is not combined with period averaging or combine='experiment' "
-            "yet; leave it out (the pooled records are small: averaging leaves one record per "
-            "leading index)."
+            "frequency_chunks chunks the local windows; window=0 has none (every bin is "
+            "solved on its own): leave frequency_chunks out, or chunk the leading dims."
         )
     n_periods = ds.sizes.get(cv.PERIOD, 1)
     drop = 0
@@ -173,7 +173,6 @@ def plan(ds: xr.Dataset, *, window, transient_periods, combine, closed_loop: str
     attrs = {"combine": str(combine), "periods": int(n_periods),
              "transient_periods": int(drop), "steady_periods": int(p_steady)}
 
-    window0 = not isinstance(window, (bool, np.bool_)) and window == 0
     if window0:
         _check_window0(ds, steady, has_period=has_period, combine=combine, n_exp=n_exp,
                        p_steady=p_steady, covariance=covariance)
