@@ -56,12 +56,13 @@ class LcmrDatasetAccessor(_Forwarder):
     """``Dataset.lcmr``: the DataArray methods plus identify, validate and save."""
 
     def identify(self, *, method="lrm", window=30, degrees=None, closed_loop="indirect",
-                 covariance=True, errors="raise"):
+                 covariance=True, errors="raise", transient_periods=None, combine=None):
         """Identify the fast FRF of an experiment; see :func:`lcmr_xr.identify`."""
         from lcmr_xr.identification import identify
 
         return identify(self._obj, method=method, window=window, degrees=degrees,
-                        closed_loop=closed_loop, covariance=covariance, errors=errors)
+                        closed_loop=closed_loop, covariance=covariance, errors=errors,
+                        transient_periods=transient_periods, combine=combine)
 
     def validate(self):
         """Check the experiment conventions; see :func:`lcmr_xr.validate_experiment`."""

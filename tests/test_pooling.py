@@ -243,6 +243,17 @@ def test_period_noise_estimate_and_band_against_monte_carlo():
     assert 0.90 <= hits / total <= 0.99, hits / total
 
 
+def test_direct_method_with_periods():
+    """closed_loop='direct': Z = Y only; the period noise is that of y alone."""
+    ds = _periodic_siso(2, 240, periods=3, seed=1, noise_std=0.05)
+    frf = identify(ds, window=15, closed_loop="direct", method="lpm")
+    assert "period_noise_variance_u" not in frf and frf.period_noise_variance_y.dims == (
+        "slow_frequency", "output")
+    ybar = ds.y.isel(period=slice(1, None)).values[..., 0]
+    spread = np.var(np.fft.fft(ybar, axis=-1), axis=0, ddof=1) / 2  # / K: variance of the mean
+    np.testing.assert_allclose(frf.period_noise_variance_y.values[:, 0], spread, rtol=1e-10)
+
+
 def test_one_steady_period_falls_back_to_the_residual_noise():
     ds = _periodic_siso(2, 240, periods=2, seed=1, noise_std=0.05)
     frf = identify(ds, window=15, transient_periods=1)
@@ -285,6 +296,10 @@ def test_window0_is_exact_on_noiseless_periodic_experiments(factor):
     assert np.all(frf.P_flag.values == on_slow_dc)
     assert rel[~on_slow_dc].max() < 1e-9, rel[~on_slow_dc].max()
     assert frf.attrs["method"] == "pooled" and frf.attrs["window"] == 0
+    lazy = exps.chunk({"experiment": 1}).lcmr.identify(window=0, combine="experiment",
+                                                        transient_periods=2, covariance=False)
+    assert lazy.P.chunks is not None
+    np.testing.assert_allclose(lazy.P.values, frf.P.values, rtol=1e-12)
     # E = F nu exactly (square systems) works too
     square = identify(exps.isel(experiment=slice(0, factor)), window=0, combine="experiment",
                       transient_periods=2, covariance=False)

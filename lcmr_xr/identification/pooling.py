@@ -177,6 +177,8 @@ def plan(ds: xr.Dataset, *, window, transient_periods, combine, closed_loop: str
         _check_window0(ds, steady, has_period=has_period, combine=combine, n_exp=n_exp,
                        p_steady=p_steady, covariance=covariance)
         noise = "periods" if p_steady > 1 else "residual over experiments"
+        if steady["u"].chunks is not None:  # G at a bin needs every experiment and period
+            steady = steady.chunk({cv.EXPERIMENT: -1, cv.PERIOD: -1})
         attrs.update(records_averaged=int(p_steady), noise_estimate=noise,
                      noise_dof=int(p_steady - 1 if p_steady > 1 else
                                    n_exp - ds.attrs["factor"] * ds.sizes[cv.INPUT]))
