@@ -274,6 +274,12 @@ def test_period_dim_with_leading_experiments_and_dask():
                                eager.period_noise_variance_y.values, rtol=1e-12)
     single = identify(exps.isel(experiment=1), window=15)
     np.testing.assert_allclose(eager.P.values[1], single.P.values, rtol=1e-12)
+    # a sweep treats the periods as part of each experiment's record
+    from lcmr_xr.scaleout import sweep
+
+    swept = sweep(exps, window=[15], degrees="3-3-3").isel(method=0, degrees=0, window=0)
+    np.testing.assert_allclose(swept.P_std.values, eager.P_std.values, rtol=1e-12)
+    assert swept.attrs["noise_estimate"] == "periods"
     # frequency chunks with wrapped halos: the nonparametric band is haloed like the spectra
     chunked = identify(exps, window=15, frequency_chunks=40)
     assert chunked.P_std.chunks is not None

@@ -215,7 +215,10 @@ def identify(experiment: xr.Dataset, *, method: str = "lrm", window: int = 30, d
     degrees = _resolve_degrees(method, degrees)
     settings = dict(method=method, window=window, degrees=degrees, closed_loop=closed_loop,
                     covariance=covariance, errors=errors, frequency_chunks=frequency_chunks)
-    # ---- pooling hook: periods / experiments (lcmr_xr.identification.pooling)
+    # ---- pooling hook: periods / experiments (lcmr_xr.identification.pooling).  Rm = -1
+    # (no transient term) plugs in here once the local-model kernel accepts it: steady-state
+    # averaged records (plan.attrs["transient_periods"] > 0) may then be fitted with
+    # degrees (Rn, -1, Rd); _resolve_degrees must let Rm = -1 through for them only.
     if not pooling.requested(ds, transient_periods, combine):
         return _identify_prepared(ds, **settings)
     plan = pooling.plan(ds, window=window, transient_periods=transient_periods, combine=combine,

@@ -27,7 +27,8 @@ __all__ = ["sweep", "parse_degrees", "degrees_label", "SETTING_DIMS"]
 
 #: Dims a sweep adds, outermost first.
 SETTING_DIMS = ("method", "degrees", "window")
-_CORE_DIMS = (cv.TIME, cv.SLOW_TIME, cv.INPUT, cv.OUTPUT)
+# ``period`` (repeated periods, averaged by identify) belongs to one experiment's record
+_CORE_DIMS = (cv.TIME, cv.SLOW_TIME, cv.INPUT, cv.OUTPUT, cv.PERIOD)
 _PER_SETTING_ATTRS = ("method", "window", "window_bins", "degrees", "parameters_per_row", "title")
 
 
@@ -147,6 +148,11 @@ def _probe(ds: xr.Dataset, lead: list[str]) -> xr.Dataset:
     rng = np.random.default_rng(0)
     data = {name: (one[name].dims, rng.standard_normal(one[name].shape), one[name].attrs)
             for name in ("r", "u", "y")}
+    if cv.PERIOD in one["r"].dims:  # r repeats over periods (the contract)
+        r = one["r"]
+        period0 = r.isel({cv.PERIOD: 0})
+        repeated = period0.copy(data=rng.standard_normal(period0.shape)).broadcast_like(r)
+        data["r"] = (r.dims, repeated.transpose(*r.dims).values, r.attrs)
     return xr.Dataset(data, coords=one.coords, attrs=ds.attrs)
 
 
