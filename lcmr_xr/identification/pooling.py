@@ -85,6 +85,26 @@ def requested(ds: xr.Dataset, transient_periods, combine) -> bool:
     return cv.PERIOD in ds.dims or transient_periods is not None or combine is not None
 
 
+def is_window0(window) -> bool:
+    """Whether ``window`` asks for no local model (``0``; ``False`` is not a window).
+
+    Parameters
+    ----------
+    window : object
+        The ``window`` argument of :func:`lcmr_xr.identify`.
+
+    Returns
+    -------
+    bool
+
+    Examples
+    --------
+    >>> is_window0(0), is_window0(30), is_window0(False)
+    (True, False, False)
+    """
+    return not isinstance(window, (bool, np.bool_, str)) and np.ndim(window) == 0 and window == 0
+
+
 def _check_int(value, name: str, minimum: int) -> int:
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) \
             or value < minimum:
@@ -148,7 +168,7 @@ def plan(ds: xr.Dataset, *, window, transient_periods, combine, closed_loop: str
             "(repeated periods of one excitation, e.g. hdd.simulate(..., periods=P)); this "
             "experiment has none: drop the argument."
         )
-    window0 = not isinstance(window, (bool, np.bool_)) and window == 0
+    window0 = is_window0(window)
     if frequency_chunks is not None and window0:
         raise ValueError(
             "frequency_chunks chunks the local windows; window=0 has none (every bin is "
