@@ -344,7 +344,7 @@ def test_pooling_refusals_name_the_remedy():
     exps = xr.concat([_periodic_siso(2, 240, 2, seed=s) for s in range(2)], "experiment")
     one = ds.isel(period=0, drop=True)
     cases = [
-        (dict(experiment=ds, window=0), "combine='experiment'"),
+        (dict(experiment=ds, window=0), "window must be >= 1.*combine='experiment'"),
         (dict(experiment=exps.isel(period=0, drop=True), window=0, combine="experiment"),
          "steady-state periodic data"),
         (dict(experiment=exps.isel(experiment=[0]), window=0, combine="experiment"), "at least F nu"),

@@ -168,11 +168,8 @@ Returns
     (2, 'periods')
     """
     window0 = pooling.is_window0(window)
-    if window0 and degrees is not None:
-        raise ValueError(
-            f"window=0 fits no local model (G = Z R^+ bin by bin), so degrees={degrees!r} would "
-            "be ignored; leave degrees out."
-        )
+    pooling.check_settings(window=window, transient_periods=transient_periods, combine=combine,
+                           degrees=degrees)
     s = estimator_settings(method=method, window=1 if window0 else window, degrees=degrees,
                            closed_loop=closed_loop, covariance=covariance, errors=errors,
                            frequency_chunks=None if window0 else frequency_chunks)

@@ -105,6 +105,40 @@ def is_window0(window) -> bool:
     return not isinstance(window, (bool, np.bool_, str)) and np.ndim(window) == 0 and window == 0
 
 
+def check_settings(*, window, transient_periods, combine, degrees) -> None:
+    """Refuse pooling settings that are wrong whatever the data (before they are read).
+
+    Parameters
+    ----------
+    window, transient_periods, combine, degrees
+        As given to :func:`lcmr_xr.identify`.
+
+    Raises
+    ------
+    ValueError
+        An unknown ``combine``, a ``transient_periods`` that is not a non-negative integer,
+        ``window=0`` without ``combine="experiment"``, or ``degrees`` with ``window=0``.
+    """
+    if combine not in COMBINE:
+        raise ValueError(f"combine must be None or 'experiment', got {combine!r}.")
+    if transient_periods is not None:
+        _check_int(transient_periods, "transient_periods", 0)
+    if not is_window0(window):
+        return
+    if combine != "experiment":
+        raise ValueError(
+            "window must be >= 1 (the half-width n of the local window) for one record; "
+            "window=0 (G bin by bin, no local model) needs pooled experiments: pass "
+            "combine='experiment' with E >= F nu periodic experiments with different "
+            "excitations."
+        )
+    if degrees is not None:
+        raise ValueError(
+            f"window=0 fits no local model (G = Z R^+ bin by bin), so degrees={degrees!r} would "
+            "be ignored; leave degrees out."
+        )
+
+
 def _check_int(value, name: str, minimum: int) -> int:
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) \
             or value < minimum:
@@ -153,8 +187,8 @@ def plan(ds: xr.Dataset, *, window, transient_periods, combine, closed_loop: str
     ValueError
         Every combination that cannot be pooled, naming the remedy.
     """
-    if combine not in COMBINE:
-        raise ValueError(f"combine must be None or 'experiment', got {combine!r}.")
+    check_settings(window=window, transient_periods=transient_periods, combine=combine,
+                   degrees=None)
     has_period = cv.PERIOD in ds.dims
     if combine == "experiment" and any(cv.EXPERIMENT not in ds[v].dims for v in ("r", "u", "y")):
         raise ValueError(
@@ -194,7 +228,7 @@ def plan(ds: xr.Dataset, *, window, transient_periods, combine, closed_loop: str
              "transient_periods": int(drop), "steady_periods": int(p_steady)}
 
     if window0:
-        _check_window0(ds, steady, has_period=has_period, combine=combine, n_exp=n_exp,
+        _check_window0(ds, steady, has_period=has_period, n_exp=n_exp,
                        p_steady=p_steady, covariance=covariance)
         noise = "periods" if p_steady > 1 else "residual over experiments"
         if steady["u"].chunks is not None:  # G at a bin needs every experiment and period
@@ -227,15 +261,9 @@ def plan(ds: xr.Dataset, *, window, transient_periods, combine, closed_loop: str
     return Plan(averaged, False, noise_cov, attrs)
 
 
-def _check_window0(ds, steady, *, has_period, combine, n_exp, p_steady, covariance):
+def _check_window0(ds, steady, *, has_period, n_exp, p_steady, covariance):
     factor, nu = int(ds.attrs[cv.FACTOR]), ds.sizes[cv.INPUT]
     nr = factor * nu
-    if combine != "experiment":
-        raise ValueError(
-            "window=0 determines G bin by bin, which only pooled experiments can: pass "
-            f"combine='experiment' with E >= F nu = {nr} periodic experiments with different "
-            "excitations. One record needs a local window (window >= 1)."
-        )
     if not has_period:
         raise ValueError(
             "window=0 needs steady-state periodic data: records with a 'period' dim (e.g. "
