@@ -214,6 +214,11 @@ def test_period_average_equals_identify_on_the_averaged_record():
     np.testing.assert_allclose(frf.P.values, ref.P.values, rtol=1e-9, atol=0)
     assert frf.attrs["steady_periods"] == 3 and frf.attrs["noise_estimate"] == "periods"
     assert frf.attrs["transient_periods"] == 1 and frf.attrs["noise_dof"] == 2
+    # the data contract: the FRF names plus the pooled ones (lcmr_xr.conventions)
+    from lcmr_xr import conventions as cv
+
+    assert set(frf.data_vars) == set(cv.FRF_VARIABLES) | set(cv.POOLED_VARIABLES)
+    assert set(frf.attrs) == set(cv.FRF_ATTRS) | set(cv.POOLED_ATTRS)
     # the transient-dropping default is 1 period
     assert identify(ds, window=15).attrs["transient_periods"] == 1
 

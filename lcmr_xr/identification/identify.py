@@ -3,7 +3,7 @@
 A thin layer: dimension names are mapped onto the trailing axes of
 :func:`lcmr_xr.kernels.identification.identify_arrays` with ``xarray.apply_ufunc``
 (``dask="parallelized"``, so leading dims such as ``experiment`` may be chunked), and
-the arrays that come back are labelled per ``shared/conventions.md``.
+the arrays that come back are labelled per the data contract, ``docs/conventions.md``.
 """
 
 from __future__ import annotations
@@ -27,6 +27,7 @@ from lcmr_xr.kernels.identification import (
 )
 from lcmr_xr.kernels.local_models import parameters_per_row
 from lcmr_xr.settings import as_bool, check_window_fits, estimator_settings
+from lcmr_xr.transforms._coords import even_spacing
 
 
 def _validate(experiment):
@@ -176,7 +177,7 @@ Returns
     stacked = as_bool(stacked, "stacked")
     ds = _validate(experiment)
     factor = int(ds.attrs[cv.FACTOR])
-    th = float(ds[cv.TIME][1] - ds[cv.TIME][0])
+    th = even_spacing(ds[cv.TIME].values, cv.TIME)[1]
     # ---- pooling hook: periods / experiments (lcmr_xr.identification.pooling).  Rm = -1
     # (no transient term) plugs in here once the local-model kernel accepts it: steady-state
     # averaged records (plan.attrs["transient_periods"] > 0) may then be fitted with
@@ -513,10 +514,10 @@ def _label(out, ds, *, factor, th):
         cv.SLOW_FREQUENCY: (cv.SLOW_FREQUENCY, np.arange(m) / record,
                             cv.frequency_attrs("slow-rate DFT frequency")),
         cv.LIFT_PHASE: (cv.LIFT_PHASE, np.arange(factor), cv.label_attrs("lift phase (fast sample within a slow period)")),
-        cv.LIFT_PHASE + cv.SECOND: (cv.LIFT_PHASE + cv.SECOND, np.arange(factor), cv.label_attrs("lift phase of the excitation")),
+        cv.LIFT_PHASE2: (cv.LIFT_PHASE2, np.arange(factor), cv.label_attrs("lift phase of the excitation")),
         cv.INPUT: ds[cv.INPUT].variable,
         cv.OUTPUT: ds[cv.OUTPUT].variable,
-        cv.INPUT + cv.SECOND: (cv.INPUT + cv.SECOND, ds[cv.INPUT].values, cv.label_attrs("excited input")),
+        cv.INPUT2: (cv.INPUT2, ds[cv.INPUT].values, cv.label_attrs("excited input")),
     }
     if RESPONSE in out.dims:
         rows, columns = _stacked_labels(ds, factor, out.sizes[RESPONSE])
@@ -599,7 +600,7 @@ def identify_single_rate(experiment: xr.Dataset, *, method: str = "lrm", window:
     ds = _validate(experiment)
     factor = int(ds.attrs[cv.FACTOR])
     check_window_fits(s.window, s.degrees, ds.sizes[cv.INPUT], ds.sizes[cv.SLOW_TIME])
-    th = float(ds[cv.TIME][1] - ds[cv.TIME][0])
+    th = even_spacing(ds[cv.TIME].values, cv.TIME)[1]
     # the lifted pipeline with F = 1 on the slow samples x(l F) of r and u
     slow = {cv.TIME: slice(None, None, factor)}
     out = _estimate(ds["r"].isel(slow), ds["u"].isel(slow), ds["y"], s, factor=1, stacked=False,
@@ -639,7 +640,7 @@ def result_template(ds: xr.Dataset, s, *, stacked: bool = False) -> xr.Dataset:
     import dask.array as dsa
 
     factor = int(ds.attrs[cv.FACTOR])
-    th = float(ds[cv.TIME][1] - ds[cv.TIME][0])
+    th = even_spacing(ds[cv.TIME].values, cv.TIME)[1]
     r = ds["r"]
     lead = [d for d in r.dims if d not in (cv.TIME, cv.INPUT, cv.PERIOD)]  # periods: averaged
     lead_shape = tuple(ds.sizes[d] for d in lead)

@@ -224,8 +224,8 @@ def plan(ds: xr.Dataset, *, window, transient_periods, combine, closed_loop: str
         steady = steady.assign(r=steady["r"].broadcast_like(steady["u"][{cv.INPUT: 0}], exclude=()))
         steady["r"] = steady["r"].transpose(*steady["u"].dims)
     n_exp = ds.sizes.get(cv.EXPERIMENT, 1) if combine == "experiment" else 1
-    attrs = {"combine": str(combine), "periods": int(n_periods),
-             "transient_periods": int(drop), "steady_periods": int(p_steady)}
+    attrs = {cv.COMBINE: str(combine), cv.PERIODS: int(n_periods),
+             cv.TRANSIENT_PERIODS: int(drop), cv.STEADY_PERIODS: int(p_steady)}
 
     if window0:
         _check_window0(ds, steady, has_period=has_period, n_exp=n_exp,
@@ -233,9 +233,9 @@ def plan(ds: xr.Dataset, *, window, transient_periods, combine, closed_loop: str
         noise = "periods" if p_steady > 1 else "residual over experiments"
         if steady["u"].chunks is not None:  # G at a bin needs every experiment and period
             steady = steady.chunk({cv.EXPERIMENT: -1, cv.PERIOD: -1})
-        attrs.update(records_averaged=int(p_steady), noise_estimate=noise,
-                     noise_dof=int(p_steady - 1 if p_steady > 1 else
-                                   n_exp - ds.attrs["factor"] * ds.sizes[cv.INPUT]))
+        attrs.update({cv.RECORDS_AVERAGED: int(p_steady), cv.NOISE_ESTIMATE: noise,
+                      cv.NOISE_DOF: int(p_steady - 1 if p_steady > 1 else
+                                        n_exp - ds.attrs[cv.FACTOR] * ds.sizes[cv.INPUT])})
         return Plan(steady, True, None, attrs)
 
     pool = ([cv.PERIOD] if has_period else []) + ([cv.EXPERIMENT] if combine == "experiment" else [])
@@ -255,9 +255,9 @@ def plan(ds: xr.Dataset, *, window, transient_periods, combine, closed_loop: str
     if has_period and k > 1:
         noise_cov = _spread_covariance(steady, pool, closed_loop)
     averaged = _average(steady, pool)
-    attrs.update(records_averaged=int(k),
-                 noise_estimate="periods" if noise_cov is not None else "residual",
-                 noise_dof=int(k - 1) if noise_cov is not None else -1)
+    attrs.update({cv.RECORDS_AVERAGED: int(k),
+                  cv.NOISE_ESTIMATE: "periods" if noise_cov is not None else "residual",
+                  cv.NOISE_DOF: int(k - 1) if noise_cov is not None else -1})
     return Plan(averaged, False, noise_cov, attrs)
 
 
@@ -358,20 +358,20 @@ def finish(out: xr.Dataset, the_plan: Plan, *, closed_loop: str, factor: int, y_
                                       dask="parallelized", output_dtypes=[complex]))
         fnu = factor * nu if closed_loop == "indirect" else 0
         sq = lambda units: f"({units})2" if units != "1" else "1"  # noqa: E731
-        out["period_noise_variance_y"] = diag.isel({_Z: slice(fnu, None)}).rename({_Z: cv.OUTPUT}) \
+        out[cv.PERIOD_NOISE_VARIANCE_Y] = diag.isel({_Z: slice(fnu, None)}).rename({_Z: cv.OUTPUT}) \
             .assign_coords({cv.OUTPUT: out[cv.OUTPUT]}).assign_attrs(
                 long_name="noise variance of the averaged output spectrum, from the spread over "
                           "the records", units=sq(y_units))
         if closed_loop == "indirect":
             lifted = diag.isel({_Z: slice(0, fnu)}).data
             lifted = lifted.reshape(lifted.shape[:-1] + (factor, nu))
-            out["period_noise_variance_u"] = xr.DataArray(
+            out[cv.PERIOD_NOISE_VARIANCE_U] = xr.DataArray(
                 lifted, dims=diag.dims[:-1] + (cv.LIFT_PHASE, cv.INPUT),
                 coords={k: v for k, v in diag.coords.items()},
                 attrs={"long_name": "noise variance of the averaged lifted input spectrum, from "
                                     "the spread over the records", "units": sq(u_units)},
             ).assign_coords({cv.LIFT_PHASE: out[cv.LIFT_PHASE], cv.INPUT: out[cv.INPUT]})
-        for name in ("period_noise_variance_y", "period_noise_variance_u"):
+        for name in cv.POOLED_VARIABLES:
             if name in out:
                 out[name] = out[name].assign_coords({cv.SLOW_FREQUENCY: out[cv.SLOW_FREQUENCY]})
     out.attrs.update(the_plan.attrs)

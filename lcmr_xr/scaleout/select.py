@@ -181,7 +181,7 @@ def _check_inputs(result, experiments):
         raise ValueError(f"experiments has leading dims {lead}; only 'experiment' is supported. "
                          "Select one value of the other dims first, e.g. experiments.isel(case=0).")
     extra = [d for d in result["PS"].dims if d not in SETTING_DIMS and d not in
-             (cv.EXPERIMENT, cv.SLOW_FREQUENCY, cv.OUTPUT, cv.LIFT_PHASE + cv.SECOND, cv.INPUT + cv.SECOND)]
+             (cv.EXPERIMENT, cv.SLOW_FREQUENCY, cv.OUTPUT, cv.LIFT_PHASE2, cv.INPUT2)]
     if extra:
         raise ValueError(f"sweep_result has dims {extra} that experiments does not explain; "
                          "select them away first.")
