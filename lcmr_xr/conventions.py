@@ -19,6 +19,9 @@ INPUT = "input"
 OUTPUT = "output"
 CHANNEL = "channel"
 EXPERIMENT = "experiment"
+# Repeated periods of one periodic excitation: ``time`` then runs within a period and
+# ``period`` counts the periods (the loop runs on across them).
+PERIOD = "period"
 
 # When a result carries the same dimension twice (a lifted matrix), the second copy
 # (the column side) gets this suffix, as in xarray-einstats.
@@ -57,6 +60,12 @@ FRF_VARIABLES = (
     CONDITION, ILL_POSED, S_CONDITION, S_SINGULAR,
 )
 
+# Pooled estimates (identify on a ``period`` dim or with combine="experiment"): the noise
+# variances of the averaged spectra estimated from the spread over the records.
+PERIOD_NOISE_VARIANCE_U = "period_noise_variance_u"
+PERIOD_NOISE_VARIANCE_Y = "period_noise_variance_y"
+POOLED_VARIABLES = (PERIOD_NOISE_VARIANCE_U, PERIOD_NOISE_VARIANCE_Y)
+
 # Attribute names.
 CONVENTIONS_ATTR = "conventions"  # value CONVENTIONS, on experiment and FRF datasets
 SLOW_NYQUIST = "slow_nyquist"
@@ -80,6 +89,16 @@ FRF_ATTRS = (
     CONVENTIONS_ATTR, METHOD, CLOSED_LOOP, WINDOW, WINDOW_BINS, DEGREES, FACTOR,
     SAMPLING_PERIOD, SLOW_NYQUIST, N_SAMPLES, PARAMETERS_PER_ROW, COVARIANCE, TITLE,
 )
+# Added to FRF_ATTRS by a pooled estimate.
+COMBINE = "combine"
+PERIODS = "periods"
+TRANSIENT_PERIODS = "transient_periods"
+STEADY_PERIODS = "steady_periods"
+RECORDS_AVERAGED = "records_averaged"
+NOISE_ESTIMATE = "noise_estimate"
+NOISE_DOF = "noise_dof"
+POOLED_ATTRS = (COMBINE, PERIODS, TRANSIENT_PERIODS, STEADY_PERIODS, RECORDS_AVERAGED,
+                NOISE_ESTIMATE, NOISE_DOF)
 
 
 def time_attrs(long_name: str = "time") -> dict:

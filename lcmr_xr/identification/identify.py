@@ -15,12 +15,14 @@ import numpy as np
 import xarray as xr
 
 from lcmr_xr import conventions as cv
+from lcmr_xr.identification import pooling
 from lcmr_xr.kernels.identification import (
     excitation_rank,
     experiment_spectra,
     finish_packed,
     fit_packed,
     identify_spectra,
+    identify_window0_arrays,
     packed_width,
 )
 from lcmr_xr.kernels.local_models import parameters_per_row
@@ -52,7 +54,8 @@ def _ratio_units(num: str, den: str) -> str:
 
 def identify(experiment: xr.Dataset, *, method: str = "lrm", window: int = 30, degrees=None,
              closed_loop: str = "indirect", covariance: bool = True, errors: str = "raise",
-             frequency_chunks: int | None = None, stacked: bool = False) -> xr.Dataset:
+             frequency_chunks: int | None = None, stacked: bool = False,
+             transient_periods: int | None = None, combine: str | None = None) -> xr.Dataset:
     """Identify the fast-rate FRF of a plant in multirate closed loop (paper, Procedure 1).
 
     The fast excitation ``r`` and plant input ``u`` are lifted by the factor ``F``, the
@@ -105,8 +108,24 @@ def identify(experiment: xr.Dataset, *, method: str = "lrm", window: int = 30, d
         for ``"direct"``), its ``G_std`` and the residual variances of its rows
         ``noise_variance`` (``slow_frequency``, ``response``).  ``S``, ``PS`` and the
         ``noise_variance_u/y`` are the blocks of these.
+    transient_periods : int, optional
+        Records with a ``period`` dim (repeated periods of one periodic excitation, e.g.
+        ``hdd.simulate(..., periods=P)``): number of leading periods dropped as transient;
+        default 1.  The steady-state periods left are averaged, and with two or more of
+        them the band uses the noise covariance estimated from the period-to-period spread
+        (Pintelon and Schoukens, *System Identification: A Frequency Domain Approach*, 2nd
+        ed., 2012, ch. 2 and 7: the robust LPM); see :mod:`lcmr_xr.identification.pooling`.
+    combine : {None, "experiment"}, default None
+        ``"experiment"``: one estimate from all experiments of the ``experiment`` dim.
+        Experiments with the same excitation are averaged (like periods).  Experiments with
+        different excitations: ``window=0`` with ``E >= F nu`` periodic experiments gives
+        ``G(k) = Z(k) R(k)^+`` at every slow bin, no local model, with the band from the
+        nonparametric noise (bins where the experiments' lifted excitations are not of full
+        rank, e.g. the slow bin 0 of multisines without DC, are NaN and flagged
+        ``ill_posed``); with a local window they need a pooled local-model kernel that does
+        not exist yet (refused with a message).
 
-    Returns
+Returns
     -------
     xarray.Dataset
         ``P`` (``frequency``, ``output``, ``input``), complex: fast FRF at bins
@@ -118,6 +137,10 @@ def identify(experiment: xr.Dataset, *, method: str = "lrm", window: int = 30, d
         ``S_std``, ``PS_std``; residual noise variances ``noise_variance_u``,
         ``noise_variance_y``; transients ``transient_u``, ``transient_y``; ``condition``,
         ``ill_posed``, ``s_condition``, ``s_singular``.  Attributes record every setting.
+        Pooled estimates add ``period_noise_variance_u``, ``period_noise_variance_y`` (the
+        nonparametric noise variances of the averaged spectra, when estimated) and the
+        attributes ``combine``, ``periods``, ``transient_periods``, ``steady_periods``,
+        ``records_averaged``, ``noise_estimate`` ("periods" or "residual") and ``noise_dof``.
 
     Raises
     ------
@@ -140,17 +163,38 @@ def identify(experiment: xr.Dataset, *, method: str = "lrm", window: int = 30, d
     ('frequency', 'output', 'input')
     >>> float(frf.frequency[-1])  # fast Nyquist frequency, Hz
     50400.0
+    >>> pooled = lcmr_xr.identify(hdd.simulate(n_samples=1200, periods=3, seed=1), window=20,
+    ...                           transient_periods=1)
+    >>> pooled.attrs["steady_periods"], pooled.attrs["noise_estimate"]
+    (2, 'periods')
     """
-    s = estimator_settings(method=method, window=window, degrees=degrees, closed_loop=closed_loop,
-                           covariance=covariance, errors=errors, frequency_chunks=frequency_chunks)
+    window0 = pooling.is_window0(window)
+    pooling.check_settings(window=window, transient_periods=transient_periods, combine=combine,
+                           degrees=degrees)
+    s = estimator_settings(method=method, window=1 if window0 else window, degrees=degrees,
+                           closed_loop=closed_loop, covariance=covariance, errors=errors,
+                           frequency_chunks=None if window0 else frequency_chunks)
     stacked = as_bool(stacked, "stacked")
     ds = _validate(experiment)
     factor = int(ds.attrs[cv.FACTOR])
-    check_window_fits(s.window, s.degrees, factor * ds.sizes[cv.INPUT], ds.sizes[cv.SLOW_TIME])
     th = even_spacing(ds[cv.TIME].values, cv.TIME)[1]
-    out = _estimate(ds["r"], ds["u"], ds["y"], s, factor=factor, stacked=stacked,
-                    check_rank=True)
-    out = _label(out, ds, factor=factor, th=th)
+    # ---- pooling hook: periods / experiments (lcmr_xr.identification.pooling).  Rm = -1
+    # (no transient term) plugs in here once the local-model kernel accepts it: steady-state
+    # averaged records (plan.attrs["transient_periods"] > 0) may then be fitted with
+    # degrees (Rn, -1, Rd); the settings validator must let Rm = -1 through for them only.
+    plan = None
+    if window0 or pooling.requested(ds, transient_periods, combine):
+        plan = pooling.plan(ds, window=0 if window0 else s.window,
+                            transient_periods=transient_periods, combine=combine,
+                            closed_loop=s.closed_loop, covariance=s.covariance,
+                            frequency_chunks=frequency_chunks)
+        s = s._replace(window=0) if window0 else s
+    fit = ds if plan is None else plan.dataset
+    if not window0:
+        check_window_fits(s.window, s.degrees, factor * ds.sizes[cv.INPUT], ds.sizes[cv.SLOW_TIME])
+    out = _estimate(fit["r"], fit["u"], fit["y"], s, factor=factor, stacked=stacked,
+                    check_rank=not window0, plan=plan)
+    out = _label(out, fit, factor=factor, th=th)
     if s.errors == "raise" and s.closed_loop == "indirect" and not _is_lazy(out):
         bad = np.asarray(out["s_singular"])
         if bad.any():
@@ -163,6 +207,10 @@ def identify(experiment: xr.Dataset, *, method: str = "lrm", window: int = 30, d
                 f"s_singular at those bins."
             )
     out.attrs.update(_settings_attrs(ds, s, factor=factor, th=th))
+    if plan is not None:
+        out = pooling.finish(out, plan, closed_loop=s.closed_loop, factor=factor,
+                             y_units=ds["y"].attrs.get("units", "1"),
+                             u_units=ds["u"].attrs.get("units", "1"))
     return out
 
 
@@ -182,6 +230,13 @@ def _settings_attrs(ds, s, *, factor, th) -> dict:
         "parameters_per_row": parameters_per_row(factor * ds.sizes[cv.INPUT], s.degrees),
         "covariance": int(s.covariance),
         "title": f"lifted {s.closed_loop} closed-loop {s.method.upper()} FRF estimate",
+    } if s.window > 0 else {  # window 0: no local model, G = Z R^+ per bin (nr parameters per row)
+        "conventions": cv.CONVENTIONS, "method": "pooled", "closed_loop": s.closed_loop,
+        "window": 0, "window_bins": 1, "degrees": np.array([0, -1, 0]), "factor": factor,
+        "sampling_period": th, "slow_nyquist": 1.0 / (2 * factor * th),
+        "n_samples": ds.sizes[cv.TIME], "parameters_per_row": factor * ds.sizes[cv.INPUT],
+        "covariance": int(s.covariance),
+        "title": f"lifted {s.closed_loop} closed-loop FRF, bin by bin over experiments",
     }
 
 
@@ -296,12 +351,14 @@ def _split(out: dict, specs, *, factor: int, nu: int, ny: int, closed_loop: str)
 
 
 def _estimate(r: xr.DataArray, u: xr.DataArray, y: xr.DataArray, s, *, factor: int,
-              stacked: bool, check_rank: bool) -> xr.Dataset:
+              stacked: bool, check_rank: bool, plan=None) -> xr.Dataset:
     """The pipeline shared by :func:`identify` and :func:`identify_single_rate` (unlabelled).
 
     ``r``, ``u`` on (``time``, ``input``) with ``N = M factor`` samples, ``y`` on
     (``slow_time``, ``output``).  Eager data: the spectra are computed once, the excitation
     rank is checked on them (``check_rank``) and the local models are fitted from them.
+    ``plan`` (:func:`lcmr_xr.identification.pooling.plan`): window 0 over the experiments'
+    steady-state periods, or the nonparametric noise covariance for the band.
     """
     n, nu = r.sizes[cv.TIME], r.sizes[cv.INPUT]
     ny = y.sizes[cv.OUTPUT]
@@ -316,19 +373,34 @@ def _estimate(r: xr.DataArray, u: xr.DataArray, y: xr.DataArray, s, *, factor: i
                        dask_gufunc_kwargs=gufunc_kwargs, keep_attrs=False)
     split = dict(specs=specs, factor=factor, nu=nu, ny=ny, closed_loop=s.closed_loop)
     lazy = any(v.chunks is not None for v in (r, u, y))
-    if s.frequency_chunks is None:
+    noise = plan.noise_covariance if plan is not None else None
+    if plan is not None and plan.window0:  # G bin by bin over the experiments' periods
         def kernel(r_, u_, y_):
+            return _split(identify_window0_arrays(r_, u_, y_, factor=factor,
+                                                  closed_loop=s.closed_loop,
+                                                  covariance=s.covariance), **split)
+
+        pooled_dims = [cv.EXPERIMENT, cv.PERIOD]
+        results = xr.apply_ufunc(kernel, r, u, y, input_core_dims=[pooled_dims + c for c in core_in],
+                                 **output_spec)
+    elif s.frequency_chunks is None:
+        def kernel(r_, u_, y_, *noise_cov):
             R, Z = experiment_spectra(r_, u_, y_, factor=factor, closed_loop=s.closed_loop)
             if check_rank and not lazy:  # lazy: the local model's condition numbers flag it
                 _check_excitation_rank(R, "r" if s.closed_loop == "indirect" else "u")
             return _split(identify_spectra(R, Z, n_fast=n, factor=factor, nu=nu,
                                            half_width=s.window, degrees=s.degrees,
-                                           closed_loop=s.closed_loop, covariance=s.covariance),
+                                           closed_loop=s.closed_loop, covariance=s.covariance,
+                                           noise_covariance=noise_cov[0] if noise_cov else None),
                           **split)
 
-        results = xr.apply_ufunc(kernel, r, u, y, input_core_dims=core_in, **output_spec)
+        extra = [] if noise is None else [noise]
+        extra_core = [] if noise is None else [[SF, "_z", "_z2"]]
+        results = xr.apply_ufunc(kernel, r, u, y, *extra, input_core_dims=core_in + extra_core,
+                                 **output_spec)
     else:
-        packed = _fit_frequency_chunked(r, u, y, s, factor=factor, check_rank=check_rank)
+        packed = _fit_frequency_chunked(r, u, y, s, factor=factor, check_rank=check_rank,
+                                        noise=noise)
         nz_, nr_ = packed.attrs["nz"], packed.attrs["nr"]
 
         def finish(p):
@@ -343,11 +415,12 @@ def _estimate(r: xr.DataArray, u: xr.DataArray, y: xr.DataArray, s, *, factor: i
     return xr.Dataset({name: da for (name, _, _), da in zip(specs, results)})
 
 
-def _fit_frequency_chunked(r, u, y, s, *, factor, check_rank):
+def _fit_frequency_chunked(r, u, y, s, *, factor, check_rank, noise=None):
     """Lazy local-model fit in chunks along ``slow_frequency`` with wrapped halos.
 
     On eager data the spectra are computed here, once, and the excitation rank is checked
-    on them (``check_rank``).
+    on them (``check_rank``).  ``noise`` (..., ``slow_frequency``, ``_z``, ``_z2``),
+    optional: the noise covariance known per bin (periods), haloed like the spectra.
 
     Returns a DataArray (..., ``slow_frequency``, ``_packed``) of :func:`fit_packed` columns.
     """
@@ -382,11 +455,20 @@ def _fit_frequency_chunked(r, u, y, s, *, factor, check_rank):
     Rg = da.overlap.overlap(Rd, depth=depth, boundary=boundary)
     Zg = da.overlap.overlap(Zd, depth=depth, boundary=boundary)
     width = packed_width(nz, nr, s.covariance)
-    fitted = da.map_blocks(
-        lambda rb, zb: fit_packed(rb, zb, half_width=window, degrees=s.degrees, circular=False,
-                                  covariance=s.covariance),
-        Rg, Zg, dtype=complex, chunks=Rg.chunks[:-1] + ((width,),),
-    )
+    blocks = [Rg, Zg]
+    if noise is not None:  # (..., SF, nz nz) flat, so its blocks line up with R's and Z's
+        flat = noise.transpose(*R.dims[:-1], "_z", "_z2").stack(_zz=("_z", "_z2"))
+        flat = flat.drop_vars(["_zz", "_z", "_z2"], errors="ignore")
+        Nd = flat.chunk({**dict(zip(R.dims[:-1], Rd.chunks[:-1])), "_zz": -1}).data
+        blocks.append(da.overlap.overlap(Nd, depth=depth, boundary=boundary))
+
+    def fit_block(rb, zb, *nb):
+        known = nb[0].reshape(nb[0].shape[:-1] + (nz, nz)) if nb else None
+        return fit_packed(rb, zb, half_width=window, degrees=s.degrees, circular=False,
+                          covariance=s.covariance, noise_covariance=known)
+
+    fitted = da.map_blocks(fit_block, *blocks, dtype=complex,
+                           chunks=Rg.chunks[:-1] + ((width,),))
     trimmed = da.overlap.trim_internal(fitted, {**depth}, boundary=boundary)
     # a float view (pairs of re, im) so dask builds real metadata for the real outputs
     out = xr.DataArray(trimmed.view(float), dims=R.dims[:-1] + ("_packed",),
@@ -560,7 +642,7 @@ def result_template(ds: xr.Dataset, s, *, stacked: bool = False) -> xr.Dataset:
     factor = int(ds.attrs[cv.FACTOR])
     th = even_spacing(ds[cv.TIME].values, cv.TIME)[1]
     r = ds["r"]
-    lead = [d for d in r.dims if d not in (cv.TIME, cv.INPUT)]
+    lead = [d for d in r.dims if d not in (cv.TIME, cv.INPUT, cv.PERIOD)]  # periods: averaged
     lead_shape = tuple(ds.sizes[d] for d in lead)
     lead_chunks = tuple(r.chunks[r.get_axis_num(d)] if r.chunks else (ds.sizes[d],) for d in lead)
     sizes = output_sizes(factor=factor, n=ds.sizes[cv.TIME], nu=ds.sizes[cv.INPUT],
@@ -572,6 +654,13 @@ def result_template(ds: xr.Dataset, s, *, stacked: bool = False) -> xr.Dataset:
         variables[name] = (tuple(lead) + tuple(dims), data)
     out = _label(xr.Dataset(variables), ds, factor=factor, th=th)
     out.attrs.update(_settings_attrs(ds, s, factor=factor, th=th))
+    if cv.PERIOD in ds.dims:  # identify averages the periods: its pooling outputs, lazily
+        plan = pooling.plan(ds, window=s.window, transient_periods=None, combine=None,
+                            closed_loop=s.closed_loop, covariance=s.covariance,
+                            frequency_chunks=None)
+        out = pooling.finish(out, plan, closed_loop=s.closed_loop, factor=factor,
+                             y_units=ds["y"].attrs.get("units", "1"),
+                             u_units=ds["u"].attrs.get("units", "1"))
     return out
 
 

@@ -38,7 +38,8 @@ __all__ = ["sweep", "sweep_settings", "parse_degrees", "degrees_label", "SETTING
 
 #: Dims a sweep adds, outermost first.
 SETTING_DIMS = ("method", "degrees", "window")
-_CORE_DIMS = (cv.TIME, cv.SLOW_TIME, cv.INPUT, cv.OUTPUT)
+# ``period`` (repeated periods, averaged by identify) belongs to one experiment's record
+_CORE_DIMS = (cv.TIME, cv.SLOW_TIME, cv.INPUT, cv.OUTPUT, cv.PERIOD)
 _PER_SETTING_ATTRS = ("method", "window", "window_bins", "degrees", "parameters_per_row", "title")
 
 
