@@ -22,6 +22,7 @@ from lcmr_xr.kernels.identification import (
     lifted_spectra,
     packed_width,
 )
+from lcmr_xr.identification import _guards
 from lcmr_xr.kernels.local_models import parameters_per_row
 
 METHODS = {"lrm": None, "lpm": 0}
@@ -40,7 +41,8 @@ def _validate(experiment):
         )
     lazy = any(experiment[v].chunks is not None for v in ("r", "u", "y") if v in experiment)
     # lazy data stay lazy: the NaN/inf check then happens in the kernel, at compute time
-    return validate_experiment(experiment, check_values=not lazy)
+    ds = validate_experiment(experiment, check_values=not lazy)
+    return _guards.rechunk_core(ds) if lazy else ds
 
 
 def _resolve_degrees(method, degrees):
@@ -73,8 +75,16 @@ def _check_window(window, degrees, nr, m):
     if window < 1:
         raise ValueError(f"window (the half-width n of the 2n+1-bin local window) must be >= 1, got {window}.")
     p = parameters_per_row(nr, degrees)
+    n_min = (p + 1) // 2
+    if 2 * n_min + 1 > m:  # no window fits: a shorter window cannot help, only more data
+        raise ValueError(
+            f"the experiment is too short for the local model: it has M = {m} slow samples "
+            f"(slow DFT bins), but degrees {degrees} with {nr} lifted excitation channels need "
+            f"{p} parameters per row, i.e. window >= {n_min} and 2n+1 = {2 * n_min + 1} bins. "
+            f"Record at least {2 * n_min + 1} slow samples (N >= {2 * n_min + 1} x factor fast "
+            f"samples), or lower the degrees."
+        )
     if 2 * window + 1 <= p:  # at least one degree of freedom is left for the noise estimate
-        n_min = (p + 1) // 2
         raise ValueError(
             f"too few bins for the local model: window={window} gives 2n+1 = {2 * window + 1} bins "
             f"per row but degrees {degrees} with {nr} lifted excitation channels need "
@@ -252,9 +262,12 @@ def identify(experiment: xr.Dataset, *, method: str = "lrm", window: int = 30, d
                        dask_gufunc_kwargs=gufunc_kwargs, keep_attrs=False)
     if frequency_chunks is None:
         def kernel(r, u, y):
-            return split(identify_arrays(r, u, y, factor=factor, half_width=window,
-                                         degrees=degrees, closed_loop=closed_loop,
-                                         covariance=covariance))
+            _guards.check_finite(r, u, y, th=th, factor=factor)
+            return split(_guards.scaled_call(
+                lambda r_, u_, y_: identify_arrays(r_, u_, y_, factor=factor, half_width=window,
+                                                   degrees=degrees, closed_loop=closed_loop,
+                                                   covariance=covariance),
+                r, u, y, closed_loop=closed_loop))
 
         results = xr.apply_ufunc(kernel, ds["r"], ds["u"], ds["y"], input_core_dims=core_in,
                                  **output_spec)
@@ -324,8 +337,21 @@ def _fit_frequency_chunked(ds, *, factor, window, degrees, closed_loop, covarian
     nr = factor * nu
     nz = nr + ny if closed_loop == "indirect" else ny
     SF = cv.SLOW_FREQUENCY
+    th = float(ds[cv.TIME][1] - ds[cv.TIME][0])
+
+    def spectra(r, u, y):
+        _guards.check_finite(r, u, y, th=th, factor=factor)
+        if _guards.scales(r, u, y) != (1.0, 1.0, 1.0):
+            raise ValueError(
+                f"r, u or y has magnitudes beyond {_guards.SAFE_MAGNITUDE:g} or below "
+                f"{1 / _guards.SAFE_MAGNITUDE:g}, where products of spectra overflow or underflow; "
+                "frequency_chunks does not rescale: drop frequency_chunks (identify then scales "
+                "internally) or express the data in other units."
+            )
+        return experiment_spectra(r, u, y, factor=factor, closed_loop=closed_loop)
+
     R, Z = xr.apply_ufunc(
-        lambda r, u, y: experiment_spectra(r, u, y, factor=factor, closed_loop=closed_loop),
+        spectra,
         ds["r"], ds["u"], ds["y"],
         input_core_dims=[[cv.TIME, cv.INPUT], [cv.TIME, cv.INPUT], [cv.SLOW_TIME, cv.OUTPUT]],
         output_core_dims=[[SF, "_r"], [SF, "_z"]], dask="parallelized",
@@ -368,7 +394,7 @@ def _check_excitation(ds, factor, closed_loop):
     if source.chunks is not None:
         return  # checked per block by the local model's condition numbers instead
     x = np.asarray(source.transpose(..., cv.TIME, cv.INPUT))
-    R = lifted_spectra(x, factor)
+    R = lifted_spectra(x * _guards.scales(x, x, x)[0], factor)  # rank is scale-free; avoid overflow
     nr = R.shape[-1]
     rank, sv = excitation_rank(R)
     if rank < nr:
@@ -463,8 +489,12 @@ def identify_single_rate(experiment: xr.Dataset, *, method: str = "lrm", window:
     FQ = cv.FREQUENCY
 
     def kernel(r, u, y):
-        out = identify_single_rate_arrays(r, u, y, factor=factor, half_width=window,
-                                          degrees=degrees, covariance=covariance)
+        _guards.check_finite(r, u, y, th=th, factor=factor)
+        out = _guards.scaled_call(
+            lambda r_, u_, y_: identify_single_rate_arrays(r_, u_, y_, factor=factor,
+                                                           half_width=window, degrees=degrees,
+                                                           covariance=covariance),
+            r, u, y)
         return out["P"], np.sqrt(out["P_var"]), out["P_bad"]
 
     P, P_std, flag = xr.apply_ufunc(

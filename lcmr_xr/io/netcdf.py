@@ -16,7 +16,8 @@ import numpy as np
 import xarray as xr
 
 from lcmr_xr.conventions import CONVENTIONS, FREQUENCY, INPUT, OUTPUT
-from lcmr_xr.io._atomic import atomic_write
+from lcmr_xr.io._atomic import atomic_write, check_writable_target
+from lcmr_xr.io._guards import check_not_own_source
 from lcmr_xr.experiment.dataset import validate_experiment
 
 __all__ = ["open_dataset", "open_experiment", "open_frf", "save"]
@@ -130,7 +131,8 @@ def save(ds: xr.Dataset, path) -> Path:
         Any dataset (experiment, FRF, spectra).  Attribute values that NetCDF cannot hold
         (bool, tuple, list, None) are converted and restored by :func:`open_dataset`.
     path : str or os.PathLike
-        Target file; its directory must exist.  An existing file is replaced.
+        Target file; its directory must exist.  An existing file is replaced, except the
+        file a lazy (dask-backed) ``ds`` was opened from and still reads (refused).
 
     Returns
     -------
@@ -141,8 +143,11 @@ def save(ds: xr.Dataset, path) -> Path:
     -----
     The data are written to a temporary file in the same directory, flushed to disk, and
     moved over ``path`` with :func:`os.replace` (atomic on POSIX), so a failure mid-write
-    never leaves a half-written file and never destroys an existing one.  Complex arrays
-    use the netCDF4 ``auto_complex`` compound type and read back bit for bit.
+    never leaves a half-written file and never destroys an existing one.  The temporary is
+    the hidden ``.NAME.PID.XXXXXXXX.tmp`` next to ``path``; when a process is killed
+    mid-write it stays behind, and the next ``save`` to the same ``path`` removes it (the
+    temporaries of writers that no longer run).  Complex arrays use the netCDF4
+    ``auto_complex`` compound type and read back bit for bit.
 
     Examples
     --------
@@ -158,6 +163,8 @@ def save(ds: xr.Dataset, path) -> Path:
             f"save writes an xarray.Dataset, got {type(ds).__name__}; for a DataArray use "
             "x.to_dataset(name='...')."
         )
+    check_writable_target(path)
+    check_not_own_source(ds, path)
     flat = _map_attrs(ds, _flatten_attrs)
     return atomic_write(path, lambda tmp: flat.to_netcdf(tmp, engine=_ENGINE, auto_complex=True))
 
@@ -226,8 +233,9 @@ def _check_conventions(ds: xr.Dataset, path, kind: str) -> None:
     if conv != CONVENTIONS:
         raise ValueError(
             f"{path} is not an lcmr_xr {kind} file: its 'conventions' attribute is {conv!r}, "
-            f"expected {CONVENTIONS!r}. Convert it with lcmr_xr.experiment.experiment() or "
-            "open it with lcmr_xr.io.open_dataset."
+            f"expected {CONVENTIONS!r}. Build an experiment from its arrays "
+            "with lcmr_xr.experiment(r, u, y, factor=F, sampling_period=Th) (read them with "
+            "lcmr_xr.open_dataset), or open it as it is with lcmr_xr.open_dataset."
         )
 
 
