@@ -41,6 +41,12 @@ class HelpFormatter(argparse.HelpFormatter):
         return f"{text} (default: {default})"
 
 
+def error_line(command: str, exc: BaseException) -> str:
+    """The one line a refused command prints: ``lcmr-xr CMD: error: MESSAGE`` (lines joined)."""
+    message = " ".join(line.strip() for line in str(exc).splitlines() if line.strip())
+    return f"lcmr-xr {command}: error: {message}"
+
+
 def add_overwrite(parser: argparse.ArgumentParser) -> None:
     """The ``--overwrite`` flag: replace existing output files (never an input)."""
     parser.add_argument("--overwrite", action="store_true",

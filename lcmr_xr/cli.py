@@ -23,7 +23,7 @@ import sys
 from pathlib import Path
 
 from lcmr_xr._cli_support import (FIGURE_SUFFIXES, NETCDF_SUFFIXES, HelpFormatter,
-                                  add_overwrite, check_outputs, heartbeat)
+                                  add_overwrite, check_outputs, error_line, heartbeat)
 
 
 
@@ -143,7 +143,7 @@ def main(argv=None) -> int:
         if args.command == "sweep":
             return args.func(args)
     except (ValueError, TypeError, FileNotFoundError, OSError) as exc:
-        print(f"lcmr-xr {args.command}: error: {exc}", file=sys.stderr)
+        print(error_line(args.command, exc), file=sys.stderr)
         return 2
     return 2  # unreachable: argparse requires a command
 

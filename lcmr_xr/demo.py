@@ -132,7 +132,6 @@ def run_demo(experiment_path=None, output_dir="demo-output", *, window: int = 30
     from lcmr_xr.io import open_experiment, save
 
     out_dir = Path(output_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
     path = Path(experiment_path) if experiment_path is not None else find_bundled_experiment()
     if path is None:
         echo("bundled experiment not found; simulating the paper's experiment (seed 0)")
@@ -147,6 +146,7 @@ def run_demo(experiment_path=None, output_dir="demo-output", *, window: int = 30
     # the VCM's rigid-body double integrator makes the exact FRF infinite at DC: leave DC out
     truth = hdd.true_frf(frf[cv.FREQUENCY][1:], case=case).reindex({cv.FREQUENCY: frf[cv.FREQUENCY]})
     files = output_files(out_dir, plot=False)
+    out_dir.mkdir(parents=True, exist_ok=True)  # only now: a failed run leaves no empty directory
     save(frf, files[0])
     if plot:
         files += _plots(frf, truth, out_dir)

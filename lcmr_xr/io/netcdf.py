@@ -201,6 +201,11 @@ def open_dataset(path, chunks=None) -> xr.Dataset:
     [1.0, 2.0]
     """
     path = Path(path)
+    if path.is_dir():
+        raise IsADirectoryError(
+            f"{path} is a directory, not a NetCDF file; for an archive directory use "
+            "lcmr_xr.scaleout.open_archive (or lcmr-xr sweep)."
+        )
     if not path.is_file():
         raise FileNotFoundError(f"no such file: {path}; check the path.")
     try:

@@ -21,7 +21,7 @@ from pathlib import Path
 from urllib.parse import urlsplit
 
 from lcmr_xr._cli_support import (NETCDF_SUFFIXES, HelpFormatter, add_overwrite,
-                                  check_outputs, futures_progress, progress)
+                                  check_outputs, error_line, futures_progress, progress)
 
 LOCAL_SCHEDULERS = ("threads", "processes", "synchronous")
 #: Seconds to wait for a dask scheduler to answer (``--connect-timeout``).
@@ -107,6 +107,49 @@ def _check_scheduler(scheduler: str) -> None:
                          "address like tcp://127.0.0.1:8786.")
 
 
+def _probe(address: str, timeout: float) -> None:
+    """Check, with a plain socket, that a dask scheduler answers at ``address`` in time.
+
+    A dask server greets every new connection at once with a framed message whose first
+    8 bytes are its length (little-endian).  Nothing listening, no greeting within
+    ``timeout``, or a greeting that is not such a length (an HTTP or SSH server) are all
+    refused here, before ``distributed`` (which, in the version this was written against,
+    waits forever on a silent service and allocates by the junk of a foreign one).
+    """
+    parts = urlsplit(address)
+    try:
+        sock = socket.create_connection((parts.hostname, parts.port), timeout=timeout)
+    except OSError as err:
+        reason = err.strerror or type(err).__name__
+        raise ConnectionError(
+            f"no dask scheduler answers at {address} ({reason} within {timeout:g} s); start one "
+            "(dask scheduler) and pass its address, or use --scheduler threads."
+        ) from None
+    if parts.scheme != "tcp":  # tls: the greeting comes after the TLS handshake
+        sock.close()
+        return
+    header = b""
+    with sock:
+        sock.settimeout(timeout)
+        try:
+            while len(header) < 8:
+                chunk = sock.recv(8 - len(header))
+                if not chunk:
+                    break
+                header += chunk
+        except OSError:  # socket.timeout included
+            pass
+    length = int.from_bytes(header, "little") if len(header) == 8 else 0
+    if not 0 < length < 1 << 26:
+        what = ("did not greet within" if not header else "answered with something else than "
+                "the dask protocol within")
+        raise ConnectionError(
+            f"{address} answers, but not as a dask scheduler (it {what} {timeout:g} s); check "
+            "the host and port (a dask scheduler listens on 8786 by default), or use "
+            "--scheduler threads."
+        )
+
+
 def connect(address: str, timeout: float = CONNECT_TIMEOUT):
     """A ``distributed.Client`` on the scheduler at ``address``, or a clear error in bounded time.
 
@@ -136,15 +179,7 @@ def connect(address: str, timeout: float = CONNECT_TIMEOUT):
     _check_scheduler(address)
     if not timeout > 0:
         raise ValueError(f"--connect-timeout must be a positive number of seconds, got {timeout}.")
-    parts = urlsplit(address)
-    try:
-        socket.create_connection((parts.hostname, parts.port), timeout=timeout).close()
-    except OSError as err:
-        reason = err.strerror or type(err).__name__
-        raise ConnectionError(
-            f"no dask scheduler answers at {address} ({reason} within {timeout:g} s); start one "
-            "(dask scheduler) and pass its address, or use --scheduler threads."
-        ) from None
+    _probe(address, timeout)
     quiet = logging.getLogger("distributed")
     level = quiet.level
     quiet.setLevel(logging.CRITICAL)  # its retries would print tracebacks before our one line
@@ -221,6 +256,6 @@ def run_sweep(args) -> int:
             print(f"wrote {args.select}: criterion {criterion} "
                   f"({CRITERION_HELP.get(criterion, 'see lcmr_xr.scaleout.select_settings')})")
     except (ValueError, TypeError, FileNotFoundError, OSError) as exc:
-        print(f"lcmr-xr sweep: error: {exc}", file=sys.stderr)
+        print(error_line("sweep", exc), file=sys.stderr)
         return 2
     return 0
