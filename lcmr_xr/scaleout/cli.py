@@ -184,7 +184,7 @@ def connect(address: str, timeout: float = CONNECT_TIMEOUT):
     level = quiet.level
     quiet.setLevel(logging.CRITICAL)  # its retries would print tracebacks before our one line
     try:
-        return Client(address, timeout=f"{timeout}s", set_as_default=False)
+        return Client(address, timeout=f"{timeout}s")
     except Exception as err:  # noqa: BLE001  (MemoryError, OSError, TimeoutError, protocol errors)
         raise ConnectionError(
             f"{address} answers, but not as a dask scheduler ({type(err).__name__} within "
