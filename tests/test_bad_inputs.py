@@ -271,7 +271,10 @@ API = [
     Case("nan_in_r", lambda e: e.build(r=np.where(np.arange(400)[:, None] == 7, np.nan, e.r)), ValueError,
          ("NaN",)),
     Case("inf_in_y", lambda e: e.build(y=np.where(np.arange(200)[:, None] == 7, np.inf, e.y)), ValueError,
-         ("NaN or inf", "'y'")),
+         ("NaN or inf", "'y'", "y: 1 slow_time sample(s) from slow_time = 0.000138889 s")),
+    Case("nan_in_one_experiment_of_a_sweep", lambda e: sweep(
+        _with_nan(xr.concat([e.small, e.small], "experiment"), "u", (1, 30, 0), {"experiment": 1}),
+        window=[12], degrees=["2-2-2"]).compute(), ValueError, ("'u'", "u: 1 time sample(s) from time = 0.000297619 s")),
     Case("r_experiment_dim_but_u_y_not", lambda e: e.build(r=np.stack([e.r, e.r])), ValueError,
          ("leading dims", "r ('experiment',)", "u ()")),
     Case("y_experiment_dim_but_u_not", lambda e: e.build(y=np.stack([e.y, e.y])), ValueError,

@@ -471,5 +471,16 @@ def validate_experiment(ds: xr.Dataset, *, check_values: bool = True) -> xr.Data
         values = checks
     bad = [name for name, ok in values.items() if not bool(ok)]
     if bad:
-        _fail(f"{bad} contain NaN or inf", "remove or interpolate the bad samples before identification.")
+        where = "; ".join(_bad_samples(ds[name]) for name in bad if not _is_lazy(ds[name].data))
+        _fail(f"{bad} contain NaN or inf{' (' + where + ')' if where else ''}",
+              "remove or interpolate the bad samples before identification.")
     return ds
+
+
+def _bad_samples(var: xr.DataArray) -> str:
+    """``name: N samples, time = a s to b s`` for the non-finite samples of an in-memory variable."""
+    dim = TIME if TIME in var.dims else SLOW_TIME
+    bad = ~np.isfinite(var.transpose(dim, ...).values)
+    rows = np.flatnonzero(bad.reshape(bad.shape[0], -1).any(axis=1))
+    t = np.asarray(var[dim].values)
+    return f"{var.name}: {rows.size} {dim} sample(s) from {dim} = {t[rows[0]]:.6g} s to {t[rows[-1]]:.6g} s"
