@@ -1,9 +1,10 @@
 """Command line: ``lcmr-xr identify | demo | simulate | sweep``.
 
     lcmr-xr identify EXPERIMENT.nc -o FRF.nc [--method lrm|lpm] [--window N]
-                     [--degrees RN RM RD] [--closed-loop indirect|direct] [--plot FILE.png]
+                     [--degrees RN-RM-RD] [--closed-loop indirect|direct] [--plot FILE.png]
                      [--overwrite]
-    lcmr-xr demo [--experiment FILE.nc] [--output-dir DIR] [--overwrite]
+    lcmr-xr demo [--experiment FILE.nc] [--output-dir DIR] [--window N] [--degrees RN-RM-RD]
+                 [--overwrite]
     lcmr-xr simulate -o EXPERIMENT.nc [--samples N] [--case 1..9] [--seed S] [--noiseless]
                      [--overwrite]
     lcmr-xr sweep ARCHIVE_DIR -o RESULT.nc --window 10 20 30 [--degrees 3-3-3 ...]
@@ -24,7 +25,11 @@ from pathlib import Path
 
 from lcmr_xr._cli_support import (FIGURE_SUFFIXES, NETCDF_SUFFIXES, HelpFormatter,
                                   add_overwrite, check_outputs, error_line, heartbeat)
+from lcmr_xr.settings import CLOSED_LOOP, METHODS
 
+#: Help text of every ``--degrees`` option: one syntax on every command line.
+DEGREES_HELP = ("local model degrees RN-RM-RD: numerator, transient, denominator (default "
+                "3-3-3; LPM: 3-3-0, its RD must be 0)")
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -39,12 +44,11 @@ def _parser() -> argparse.ArgumentParser:
     ident.add_argument("experiment", type=Path, help="experiment NetCDF file (lcmr-xr-1)")
     ident.add_argument("-o", "--output", type=Path, required=True,
                        help="FRF NetCDF file to write (.nc)")
-    ident.add_argument("--method", choices=("lrm", "lpm"), default="lrm",
+    ident.add_argument("--method", choices=tuple(METHODS), default="lrm",
                        help="local rational (lrm) or polynomial (lpm) model")
     ident.add_argument("--window", type=int, default=30, help="local window half-width n (2n+1 bins)")
-    ident.add_argument("--degrees", type=int, nargs=3, metavar=("RN", "RM", "RD"), default=None,
-                       help="numerator, transient and denominator degrees (default: 3 3 3; LPM: 3 3 0)")
-    ident.add_argument("--closed-loop", choices=("indirect", "direct"), default="indirect",
+    ident.add_argument("--degrees", nargs="+", metavar="RN-RM-RD", default=None, help=DEGREES_HELP)
+    ident.add_argument("--closed-loop", choices=tuple(CLOSED_LOOP), default="indirect",
                        help="indirect: P = PS S^-1 from the excitation (unbiased); direct: from "
                             "the measured input (biased under feedback)")
     ident.add_argument("--plot", type=Path, default=None,
@@ -59,8 +63,7 @@ def _parser() -> argparse.ArgumentParser:
     demo.add_argument("--output-dir", type=Path, default=Path("demo-output"),
                       help="directory for hdd_frf.nc and the Bode plots (created if missing)")
     demo.add_argument("--window", type=int, default=30, help="local window half-width n (2n+1 bins)")
-    demo.add_argument("--degrees", type=int, nargs=3, default=(3, 3, 3), metavar=("RN", "RM", "RD"),
-                      help="numerator, transient and denominator degrees")
+    demo.add_argument("--degrees", nargs="+", metavar="RN-RM-RD", default=["3-3-3"], help=DEGREES_HELP)
     demo.add_argument("--no-plot", action="store_true",
                       help="skip the PNG Bode plots (default: write them)")
     add_overwrite(demo)
@@ -83,17 +86,34 @@ def _parser() -> argparse.ArgumentParser:
     return p
 
 
+def _one_degrees(args):
+    """The single ``--degrees`` setting of identify/demo (None: the method's default)."""
+    from lcmr_xr.settings import degrees_arguments
+
+    if args.degrees is None:
+        return None
+    settings = degrees_arguments(args.degrees)
+    if len(settings) != 1:
+        raise ValueError(f"--degrees takes one setting RN-RM-RD here, got {len(settings)} "
+                         f"({' '.join(settings)}); use 'lcmr-xr sweep' to compare several.")
+    return settings[0]
+
+
 def _identify(args) -> int:
     from lcmr_xr.identification import identify
     from lcmr_xr.io import open_experiment, save
+    from lcmr_xr.settings import estimator_settings
 
+    # the settings first: a typo is reported before the experiment is read
+    s = estimator_settings(method=args.method, window=args.window, degrees=_one_degrees(args),
+                           closed_loop=args.closed_loop)
     check_outputs({"-o": (args.output, NETCDF_SUFFIXES), "--plot": (args.plot, FIGURE_SUFFIXES)},
                   inputs=[args.experiment], overwrite=args.overwrite)
     exp = open_experiment(args.experiment)
     with heartbeat(f"identifying {args.experiment.name} ({exp.sizes['slow_time']} slow bins, "
-                   f"{args.method}, window {args.window})", sys.stderr):
-        frf = identify(exp, method=args.method, window=args.window, degrees=args.degrees,
-                       closed_loop=args.closed_loop)
+                   f"{s.method}, window {s.window})", sys.stderr):
+        frf = identify(exp, method=s.method, window=s.window, degrees=s.degrees,
+                       closed_loop=s.closed_loop)
     save(frf, args.output)
     print(f"wrote {args.output}: P {dict(frf.P.sizes)}, "
           f"{int(frf.P_flag.sum())} flagged bins, method {args.method}, window {args.window}")
@@ -129,14 +149,17 @@ def main(argv=None) -> int:
         if args.command == "demo":
             from lcmr_xr.demo import output_files, run_demo
 
+            from lcmr_xr.settings import estimator_settings
+
+            s = estimator_settings(window=args.window, degrees=_one_degrees(args))
             if args.output_dir.exists() and not args.output_dir.is_dir():
                 raise NotADirectoryError(f"--output-dir {args.output_dir} is a file; give a directory.")
             if args.output_dir.is_dir():  # a new directory has no files to protect
                 check_outputs({f"--output-dir file {p.name}": (p, None)
                                for p in output_files(args.output_dir, plot=not args.no_plot)},
                               inputs=[args.experiment], overwrite=args.overwrite)
-            run_demo(args.experiment, args.output_dir, window=args.window,
-                     degrees=tuple(args.degrees), plot=not args.no_plot)
+            run_demo(args.experiment, args.output_dir, window=s.window,
+                     degrees=s.degrees, plot=not args.no_plot)
             return 0
         if args.command == "simulate":
             return _simulate(args)

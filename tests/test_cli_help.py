@@ -38,10 +38,11 @@ def test_every_option_help_states_its_default(command):
 
 @pytest.mark.parametrize("command, expected", [
     ("simulate", ["(default: 3600)", "(default: 2)", "(default: 0)", "(default: with noise)"]),
-    ("demo", ["(default: demo-output)", "(default: 30)", "(default: 3 3 3)", "(default: the bundled"]),
-    ("identify", ["(default: lrm)", "(default: 30)", "(default: 3 3 3; LPM: 3 3 0)", "(default: indirect)",
+    ("demo", ["(default: demo-output)", "(default: 30)", "(default 3-3-3", "(default: the bundled"]),
+    ("identify", ["(default: lrm)", "(default: 30)", "(default 3-3-3; LPM: 3-3-0", "(default: indirect)",
                   "(default: no plot)", "(default: refuse them)"]),
-    ("sweep", ["(default: threads)", "(default: 3-3-3)", "(default: 10.0)", "(default: no selection)"]),
+    ("sweep", ["(default: threads)", "(default: the method's, 3-3-3 for LRM", "(default: 10.0)",
+               "(default: no selection)"]),
 ])
 def test_help_text_shows_defaults(command, expected, capsys):
     with pytest.raises(SystemExit) as info:
@@ -106,7 +107,7 @@ def test_cli_identify_reports_progress_on_stderr(tmp_path, capsys):
     exp = tmp_path / "exp.nc"
     save(hdd.simulate(n_samples=400, noise=False, seed=1), exp)
     assert cli.main(["identify", str(exp), "-o", str(tmp_path / "frf.nc"), "--window", "12",
-                     "--degrees", "2", "2", "2"]) == 0
+                     "--degrees", "2-2-2"]) == 0
     err = capsys.readouterr().err
     assert "identifying exp.nc (200 slow bins, lrm, window 12): done in" in err
     assert "\r" not in err

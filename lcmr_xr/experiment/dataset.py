@@ -2,7 +2,7 @@
 
 One closed-loop multirate experiment: fast excitation ``r`` and plant input ``u`` on
 (``time``, ``input``), slow plant output ``y`` on (``slow_time``, ``output``), attributes
-``factor`` and ``conventions``.  See ``shared/conventions.md``.
+``factor`` and ``conventions``.  See ``docs/conventions.md``.
 """
 
 from __future__ import annotations

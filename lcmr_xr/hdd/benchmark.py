@@ -10,7 +10,7 @@ from lcmr_xr.hdd.control import controller, notch_filters
 from lcmr_xr.hdd.disturbances import fan_vibration, repeatable_runout, rotational_vibration
 from lcmr_xr.hdd.plants import FACTOR, FAST_PERIOD, INPUTS, OUTPUTS, check_case, plant, pzt_plant, vcm_plant
 from lcmr_xr.kernels.excitation import random_phase_multisine
-from lcmr_xr.kernels.ltisim import frequency_response, simulate_lti
+from lcmr_xr.kernels.lti import frequency_response, simulate_lti
 from lcmr_xr.simulation import simulate_closed_loop
 
 BENCHMARK = "IEEJ dual-stage HDD benchmark (Atsumi 2022, MATLAB File Exchange 111515)"

@@ -15,12 +15,14 @@ from lcmr_xr.kernels.closed_loop import (
 )
 from lcmr_xr.kernels.lifting import frf_from_first_block_row, lift
 from lcmr_xr.kernels.local_models import local_model
+from lcmr_xr.settings import CLOSED_LOOP
 
 #: The lifted excitation counts as rank deficient when its smallest singular value
 #: (over all bins) is below this fraction of its largest.
 EXCITATION_RANK_TOL = 1e-9
 
-CLOSED_LOOP_METHODS = ("indirect", "direct")
+#: The closed-loop variants (the table is :data:`lcmr_xr.settings.CLOSED_LOOP`).
+CLOSED_LOOP_METHODS = tuple(CLOSED_LOOP)
 
 
 def lifted_spectra(x: np.ndarray, factor: int) -> np.ndarray:
@@ -193,9 +195,23 @@ def identify_arrays(r, u, y, *, factor: int, half_width: int, degrees=(3, 3, 3),
         ``condition``, ``ill_posed``, ``s_condition``, ``s_singular`` (..., M).
     """
     R, Z = experiment_spectra(r, u, y, factor=factor, closed_loop=closed_loop)
+    return identify_spectra(R, Z, n_fast=np.shape(r)[-2], factor=factor, nu=np.shape(r)[-1],
+                            half_width=half_width, degrees=degrees, closed_loop=closed_loop,
+                            covariance=covariance)
+
+
+def identify_spectra(R, Z, *, n_fast: int, factor: int, nu: int, half_width: int,
+                     degrees=(3, 3, 3), closed_loop: str = "indirect",
+                     covariance: bool = True) -> dict:
+    """:func:`identify_arrays` from the spectra of :func:`experiment_spectra` (computed once).
+
+    ``R`` (..., M, nr) and ``Z`` (..., M, nz); ``n_fast`` is ``N``, ``nu`` the number of
+    plant inputs.  Returns the dict of :func:`identify_arrays`.
+    """
+    nz, nr = Z.shape[-1], R.shape[-1]
+    ny = nz - nr if closed_loop == "indirect" else nz
     packed = fit_packed(R, Z, half_width=half_width, degrees=degrees, covariance=covariance)
-    return finish_packed(packed, nz=Z.shape[-1], nr=R.shape[-1], n_fast=np.shape(r)[-2],
-                         factor=factor, nu=np.shape(r)[-1], ny=np.shape(y)[-1],
+    return finish_packed(packed, nz=nz, nr=nr, n_fast=n_fast, factor=factor, nu=nu, ny=ny,
                          closed_loop=closed_loop, covariance=covariance)
 
 
@@ -206,30 +222,17 @@ def identify_single_rate_arrays(r, u, y, *, factor: int, half_width: int,
     ``r`` and ``u`` are downsampled to the slow rate (``x(l F)``) and the ordinary
     closed-loop local model ``[S; PS] = LRM(R_l -> [U_l; Y_l])``, ``P = PS S^-1`` is
     formed.  It reaches only the slow Nyquist frequency, and the fast dynamics alias
-    onto it: this is what the lifted method avoids.
+    onto it: this is what the lifted method avoids.  It is the lifted estimate with
+    ``F = 1`` on the slow samples: ``identify_arrays(r[..., ::F, :], u[..., ::F, :], y,
+    factor=1)``.
 
     Returns
     -------
     dict of ndarray
-        ``P`` (..., M//2+1, ny, nu) at slow bins ``m = 0..M/2``, ``P_var``, ``P_bad``.
+        As :func:`identify_arrays` with ``F = 1``: ``P`` (..., M//2+1, ny, nu) at slow bins
+        ``m = 0..M/2``, ``P_var``, ``P_bad``, and the local-model arrays on the slow bins.
     """
     f_ = int(factor)
-    r_l = np.asarray(r, dtype=float)[..., ::f_, :]
-    u_l = np.asarray(u, dtype=float)[..., ::f_, :]
-    y = np.asarray(y, dtype=float)
-    m, ny = y.shape[-2:]
-    nu = r_l.shape[-1]
-    R = np.fft.fft(r_l, axis=-2)
-    Z = np.concatenate([np.fft.fft(u_l, axis=-2), np.fft.fft(y, axis=-2)], axis=-1)
-    fit = local_model(R, Z, half_width=half_width, degrees=tuple(degrees), circular=True,
-                      covariance="full" if covariance else None)
-    ind = indirect_first_row(fit.G, nu, fit.G_cov if covariance else None)
-    half = m // 2 + 1
-    P = ind.first_row[..., :half, :, :]
-    if ind.first_row_cov is not None:
-        var = np.real(np.diagonal(ind.first_row_cov, axis1=-2, axis2=-1))
-        P_var = var.reshape(var.shape[:-1] + (ny, nu))[..., :half, :, :]
-    else:
-        P_var = np.full(P.shape, np.nan)
-    bad = (fit.ill_posed | ind.singular)[..., :half]
-    return {"P": P, "P_var": P_var, "P_bad": bad}
+    return identify_arrays(np.asarray(r)[..., ::f_, :], np.asarray(u)[..., ::f_, :], y,
+                           factor=1, half_width=half_width, degrees=degrees,
+                           closed_loop="indirect", covariance=covariance)

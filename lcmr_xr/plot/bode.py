@@ -1,8 +1,4 @@
-"""Bode plot of an identified fast-rate FRF, with its confidence band and the slow Nyquist line.
-
-The private helpers here (magnitudes without ``log(0)``, band edges, axes-grid checks)
-are shared with :mod:`lcmr_xr.plot.lifted`.
-"""
+"""Bode plot of an identified fast-rate FRF, with its confidence band and the slow Nyquist line."""
 
 from __future__ import annotations
 
@@ -13,21 +9,21 @@ from numbers import Real
 import numpy as np
 import xarray as xr
 
+from lcmr_xr import conventions as cv
 from lcmr_xr.conventions import FACTOR, FREQUENCY, INPUT, OUTPUT
-from lcmr_xr.plot._labels import (
-    P_NAME,
-    SAMPLING_PERIOD,
-    SLOW_NYQUIST,
-    STD_SUFFIX,
+from lcmr_xr.plot._shared import (
+    confidence_radius,
+    draw_band,
+    frequency_selection,
+    magnitude,
     magnitude_label,
     phase_label,
+    prepare_axes,
     quantity_label,
+    require_dims,
 )
 
 _P_DIMS = (FREQUENCY, OUTPUT, INPUT)
-# Below this fraction of the smallest plotted magnitude a band edge that reaches zero is
-# drawn (a log axis cannot show zero): 20 dB under the lowest point of the panel.
-_BAND_FLOOR_RATIO = 0.1
 
 
 @dataclass
@@ -158,12 +154,12 @@ def bode(
     >>> plt.close(result.figure)
     """
     estimate, std, attrs = _frf_parts(frf)
-    band_factor = _band_factor(band)  # validated even when there is no P_std to draw
+    band_factor = confidence_radius(band)  # validated even when there is no P_std to draw
     if std is None:
         band_factor = None
     nyquist_hz = _slow_nyquist(attrs, nyquist)
     frequency = np.asarray(estimate[FREQUENCY].values, dtype=float)
-    keep = _frequency_selection(frequency, xlim)
+    keep = frequency_selection(frequency, xlim)
     f_plot = frequency[keep]
     to_axis = 1.0 if hz else 2.0 * np.pi
     x = f_plot * to_axis
@@ -173,7 +169,7 @@ def bode(
     rows_per_output = 2 if phase else 1
     shape = (rows_per_output * len(outputs), len(inputs))
     truth_values = None if truth is None else _truth_at(truth, estimate, f_plot)
-    figure, axes = _prepare_axes(ax, shape, sharex=True)
+    figure, axes = prepare_axes(ax, shape, sharex=True)
 
     values = estimate.values[keep]
     sigma = None if band_factor is None else std.values[keep]
@@ -184,19 +180,19 @@ def bode(
             phase_ax = axes[rows_per_output * o + 1, i] if phase else None
             pair = {"estimate": [], "truth": [], "band": [], "nyquist": []}
             first = o == 0 and i == 0
-            mag = _magnitude(values[:, o, i], db)
+            mag = magnitude(values[:, o, i], db)
             pair["estimate"] += mag_ax.plot(x, mag, color=color, label=label)
             # One color for every artist of this estimate: the first line takes the next
             # color of the first axes' cycle, so an overlay on reused axes gets a new one.
             color = pair["estimate"][0].get_color()
             if sigma is not None:
-                pair["band"] += _draw_band(
+                pair["band"] += draw_band(
                     mag_ax, x, values[:, o, i], sigma[:, o, i], band_factor, db, color,
                     f"{band:.0%} confidence" if first else None,
                 )
             if truth_values is not None:
                 pair["truth"] += mag_ax.plot(
-                    x, _magnitude(truth_values[:, o, i], db), color="k", linestyle="--",
+                    x, magnitude(truth_values[:, o, i], db), color="k", linestyle="--",
                     linewidth=1.0, label="truth" if first else None,
                 )
             if phase:
@@ -230,13 +226,13 @@ def bode(
 def _frf_parts(frf):
     """``(P, P_std or None, attrs)`` with P transposed to (frequency, output, input)."""
     if isinstance(frf, xr.Dataset):
-        if P_NAME not in frf.data_vars:
+        if cv.P not in frf.data_vars:
             raise ValueError(
-                f"The dataset has no variable {P_NAME!r} (it has {sorted(frf.data_vars)}); "
+                f"The dataset has no variable {cv.P!r} (it has {sorted(frf.data_vars)}); "
                 "pass the FRF dataset returned by lcmr_xr.identify, or the complex DataArray P."
             )
-        estimate = frf[P_NAME]
-        std = frf.get(P_NAME + STD_SUFFIX)
+        estimate = frf[cv.P]
+        std = frf.get(cv.P + cv.STD_SUFFIX)
         attrs = {**estimate.attrs, **frf.attrs}
     elif isinstance(frf, xr.DataArray):
         estimate, std, attrs = frf, None, dict(frf.attrs)
@@ -245,58 +241,10 @@ def _frf_parts(frf):
             f"bode needs an xarray Dataset (FRF dataset) or DataArray (P), got "
             f"{type(frf).__name__}; build one with lcmr_xr.identify or xarray.DataArray."
         )
-    estimate = _require_dims(estimate, _P_DIMS, estimate.name or P_NAME)
+    estimate = require_dims(estimate, _P_DIMS, estimate.name or cv.P)
     if std is not None:
-        std = _require_dims(std, _P_DIMS, P_NAME + STD_SUFFIX)
+        std = require_dims(std, _P_DIMS, cv.P + cv.STD_SUFFIX)
     return estimate, std, attrs
-
-
-def _require_dims(da: xr.DataArray, dims: tuple, name: str) -> xr.DataArray:
-    """Transpose ``da`` to ``dims`` (frequency first); refuse extra, missing or non-Hz dims."""
-    extra = [d for d in da.dims if d not in dims]
-    if extra:
-        sizes = ", ".join(f"{d}={da.sizes[d]}" for d in extra)
-        first = extra[0]
-        raise ValueError(
-            f"{name} has dims {da.dims}, with extra dim(s) ({sizes}) besides {dims}: plots "
-            f"show one case at a time. Select one first, e.g. frf.isel({first}=0) or "
-            f"frf.sel({first}=...)."
-        )
-    missing = [d for d in dims if d not in da.dims]
-    if missing:
-        raise ValueError(
-            f"{name} has dims {da.dims} but needs {dims}; missing {tuple(missing)}. For a "
-            f"single channel add them, e.g. da.expand_dims({missing[0]}=['{missing[0]}'])."
-        )
-    for d in dims:
-        if d not in da.coords:
-            raise ValueError(
-                f"{name} has no coordinate for dim {d!r}; assign one, e.g. "
-                f"da.assign_coords({d}=...) (frequencies in Hz, channel labels as strings)."
-            )
-    # Frequency axes are drawn and labelled in Hz (or converted from Hz to rad/s): a
-    # coordinate in other units would be silently mislabelled.
-    frequency_dim = dims[0]
-    units = da[frequency_dim].attrs.get("units", "Hz")
-    if units != "Hz":
-        raise ValueError(
-            f"{name}: coordinate {frequency_dim!r} has units {units!r}, but plots need Hz; "
-            f"convert it, e.g. da.assign_coords({frequency_dim}=da.{frequency_dim} / (2 * np.pi)) "
-            "for rad/s, and set its attrs units='Hz'."
-        )
-    return da.transpose(*dims)
-
-
-def _band_factor(band) -> float | None:
-    """Radius of the (band) confidence disk in units of P_std: sqrt(-ln(1 - band))."""
-    if band is None or band is False:
-        return None
-    if isinstance(band, bool) or not isinstance(band, Real) or not 0.0 < float(band) < 1.0:
-        raise ValueError(
-            f"band must be a confidence level strictly between 0 and 1 (e.g. 0.95), or None "
-            f"for no band; got {band!r}."
-        )
-    return math.sqrt(-math.log1p(-float(band)))
 
 
 def _slow_nyquist(attrs: dict, nyquist) -> float | None:
@@ -304,10 +252,10 @@ def _slow_nyquist(attrs: dict, nyquist) -> float | None:
     if nyquist is False or nyquist is None:
         return None
     if nyquist is True:
-        if SLOW_NYQUIST in attrs:
-            return float(attrs[SLOW_NYQUIST])
-        if FACTOR in attrs and SAMPLING_PERIOD in attrs:
-            return 1.0 / (2.0 * float(attrs[FACTOR]) * float(attrs[SAMPLING_PERIOD]))
+        if cv.SLOW_NYQUIST in attrs:
+            return float(attrs[cv.SLOW_NYQUIST])
+        if FACTOR in attrs and cv.SAMPLING_PERIOD in attrs:
+            return 1.0 / (2.0 * float(attrs[FACTOR]) * float(attrs[cv.SAMPLING_PERIOD]))
         return None
     if isinstance(nyquist, Real) and math.isfinite(nyquist) and nyquist > 0:
         return float(nyquist)
@@ -317,41 +265,14 @@ def _slow_nyquist(attrs: dict, nyquist) -> float | None:
     )
 
 
-def _frequency_selection(frequency: np.ndarray, xlim) -> np.ndarray:
-    """Boolean mask of the bins to draw: above DC and, if given, inside ``xlim`` (Hz)."""
-    keep = frequency > 0
-    if xlim is not None:
-        lo, hi = _check_xlim(xlim)
-        keep &= (frequency >= lo) & (frequency <= hi)
-    if not keep.any():
-        raise ValueError(
-            f"No frequency bin above 0 Hz{'' if xlim is None else f' inside xlim={xlim}'} "
-            f"(bins span {frequency.min():g}..{frequency.max():g} Hz); widen xlim or check "
-            "the frequency coordinate."
-        )
-    return keep
-
-
-def _check_xlim(xlim) -> tuple[float, float]:
-    try:
-        lo, hi = (float(v) for v in xlim)
-    except (TypeError, ValueError):
-        raise ValueError(f"xlim must be a pair (f_lo, f_hi) in Hz, got {xlim!r}.") from None
-    if not (math.isfinite(lo) and math.isfinite(hi) and 0 < lo < hi):
-        raise ValueError(
-            f"xlim must satisfy 0 < f_lo < f_hi (Hz, log axis), got {xlim!r}; e.g. xlim=(1, 500)."
-        )
-    return lo, hi
-
-
 def _truth_at(truth, estimate: xr.DataArray, f_plot: np.ndarray) -> np.ndarray:
     """Exact FRF at ``f_plot`` as an array (n_f, n_outputs, n_inputs)."""
     if isinstance(truth, xr.Dataset):
-        if P_NAME not in truth.data_vars:
+        if cv.P not in truth.data_vars:
             raise ValueError(
-                f"truth is a Dataset without variable {P_NAME!r}; pass the exact FRF DataArray."
+                f"truth is a Dataset without variable {cv.P!r}; pass the exact FRF DataArray."
             )
-        truth = truth[P_NAME]
+        truth = truth[cv.P]
     if not isinstance(truth, xr.DataArray):
         raise TypeError(
             f"truth must be an xarray DataArray like P (dims frequency, output, input), got "
@@ -390,51 +311,7 @@ def _truth_at(truth, estimate: xr.DataArray, f_plot: np.ndarray) -> np.ndarray:
     return out
 
 
-def _prepare_axes(ax, shape: tuple[int, int], *, sharex: bool):
-    """``(figure, axes)`` with axes an object ndarray of ``shape``; new figure when ax is None."""
-    if ax is None:
-        import matplotlib.pyplot as plt  # lazy: importing lcmr_xr.plot must not pick a backend
-
-        rows, cols = shape
-        figure, axes = plt.subplots(
-            rows, cols, squeeze=False, sharex=sharex,
-            figsize=(3.2 + 2.8 * cols, 1.2 + 2.0 * rows), layout="constrained",
-        )
-        return figure, axes
-    from matplotlib.axes import Axes
-
-    axes = np.asarray(ax, dtype=object)
-    if axes.ndim == 0:
-        axes = axes.reshape(1)
-    # plt.subplots squeezes single rows/columns: accept any array whose non-unit
-    # dimensions match the grid.
-    squeezed = tuple(n for n in axes.shape if n != 1)
-    if squeezed != tuple(n for n in shape if n != 1):
-        raise ValueError(
-            f"ax has shape {axes.shape} but this plot needs a grid of shape {shape} "
-            f"(rows, columns); create one with plt.subplots({shape[0]}, {shape[1]}, "
-            "squeeze=False) or pass ax=None."
-        )
-    axes = axes.reshape(shape)
-    for a in axes.flat:
-        if not isinstance(a, Axes):
-            raise TypeError(
-                f"ax must hold matplotlib Axes, found {type(a).__name__}; pass the array "
-                "returned by plt.subplots or a previous plot's result.axes."
-            )
-    return axes[0, 0].figure, axes
-
-
 # ----------------------------------------------------------------------------- numerics
-
-
-def _magnitude(values: np.ndarray, db: bool) -> np.ndarray:
-    """``20 log10 |x|`` (db) or ``|x|``; NaN where x is zero or not finite, without warnings."""
-    mag = np.abs(values)
-    ok = np.isfinite(mag) & (mag > 0)
-    out = np.full(mag.shape, np.nan)
-    out[ok] = 20.0 * np.log10(mag[ok]) if db else mag[ok]
-    return out
 
 
 def _phase_deg(values: np.ndarray, unwrap: bool) -> np.ndarray:
@@ -464,34 +341,6 @@ def _align_phase(phase: np.ndarray, reference: np.ndarray) -> np.ndarray:
     return phase + 360.0 * np.round(offset / 360.0)
 
 
-def _band_edges(values: np.ndarray, sigma: np.ndarray, factor: float):
-    """Magnitude edges ``|x| +- factor sigma`` (linear); a lower edge <= 0 goes to a floor.
-
-    The floor is ``_BAND_FLOOR_RATIO`` times the smallest positive magnitude or lower
-    edge of the curve, so the band visibly reaches "zero" without stretching the axis.
-    """
-    mag = np.abs(values)
-    radius = factor * np.asarray(sigma, dtype=float)
-    valid = np.isfinite(mag) & (mag > 0) & np.isfinite(radius)
-    upper = np.where(valid, mag + np.where(valid, radius, 0.0), np.nan)
-    lower = np.where(valid, mag - np.where(valid, radius, 0.0), np.nan)
-    positive = valid & (lower > 0)
-    floor = _BAND_FLOOR_RATIO * np.min(
-        np.concatenate([mag[valid], lower[positive]]), initial=np.inf
-    )
-    lower = np.where(valid & ~positive, floor, lower)
-    return upper, lower
-
-
-def _draw_band(axis, x, values, sigma, factor, db, color, label):
-    """Upper and lower edge lines plus the fill between them; returns the artists."""
-    upper, lower = _band_edges(values, sigma, factor)
-    upper, lower = _magnitude(upper, db), _magnitude(lower, db)
-    edges = axis.plot(x, upper, x, lower, color=color, linewidth=0.5, alpha=0.5)
-    fill = axis.fill_between(x, lower, upper, color=color, alpha=0.2, linewidth=0, label=label)
-    return edges + [fill]
-
-
 # ----------------------------------------------------------------------------- styling
 
 
@@ -499,7 +348,7 @@ def _style_bode_axes(axes, estimate, db, hz, phase, rows_per_output, xlim, to_ax
     freq_label = quantity_label(
         estimate[FREQUENCY].attrs, FREQUENCY, units=None if hz else "rad/s"
     )
-    name = str(estimate.name or P_NAME)
+    name = str(estimate.name or cv.P)
     rows, cols = axes.shape
     for r in range(rows):
         for c in range(cols):

@@ -1,6 +1,6 @@
 """Labelled simulation of a multirate closed loop, returning an experiment dataset.
 
-The numerics live in :mod:`lcmr_xr.kernels.ltisim`; this module maps the named dims of the
+The numerics live in :mod:`lcmr_xr.kernels.lti`; this module maps the named dims of the
 data contract onto its axes with :func:`xarray.apply_ufunc` and builds the dataset with
 :func:`lcmr_xr.experiment.experiment`.
 """
@@ -14,7 +14,7 @@ import xarray as xr
 
 from lcmr_xr.conventions import INPUT, OUTPUT, SLOW_TIME, TIME
 from lcmr_xr.experiment import experiment
-from lcmr_xr.kernels.ltisim import StateSpace, multirate_closed_loop, simulate_multirate
+from lcmr_xr.kernels.lti import StateSpace, multirate_closed_loop, simulate_multirate
 
 __all__ = ["simulate_closed_loop"]
 
@@ -71,7 +71,7 @@ def simulate_closed_loop(
 ) -> xr.Dataset:
     """Simulate a multirate closed-loop experiment from rest and return its dataset.
 
-    The loop is that of :func:`lcmr_xr.kernels.ltisim.multirate_closed_loop`: slow
+    The loop is that of :func:`lcmr_xr.kernels.lti.multirate_closed_loop`: slow
     controller on ``e = reference - y_l``, zero-order hold, fast filter, ``u_h = r + Fi v_h``
     recorded, plant input ``u_h + d_u``, output ``P(u_h + d_u) + d_y``, measured
     ``y_l(l) = y(lF)``.
@@ -120,7 +120,7 @@ def simulate_closed_loop(
     Examples
     --------
     >>> import numpy as np, xarray as xr
-    >>> from lcmr_xr.kernels.ltisim import static_gain, tf_q_inverse
+    >>> from lcmr_xr.kernels.lti import static_gain, tf_q_inverse
     >>> P = tf_q_inverse([0.0, 0.5], [1.0, -0.9], dt=0.5)
     >>> r = xr.DataArray(np.ones((8, 1)), dims=("time", "input"))
     >>> ds = simulate_closed_loop(P, static_gain(0.2, dt=1.0), None, 2, r)
