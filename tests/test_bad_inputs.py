@@ -38,7 +38,7 @@ import lcmr_xr
 from lcmr_xr import cli, hdd
 from lcmr_xr.experiment import experiment, validate_experiment
 from lcmr_xr.io import open_dataset, open_experiment, open_frf, save
-from lcmr_xr.io._atomic import stale_temporaries
+from lcmr_xr.io._atomic import stale_temporaries, temporary_prefix
 from lcmr_xr.scaleout import open_archive, save_archive, select_settings, sweep
 
 TH = 1 / 100800
@@ -568,15 +568,19 @@ def test_stale_temporary_of_a_dead_writer_is_removed_on_next_save(tmp_path, smal
     target = tmp_path / "exp.nc"
     dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True,
                           text=True, check=True)
-    stale = tmp_path / f".exp.nc.{int(dead.stdout)}.abcd1234.tmp"
+    host = temporary_prefix(target).split(".")[-2].split("-")[0]
+    stale = tmp_path / f".exp.nc.{host}-{int(dead.stdout)}.abcd1234.tmp"
     stale.write_bytes(b"x" * 1000)
-    live = tmp_path / f".exp.nc.{os.getpid()}.live5678.tmp"  # a writer that still runs: kept
+    live = tmp_path / f"{temporary_prefix(target)}live5678.tmp"  # a writer that still runs: kept
     live.write_bytes(b"y")
-    other = tmp_path / f".other.nc.{int(dead.stdout)}.abcd1234.tmp"  # another target's: kept
+    other = tmp_path / f".other.nc.{host}-{int(dead.stdout)}.abcd1234.tmp"  # another target's
     other.write_bytes(b"z")
+    remote = tmp_path / f".exp.nc.0badf00d-{int(dead.stdout)}.abcd1234.tmp"  # another host's, recent
+    remote.write_bytes(b"w")
     assert stale_temporaries(target) == [stale]
     save(small, target)
-    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["exp.nc", live.name, other.name])
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["exp.nc", live.name, other.name,
+                                                                 remote.name])
 
 
 def test_old_untagged_temporary_is_removed_recent_one_kept(tmp_path, small):

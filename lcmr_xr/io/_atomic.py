@@ -4,18 +4,22 @@ Readers never see a half-written file, a failed write leaves neither a partial f
 the temporary one, and an existing file is replaced only once the new one is complete.
 
 A process killed mid-write (SIGKILL, power loss) cannot remove its temporary file.  The
-temporary is named ``.NAME.PID.XXXXXXXX.tmp`` (hidden, next to ``NAME``, tagged with the
-writing process id), and the next write of the same ``NAME`` removes the temporaries of
-``NAME`` whose process no longer runs (untagged ones, from older versions, once they are
-an hour old).  Temporaries of a live writer are never touched.
+temporary is named ``.NAME.HOST-PID.XXXXXXXX.tmp`` (hidden, next to ``NAME``, tagged with
+a hash of the host name and the writing process id), and the next write of the same
+``NAME`` removes the temporaries of ``NAME`` written on this host by a process that no
+longer runs.  Temporaries from other hosts (a shared file system) or without a tag (older
+versions) are removed once they are an hour old.  Temporaries of a live writer are never
+touched.
 """
 
 from __future__ import annotations
 
 import os
 import re
+import socket
 import tempfile
 import time
+import zlib
 from pathlib import Path
 from typing import Callable
 
@@ -61,6 +65,15 @@ def check_writable_target(path) -> Path:
     return path
 
 
+def _host_tag() -> str:
+    return f"{zlib.crc32(socket.gethostname().encode()):08x}"
+
+
+def temporary_prefix(path) -> str:
+    """``.NAME.HOST-PID.``: how this process's temporaries of ``path`` begin."""
+    return f".{Path(path).name}.{_host_tag()}-{os.getpid()}."
+
+
 def _process_alive(pid: int) -> bool:
     if pid == os.getpid():
         return True
@@ -88,20 +101,20 @@ def stale_temporaries(path) -> list[Path]:
     """
     path = Path(path)
     directory = path.parent if str(path.parent) else Path(".")
-    tagged = re.compile(rf"^\.{re.escape(path.name)}\.(\d+)\.[A-Za-z0-9_]+\.tmp$")
+    tagged = re.compile(rf"^\.{re.escape(path.name)}\.([0-9a-f]{{8}})-(\d+)\.[A-Za-z0-9_]+\.tmp$")
     untagged = re.compile(rf"^\.{re.escape(path.name)}\.[A-Za-z0-9_]+\.tmp$")
     stale = []
     try:
         entries = list(os.scandir(directory))
     except OSError:
         return []
-    now = time.time()
+    now, host = time.time(), _host_tag()
     for entry in entries:
         match = tagged.match(entry.name)
-        if match:
-            if not _process_alive(int(match.group(1))):
+        if match and match.group(1) == host:
+            if not _process_alive(int(match.group(2))):
                 stale.append(Path(entry.path))
-        elif untagged.match(entry.name):
+        elif match or untagged.match(entry.name):
             try:
                 if now - entry.stat().st_mtime > UNTAGGED_STALE_SECONDS:
                     stale.append(Path(entry.path))
@@ -134,8 +147,7 @@ def atomic_write(path, write: Callable[[str], None]) -> Path:
             pass
     # same directory as the target: os.replace is atomic only within one file system
     try:
-        fd, tmp = tempfile.mkstemp(dir=directory, prefix=f".{path.name}.{os.getpid()}.",
-                                   suffix=".tmp")
+        fd, tmp = tempfile.mkstemp(dir=directory, prefix=temporary_prefix(path), suffix=".tmp")
     except OSError as err:
         raise type(err)(err.errno, f"cannot write {path}: {err.strerror} in directory "
                                    f"{directory}; choose another place") from err

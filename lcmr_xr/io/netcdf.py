@@ -16,7 +16,7 @@ import numpy as np
 import xarray as xr
 
 from lcmr_xr.conventions import CONVENTIONS, FREQUENCY, INPUT, OUTPUT
-from lcmr_xr.io._atomic import atomic_write, check_writable_target
+from lcmr_xr.io._atomic import atomic_write
 from lcmr_xr.io._guards import check_not_own_source
 from lcmr_xr.experiment.dataset import validate_experiment
 
@@ -144,7 +144,7 @@ def save(ds: xr.Dataset, path) -> Path:
     The data are written to a temporary file in the same directory, flushed to disk, and
     moved over ``path`` with :func:`os.replace` (atomic on POSIX), so a failure mid-write
     never leaves a half-written file and never destroys an existing one.  The temporary is
-    the hidden ``.NAME.PID.XXXXXXXX.tmp`` next to ``path``; when a process is killed
+    the hidden ``.NAME.HOST-PID.XXXXXXXX.tmp`` next to ``path``; when a process is killed
     mid-write it stays behind, and the next ``save`` to the same ``path`` removes it (the
     temporaries of writers that no longer run).  Complex arrays use the netCDF4
     ``auto_complex`` compound type and read back bit for bit.
@@ -163,7 +163,6 @@ def save(ds: xr.Dataset, path) -> Path:
             f"save writes an xarray.Dataset, got {type(ds).__name__}; for a DataArray use "
             "x.to_dataset(name='...')."
         )
-    check_writable_target(path)
     check_not_own_source(ds, path)
     flat = _map_attrs(ds, _flatten_attrs)
     return atomic_write(path, lambda tmp: flat.to_netcdf(tmp, engine=_ENGINE, auto_complex=True))
