@@ -18,10 +18,13 @@ from lcmr_xr.kernels.identification import (
     finish_packed,
     fit_packed,
     identify_arrays,
+    identify_arrays_auto,
     identify_single_rate_arrays,
     lifted_spectra,
     packed_width,
+    window_dof,
 )
+from lcmr_xr.kernels.adaptive import candidate_windows
 from lcmr_xr.kernels.local_models import parameters_per_row
 
 METHODS = {"lrm": None, "lpm": 0}
@@ -97,7 +100,7 @@ def _ratio_units(num: str, den: str) -> str:
     return f"{num}/{den}"
 
 
-def identify(experiment: xr.Dataset, *, method: str = "lrm", window: int = 30, degrees=None,
+def identify(experiment: xr.Dataset, *, method: str = "lrm", window="auto", degrees=None,
              closed_loop: str = "indirect", covariance: bool = True, errors: str = "raise",
              frequency_chunks: int | None = None) -> xr.Dataset:
     """Identify the fast-rate FRF of a plant in multirate closed loop (paper, Procedure 1).
@@ -116,8 +119,13 @@ def identify(experiment: xr.Dataset, *, method: str = "lrm", window: int = 30, d
         (e.g. ``experiment``) broadcast and may be dask-chunked.
     method : {"lrm", "lpm"}, default "lrm"
         Local rational model, or local polynomial model (denominator degree ``Rd = 0``).
-    window : int, default 30
+    window : int or "auto", default "auto"
         Half-width ``n`` of the local window: each estimate uses ``2 n + 1`` slow bins.
+        ``"auto"``: chosen per slow bin among a ladder of half-widths from the smallest
+        one the degrees allow to 30 (the paper's) by a local mean-squared-error criterion
+        (model error against noise; see ``docs/uncertainty.md`` and
+        :mod:`lcmr_xr.kernels.adaptive`); the choice is returned as ``local_window`` and
+        the estimated model error is part of ``P_std``.
     degrees : (int, int, int), optional
         ``(Rn, Rm, Rd)``: degrees of the numerator, transient and (diagonal) denominator
         polynomials in the local frequency variable.  Default ``(3, 3, 3)`` for LRM and
@@ -148,10 +156,15 @@ def identify(experiment: xr.Dataset, *, method: str = "lrm", window: int = 30, d
     -------
     xarray.Dataset
         ``P`` (``frequency``, ``output``, ``input``), complex: fast FRF at bins
-        ``k / (N Th)``, ``k = 0..N/2``; ``P_std``: standard deviation of the complex estimate,
-        ``sqrt(E|P_hat - P|^2)``, same units (the 95 % region for a circular Gaussian error
-        is ``|P_hat - P| <= sqrt(ln 20) P_std``); ``P_flag``: bins that could not be
-        estimated.  Lifted estimates on ``slow_frequency``: ``S`` (``lift_phase``, ``input``,
+        ``k / (N Th)``, ``k = 0..N/2``; ``P_std``: uncertainty of ``P`` calibrated so that
+        the disc ``|P_hat - P| <= sqrt(ln 20) P_std`` is a 95 % region (first-order noise
+        standard deviation ``P_std_linear`` times a small-sample factor and, for the
+        indirect method, a factor for the nonlinearity of ``S^-1``, plus the model-error
+        estimate ``P_bias`` with ``window="auto"``); ``inf`` where ``P_undetermined``: the
+        data do not determine the weakest direction of ``S`` there, so no finite band can
+        be promised (``docs/uncertainty.md``).  ``P_flag``: bins that could not be
+        estimated.  ``s_weak_rel_std`` (``slow_frequency``): relative standard deviation of
+        the weakest direction of ``S``.  Lifted estimates on ``slow_frequency``: ``S`` (``lift_phase``, ``input``,
         ``lift_phase2``, ``input2``), ``PS`` (``output``, ``lift_phase2``, ``input2``) with
         ``S_std``, ``PS_std``; residual noise variances ``noise_variance_u``,
         ``noise_variance_y``; transients ``transient_u``, ``transient_y``; ``condition``,
@@ -187,7 +200,11 @@ def identify(experiment: xr.Dataset, *, method: str = "lrm", window: int = 30, d
     nu = ds.sizes[cv.INPUT]
     ny = ds.sizes[cv.OUTPUT]
     nr = factor * nu  # lifted r (indirect) or lifted u (direct): F nu channels either way
-    window = _check_window(window, degrees, nr, m)
+    auto = isinstance(window, str)
+    if auto:
+        windows = _auto_windows(window, degrees, nr, m, frequency_chunks, covariance)
+    else:
+        window = _check_window(window, degrees, nr, m)
     th = float(ds[cv.TIME][1] - ds[cv.TIME][0])
     _check_excitation(ds, factor, closed_loop)
 
@@ -204,7 +221,11 @@ def identify(experiment: xr.Dataset, *, method: str = "lrm", window: int = 30, d
         ("noise_variance_y", [SF, cv.OUTPUT], float),
         ("condition", [SF], float),
         ("ill_posed", [SF], bool),
+        ("P_std_linear", [FQ, cv.OUTPUT, cv.INPUT], float),
+        ("P_undetermined", [FQ], bool),
     ]
+    if auto:
+        specs += [("P_bias", [FQ, cv.OUTPUT, cv.INPUT], float), ("local_window", [SF], int)]
     if closed_loop == "indirect":
         specs += [
             ("S", [SF, LP, cv.INPUT, LP2, IN2], complex),
@@ -213,6 +234,7 @@ def identify(experiment: xr.Dataset, *, method: str = "lrm", window: int = 30, d
             ("noise_variance_u", [SF, LP, cv.INPUT], float),
             ("s_condition", [SF], float),
             ("s_singular", [SF], bool),
+            ("s_weak_rel_std", [SF], float),
         ]
 
     def split(out):
@@ -226,7 +248,12 @@ def identify(experiment: xr.Dataset, *, method: str = "lrm", window: int = 30, d
             "P_flag": out["P_bad"],
             "condition": out["condition"],
             "ill_posed": out["ill_posed"],
+            "P_std_linear": np.sqrt(out["P_var_linear"]),
+            "P_undetermined": out["P_undetermined"],
         }
+        if auto:
+            pieces["P_bias"] = out["P_bias"]
+            pieces["local_window"] = out["window"]
         zy = slice(fnu, None) if closed_loop == "indirect" else slice(0, None)
         pieces["PS"] = G[..., zy, :].reshape(lead + (m, ny, factor, nu))
         pieces["PS_std"] = G_sd[..., zy, :].reshape(lead + (m, ny, factor, nu))
@@ -240,6 +267,7 @@ def identify(experiment: xr.Dataset, *, method: str = "lrm", window: int = 30, d
             pieces["noise_variance_u"] = out["noise_variance"][..., :fnu].reshape(lead + (m, factor, nu))
             pieces["s_condition"] = out["s_condition"]
             pieces["s_singular"] = out["s_singular"]
+            pieces["s_weak_rel_std"] = out["s_weak_rel_std"]
         return tuple(pieces[name] for name, _, _ in specs)
 
     gufunc_kwargs = {
@@ -250,7 +278,14 @@ def identify(experiment: xr.Dataset, *, method: str = "lrm", window: int = 30, d
     output_spec = dict(output_core_dims=[dims for _, dims, _ in specs], dask="parallelized",
                        output_dtypes=[dt for _, _, dt in specs],
                        dask_gufunc_kwargs=gufunc_kwargs, keep_attrs=False)
-    if frequency_chunks is None:
+    if auto:
+        def kernel(r, u, y):
+            return split(identify_arrays_auto(r, u, y, factor=factor, windows=windows,
+                                              degrees=degrees, closed_loop=closed_loop))
+
+        results = xr.apply_ufunc(kernel, ds["r"], ds["u"], ds["y"], input_core_dims=core_in,
+                                 **output_spec)
+    elif frequency_chunks is None:
         def kernel(r, u, y):
             return split(identify_arrays(r, u, y, factor=factor, half_width=window,
                                          degrees=degrees, closed_loop=closed_loop,
@@ -267,7 +302,8 @@ def identify(experiment: xr.Dataset, *, method: str = "lrm", window: int = 30, d
         def finish(p):
             p = np.ascontiguousarray(p).view(complex)
             return split(finish_packed(p, nz=nz_, nr=nr_, n_fast=n, factor=factor, nu=nu, ny=ny,
-                                       closed_loop=closed_loop, covariance=covariance))
+                                       closed_loop=closed_loop, covariance=covariance,
+                                       dof=window_dof(window, nr_, degrees)))
 
         # the recovery gathers every slow bin (P(k) uses bin k mod M): one chunk along it
         results = xr.apply_ufunc(finish, packed.chunk({SF: -1}), input_core_dims=[[SF, "_packed"]],
@@ -289,8 +325,8 @@ def identify(experiment: xr.Dataset, *, method: str = "lrm", window: int = 30, d
         "conventions": cv.CONVENTIONS,
         "method": method,
         "closed_loop": closed_loop,
-        "window": window,
-        "window_bins": 2 * window + 1,
+        "window": "auto" if auto else window,
+        "window_bins": "auto" if auto else 2 * window + 1,
         "degrees": np.array(degrees, dtype=int),
         "factor": factor,
         "sampling_period": th,
@@ -300,7 +336,32 @@ def identify(experiment: xr.Dataset, *, method: str = "lrm", window: int = 30, d
         "covariance": int(bool(covariance)),
         "title": f"lifted {closed_loop} closed-loop {method.upper()} FRF estimate",
     })
+    if auto:
+        out.attrs["candidate_windows"] = np.array(windows, dtype=int)
     return out
+
+
+def _auto_windows(window, degrees, nr, m, frequency_chunks, covariance):
+    """Candidate half-widths of ``window="auto"``, or a clear refusal."""
+    if window != "auto":
+        raise ValueError(f"window must be a positive integer or 'auto', got {window!r}.")
+    if frequency_chunks is not None:
+        raise ValueError("frequency_chunks is not supported with window='auto' (the window "
+                         "choice needs every candidate's fit at every bin); pass an integer "
+                         "window, or leave frequency_chunks unset.")
+    if not covariance:
+        raise ValueError("window='auto' chooses the window from the estimates' covariances; "
+                         "pass covariance=True, or an integer window with covariance=False.")
+    p = parameters_per_row(nr, degrees)
+    n_min = p // 2 + 1  # 2n + 1 >= p + 2: at least two degrees of freedom
+    n_max = (m - 1) // 2
+    if n_min > n_max:
+        raise ValueError(
+            f"the experiment has {m} slow bins, too few for degrees {degrees} with {nr} lifted "
+            f"excitation channels ({p} parameters per row need a window of {2 * n_min + 1} "
+            f"bins). Use a longer experiment or lower degrees."
+        )
+    return candidate_windows(n_min, n_max)
 
 
 def _fit_frequency_chunked(ds, *, factor, window, degrees, closed_loop, covariance,
@@ -404,7 +465,7 @@ def _label(out, ds, *, factor, th, n, m):
     ru = ds["r"].attrs.get("units", "1")
     meta = {
         "P": ("plant FRF", p_units),
-        "P_std": ("standard deviation of P", p_units),
+        "P_std": ("uncertainty of P (95 % disc radius / sqrt(ln 20))", p_units),
         "P_flag": ("P could not be estimated", "1"),
         "PS": ("lifted process sensitivity, first block row", _ratio_units(y_units, ru)),
         "PS_std": ("standard deviation of PS", _ratio_units(y_units, ru)),
@@ -418,6 +479,11 @@ def _label(out, ds, *, factor, th, n, m):
         "ill_posed": ("local model ill-posed", "1"),
         "s_condition": ("condition number of the estimated lifted sensitivity", "1"),
         "s_singular": ("lifted sensitivity not invertible", "1"),
+        "s_weak_rel_std": ("relative standard deviation of the weakest direction of S", "1"),
+        "P_std_linear": ("first-order noise standard deviation of P", p_units),
+        "P_undetermined": ("P not determined by the data (unbounded band)", "1"),
+        "P_bias": ("estimated model error of P", p_units),
+        "local_window": ("chosen local window half-width n", "1"),
     }
     for name, (long_name, units) in meta.items():
         if name in out:
