@@ -123,7 +123,10 @@ def recover_frf(G, G_cov, *, n_fast: int, factor: int, nu: int, ny: int,
             nl, undetermined = nonlinearity_factor(rho, rho_v)
             undetermined = undetermined & ~s_sing
             slow_factor = slow_factor * nl
-        P_var = P_var_lin * np.take(slow_factor, bins % m, axis=-1)[..., None, None] ** 2
+        fast_factor = np.take(np.where(undetermined, 1.0, slow_factor), bins % m, axis=-1)
+        P_var = P_var_lin * fast_factor[..., None, None] ** 2
+        # unbounded where undetermined (also where the first-order variance is 0 or NaN)
+        P_var = np.where(np.take(undetermined, bins % m, axis=-1)[..., None, None], np.inf, P_var)
     else:
         P_var_lin = P_var = np.full(P.shape, np.nan)
     slow_bad = s_sing if ill_posed is None else (ill_posed | s_sing)

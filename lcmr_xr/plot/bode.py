@@ -44,8 +44,9 @@ class BodePlot:
     lines : dict
         ``lines[(output, input)]`` is a dict with keys ``"estimate"`` (magnitude and
         phase :class:`~matplotlib.lines.Line2D`), ``"truth"`` (same, dashed),
-        ``"band"`` (upper and lower edge ``Line2D`` then the filled
-        :class:`~matplotlib.collections.PolyCollection`) and ``"nyquist"`` (one
+        ``"band"`` (upper and lower edge ``Line2D``, the filled
+        :class:`~matplotlib.collections.PolyCollection`, then one hatched span per run of
+        bins where ``P_std`` is inf: not determined by the data, unbounded band) and ``"nyquist"`` (one
         vertical ``Line2D`` per axes of the pair); absent artists give empty lists.
     """
 
@@ -98,7 +99,8 @@ def bode(
         Confidence level (0 < band < 1) of the band on the magnitude, from the
         circular complex Gaussian error model: ``|P_hat - P| <= sqrt(-ln(1 - band)) * P_std``
         (1.731 ``P_std`` for the default 0.95).  Where the lower edge reaches zero it
-        is drawn 20 dB below the smallest magnitude of the panel.  None (or False)
+        is drawn 20 dB below the smallest magnitude of the panel; where ``P_std`` is inf
+        (``P_undetermined``) a hatched span marks the unbounded band.  None (or False)
         draws no band; no band is drawn either when ``frf`` has no ``P_std``.
     nyquist : bool or float, optional
         True (default) draws the slow Nyquist frequency from the attrs (``slow_nyquist``,
@@ -194,6 +196,8 @@ def bode(
                     mag_ax, x, values[:, o, i], sigma[:, o, i], band_factor, db, color,
                     f"{band:.0%} confidence" if first else None,
                 )
+                pair["band"] += _draw_unbounded(mag_ax, x, sigma[:, o, i], color,
+                                                "not determined (unbounded band)" if first else None)
             if truth_values is not None:
                 pair["truth"] += mag_ax.plot(
                     x, _magnitude(truth_values[:, o, i], db), color="k", linestyle="--",
@@ -490,6 +494,21 @@ def _draw_band(axis, x, values, sigma, factor, db, color, label):
     edges = axis.plot(x, upper, x, lower, color=color, linewidth=0.5, alpha=0.5)
     fill = axis.fill_between(x, lower, upper, color=color, alpha=0.2, linewidth=0, label=label)
     return edges + [fill]
+
+
+def _draw_unbounded(axis, x, sigma, color, label):
+    """Hatched spans where ``P_std`` is inf: the data do not bound the error there."""
+    inf = np.isposinf(np.asarray(sigma, dtype=float))
+    if not inf.any():
+        return []
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], inf.astype(int), [0]])))
+    spans = []
+    for start, stop in zip(edges[::2], edges[1::2]):  # runs [start, stop)
+        lo, hi = x[max(start - 1, 0)], x[min(stop, x.size - 1)]
+        spans.append(axis.axvspan(lo, hi, facecolor=color, alpha=0.12, hatch="//",
+                                  edgecolor=color, linewidth=0, label=label))
+        label = None
+    return spans
 
 
 # ----------------------------------------------------------------------------- styling
