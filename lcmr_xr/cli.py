@@ -18,6 +18,17 @@ import sys
 from pathlib import Path
 
 
+def _window(text: str):
+    """``--window``: a positive integer half-width or ``auto``."""
+    if text == "auto":
+        return text
+    try:
+        return int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"must be a positive integer half-width or 'auto', got {text!r}") from None
+
+
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="lcmr-xr",
@@ -29,7 +40,8 @@ def _parser() -> argparse.ArgumentParser:
     ident.add_argument("experiment", type=Path, help="experiment NetCDF file (lcmr-xr-1)")
     ident.add_argument("-o", "--output", type=Path, required=True, help="FRF NetCDF file to write")
     ident.add_argument("--method", choices=("lrm", "lpm"), default="lrm")
-    ident.add_argument("--window", type=int, default=30, help="local window half-width n (2n+1 bins)")
+    ident.add_argument("--window", type=_window, default="auto",
+                       help="local window half-width n (2n+1 bins), or 'auto' (default: chosen per bin)")
     ident.add_argument("--degrees", type=int, nargs=3, metavar=("RN", "RM", "RD"), default=None,
                        help="numerator, transient and denominator degrees (default 3 3 3; LPM: 3 3 0)")
     ident.add_argument("--closed-loop", choices=("indirect", "direct"), default="indirect")
@@ -38,7 +50,8 @@ def _parser() -> argparse.ArgumentParser:
     demo = sub.add_parser("demo", help="identify the bundled HDD benchmark experiment")
     demo.add_argument("--experiment", type=Path, default=None)
     demo.add_argument("--output-dir", type=Path, default=Path("demo-output"))
-    demo.add_argument("--window", type=int, default=30)
+    demo.add_argument("--window", type=_window, default="auto",
+                      help="local window half-width n, or 'auto' (default)")
     demo.add_argument("--degrees", type=int, nargs=3, default=(3, 3, 3), metavar=("RN", "RM", "RD"))
     demo.add_argument("--no-plot", action="store_true")
 
