@@ -243,8 +243,8 @@ def identify_arrays_auto(r, u, y, *, factor: int, windows, degrees=(3, 3, 3),
 
     Every candidate half-width (ascending) is fitted with its covariance, its fast FRF and
     calibrated variance recovered, and :func:`lcmr_xr.kernels.adaptive.select_windows`
-    picks one per slow bin; the chosen window's fit is then gathered bin by bin and
-    recovered once more, so every returned array is that of the chosen window.  The
+    picks one per slow bin; every returned array is then gathered bin by bin from the
+    chosen window's (a fast bin ``k`` from the choice at slow bin ``k mod M``).  The
     squared model-error estimate of the chosen window is added to ``P_var``.
 
     Returns
@@ -269,12 +269,19 @@ def identify_arrays_auto(r, u, y, *, factor: int, windows, degrees=(3, 3, 3),
     P_lin = np.stack([o["P_var_linear"] for o in outs])
     m = packed.shape[-2]
     choice, bias2 = select_windows(P, P_var, P_lin, m)
-    chosen = np.take_along_axis(packed, choice[None, ..., None], axis=0)[0]
-    window = windows[choice]
-    out = finish_packed(chosen, dof=window_dof(window, nr, degrees), **shape)
-    bins = np.arange(P.shape[-3]) % m
-    fast_choice = np.take(choice, bins, axis=-1)[None, ..., None, None]
-    b2 = np.take_along_axis(bias2, np.broadcast_to(fast_choice, (1,) + bias2.shape[1:]), axis=0)[0]
+    fast_choice = np.take(choice, np.arange(P.shape[-3]) % m, axis=-1)
+
+    def gather(name):
+        """The chosen candidate's array, bin by bin (slow or fast bins)."""
+        stack = np.stack([o[name] for o in outs])
+        lead = choice.ndim  # (..., M) or (..., K): the bin axis is the last of ``lead``
+        idx = choice if stack.shape[lead] == m else fast_choice
+        idx = idx.reshape((1,) + idx.shape + (1,) * (stack.ndim - 1 - lead))
+        return np.take_along_axis(stack, idx, axis=0)[0]
+
+    out = {name: gather(name) for name in outs[0]}
+    b2 = np.take_along_axis(
+        bias2, fast_choice.reshape((1,) + fast_choice.shape + (1, 1)), axis=0)[0]
     # The widest candidate has the most data: where even it cannot determine the weakest
     # direction of S, a narrower window that seems to is a lucky draw (choosing among noisy
     # determinacy tests), so the bin stays undetermined.
@@ -282,7 +289,7 @@ def identify_arrays_auto(r, u, y, *, factor: int, windows, degrees=(3, 3, 3),
     out["P_undetermined"] = undetermined
     out["P_var"] = np.where(undetermined[..., None, None], np.inf, out["P_var"] + b2)
     out["P_bias"] = np.sqrt(b2)
-    out["window"] = window
+    out["window"] = windows[choice]
     return out
 
 
