@@ -33,6 +33,13 @@ LIFTED_S = "S"
 LIFTED_PS = "PS"
 NOISE_VARIANCE_U = "noise_variance_u"
 NOISE_VARIANCE_Y = "noise_variance_y"
+# Honest uncertainty (docs/uncertainty.md): P_std is calibrated so that
+# |P_hat - P| <= sqrt(ln 20) P_std is a 95 % region, inf where P_UNDETERMINED.
+P_STD_LINEAR = "P_std_linear"  # first-order noise standard deviation of P
+P_UNDETERMINED = "P_undetermined"  # the data do not determine P (unbounded band)
+P_BIAS = "P_bias"  # estimated model error of P (window="auto")
+LOCAL_WINDOW = "local_window"  # half-width chosen per slow bin (window="auto")
+S_WEAK_REL_STD = "s_weak_rel_std"  # relative std of the weakest direction of S
 
 # Attribute names.
 SLOW_NYQUIST = "slow_nyquist"
