@@ -153,7 +153,7 @@ def test_auto_refuses_what_it_cannot_do():
         identify(exp, frequency_chunks=50)
     with pytest.raises(ValueError, match="covariance=True"):
         identify(exp, covariance=False)
-    with pytest.raises(ValueError, match="positive integer or 'auto'"):
+    with pytest.raises(TypeError, match="window must be an integer or 'auto'"):
         identify(exp, window="wide")
 
 
@@ -201,3 +201,75 @@ def test_defaults_not_worse_than_fixed_windows_on_known_loops(kind, noise):
     best_fixed = min(worst(identify(exp, window=w)) for w in windows)
     assert auto <= 1.05 * best_fixed, (auto, best_fixed)
     assert auto < (1e-4 if noise == 0 else 3e-3)
+
+
+def test_auto_with_repeated_periods_uses_the_period_noise_per_candidate():
+    """Pooled periods: each bin's band is the chosen candidate's band with the period noise."""
+    exp = hdd.simulate(n_samples=1200, periods=3, seed=1)
+    auto = identify(exp, transient_periods=1)
+    assert auto.attrs["noise_estimate"] == "periods" and auto.attrs["window"] == "auto"
+    fast = np.arange(auto.sizes["frequency"]) % auto.sizes["slow_frequency"]
+    chosen = auto.local_window.values[fast]
+    for w in np.unique(chosen):
+        fixed = identify(exp, window=int(w), transient_periods=1, errors="ignore")
+        sel = chosen == w
+        np.testing.assert_allclose(auto.P.values[sel], fixed.P.values[sel], rtol=1e-12, atol=0)
+        np.testing.assert_allclose(auto.P_std_linear.values[sel], fixed.P_std_linear.values[sel],
+                                   rtol=1e-12, atol=0)
+
+
+def test_auto_on_data_of_extreme_magnitude_is_the_scaled_result():
+    exp = hdd.simulate(600, noise=True, seed=0)
+    big = exp.assign(y=exp.y * 2.0**180, u=exp.u * 2.0**-200)  # both beyond the safe range
+    a, b = identify(exp), identify(big)
+    np.testing.assert_array_equal(a.local_window.values, b.local_window.values)
+    k = 2.0**380  # P = y / u
+    np.testing.assert_allclose(b.P.values, a.P.values * k, rtol=1e-9)
+    np.testing.assert_allclose(b.P_bias.values, a.P_bias.values * k, rtol=1e-9)
+    np.testing.assert_allclose(b.P_std_linear.values, a.P_std_linear.values * k, rtol=1e-9)
+    np.testing.assert_array_equal(a.P_undetermined.values, b.P_undetermined.values)
+
+
+def test_auto_where_it_is_refused():
+    from lcmr_xr import identify_single_rate
+    from lcmr_xr.scaleout import sweep
+    from lcmr_xr.settings import estimator_settings
+
+    exp = hdd.simulate(600, noise=False, seed=0)
+    with pytest.raises(ValueError, match="sweep compares fixed windows"):
+        sweep(exp.expand_dims(experiment=2), window="auto")
+    with pytest.raises(ValueError, match="integer window"):
+        identify_single_rate(exp, window="auto")
+    # the validator's strictness is kept next to 'auto'
+    with pytest.raises(ValueError, match="not rounded"):
+        estimator_settings(window=30.5)
+    assert estimator_settings().window == "auto"
+
+
+def test_bode_hatches_unbounded_bands():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from lcmr_xr.plot import bode
+
+    exp, truth, f = _hdd(True, 1)
+    frf = identify(exp, window=30)
+    und = frf.P_undetermined.values
+    assert und.any()
+    plot = bode(frf, band=0.95)
+    from matplotlib.patches import Rectangle
+
+    spans = [a for a in plot.lines[next(iter(plot.lines))]["band"] if isinstance(a, Rectangle)]
+    assert spans and all(s.get_hatch() == "//" for s in spans)
+    labels = [t.get_text() for t in plot.axes[0, 0].get_legend().get_texts()]
+    assert "not determined (unbounded band)" in labels
+
+
+def test_sweep_command_line_refuses_auto_before_reading(tmp_path, capsys):
+    from lcmr_xr import cli
+
+    status = cli.main(["sweep", str(tmp_path / "no-archive"), "-o", str(tmp_path / "r.nc"),
+                       "--window", "auto"])
+    assert status == 2
+    assert "sweep compares fixed windows" in capsys.readouterr().err
+    assert not (tmp_path / "r.nc").exists()
