@@ -462,109 +462,124 @@ def test_scaling_equivariance_and_oracle(seed, nr, nz, degrees, alpha, beta):
 
 
 # ---------------------------------------------------------- internals of the fast kernel
-# (the speed work replaced whole-array passes by blocked, table-driven steps; these pin
-# each step to an independent reference so that a wrong index cannot hide in the tails)
-from lcmr_xr.kernels import local_models as lm
+# (the compiled per-bin loop works on moments from a recurrence and on small hand-written
+# factorisations; these pin each step to an independent reference so that a wrong index
+# cannot hide in the tails)
+from lcmr_xr.kernels import local_model_bins as lmb  # noqa: E402
+from lcmr_xr.kernels import local_models as lm  # noqa: E402
 
 
 @settings(max_examples=30, deadline=None)
-@given(seed=st.integers(0, 2**32 - 1), q=st.integers(1, 11), extra=st.integers(0, 5),
-       split_extra=st.integers(0, 3), block=st.integers(1, 6))
-def test_blocked_augmented_cholesky_matches_numpy(seed, q, extra, split_extra, block):
+@given(seed=st.integers(0, 2**32 - 1), q=st.integers(1, 11), extra=st.integers(0, 8))
+def test_augmented_cholesky_matches_numpy(seed, q, extra):
     rng = np.random.default_rng(seed)
-    nb = 3
-    a = rng.standard_normal((nb, 3 * q, q)) + 1j * rng.standard_normal((nb, 3 * q, q))
-    gram = np.conj(a.swapaxes(-1, -2)) @ a
-    rhs = rng.standard_normal((nb, q, extra + split_extra)) + 0j
-    m = np.concatenate([gram, rhs], axis=2)
-    m[:, np.tril_indices(q, -1)[0], np.tril_indices(q, -1)[1]] = np.nan  # never read
-    old = lm._CHOL_BLOCK
-    lm._CHOL_BLOCK = block
-    try:
-        piv = lm._augmented_cholesky(m, q, q + extra)
-    finally:
-        lm._CHOL_BLOCK = old
+    a = rng.standard_normal((3 * q, q)) + 1j * rng.standard_normal((3 * q, q))
+    gram = np.conj(a.T) @ a
+    rhs = rng.standard_normal((q, extra)) + 1j * rng.standard_normal((q, extra))
+    m = np.concatenate([gram, rhs], axis=1)
+    m[np.tril_indices(q, -1)] = np.nan  # never read
+    piv = lmb.cholesky_augmented(m, q)
     low = np.linalg.cholesky(gram)
-    np.testing.assert_allclose(np.triu(m[:, :, :q]), np.conj(low.swapaxes(-1, -2)),
+    np.testing.assert_allclose(np.triu(m[:, :q]), np.conj(low.T),
                                rtol=1e-10, atol=1e-10 * np.abs(low).max())
-    np.testing.assert_allclose(m[:, :, q:], np.linalg.solve(low, rhs), rtol=1e-9, atol=1e-9)
-    np.testing.assert_allclose(piv, np.abs(np.diagonal(low, axis1=1, axis2=2)) ** 2,
-                               rtol=1e-10)
+    np.testing.assert_allclose(m[:, q:], np.linalg.solve(low, rhs), rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(piv, np.abs(np.diagonal(low)) ** 2, rtol=1e-10)
 
 
-def test_augmented_cholesky_nan_pivot_stays_in_its_bin():
+def test_augmented_cholesky_stops_at_a_non_positive_pivot():
     rng = np.random.default_rng(3)
-    a = rng.standard_normal((4, 12, 6)) + 1j * rng.standard_normal((4, 12, 6))
-    gram = np.conj(a.swapaxes(-1, -2)) @ a
-    gram[2, 4] = gram[2, :, 4] = 0.0  # bin 2: column 4 is zero, not positive definite
-    m = np.concatenate([gram, np.ones((4, 6, 2), complex)], axis=2)
-    with np.errstate(invalid="ignore"):
-        piv = lm._augmented_cholesky(m, 6, 8)
-    assert np.isnan(piv[2, 4:]).all() and np.isnan(m[2, 5, 5:]).all()
-    keep = [0, 1, 3]
-    np.testing.assert_allclose(np.triu(m[keep, :, :6]),
-                               np.conj(np.linalg.cholesky(gram[keep]).swapaxes(-1, -2)),
-                               rtol=1e-10, atol=1e-10 * np.abs(gram).max())
+    a = rng.standard_normal((12, 6)) + 1j * rng.standard_normal((12, 6))
+    gram = np.conj(a.T) @ a
+    gram[4] = gram[:, 4] = 0.0  # column 4 is zero: not positive definite
+    m = np.concatenate([gram, np.ones((6, 2), complex)], axis=1)
+    piv = lmb.cholesky_augmented(m, 6)
+    assert np.isnan(piv[4:]).all()
+    np.testing.assert_allclose(piv[:4], np.diagonal(np.linalg.cholesky(gram[:4, :4])).real ** 2,
+                               rtol=1e-10)
 
 
 @settings(max_examples=30, deadline=None)
 @given(seed=st.integers(0, 2**32 - 1), k=st.integers(1, 6))
 def test_small_factorisations_match_numpy(seed, k):
     rng = np.random.default_rng(seed)
-    a = rng.standard_normal((5, 2, 2 * k, k)) + 1j * rng.standard_normal((5, 2, 2 * k, k))
-    gram = np.conj(a.swapaxes(-1, -2)) @ a
-    b = rng.standard_normal((5, 2, k)) + 1j * rng.standard_normal((5, 2, k))
-    low, piv = lm._small_cholesky(gram)
+    a = rng.standard_normal((2 * k, k)) + 1j * rng.standard_normal((2 * k, k))
+    gram = np.conj(a.T) @ a
+    b = rng.standard_normal(k) + 1j * rng.standard_normal(k)
     ref = np.linalg.cholesky(gram)
-    np.testing.assert_allclose(low, ref, rtol=1e-10, atol=1e-12 * np.abs(ref).max())
-    np.testing.assert_allclose(piv, np.diagonal(ref, axis1=-2, axis2=-1).real ** 2, rtol=1e-10)
-    x = lm._small_solve(low, b)
-    np.testing.assert_allclose(gram @ x[..., None], b[..., None], rtol=1e-8, atol=1e-9)
-    np.testing.assert_allclose(lm._lower_inverse(low) @ low,
-                               np.broadcast_to(np.eye(k), low.shape), atol=1e-9)
-    low2, inv2, piv2 = lm._small_cholesky(gram, inverse=True)
-    np.testing.assert_array_equal(low2, low)
-    np.testing.assert_array_equal(piv2, piv)
-    np.testing.assert_allclose(inv2, lm._lower_inverse(low), rtol=1e-12, atol=1e-14)
+    scratch = np.zeros((k, k), complex)
+    assert lmb._natural_min_pivot(gram, scratch) == pytest.approx(
+        np.min(np.diagonal(ref).real ** 2), rel=1e-10)
+    low = np.zeros((k, k), complex)
+    perm = np.zeros(k, dtype=np.int64)
+    piv = np.empty(k)
+    rank = lmb.pivoted_cholesky(gram.copy(), 0.0, low, perm, piv)
+    assert rank == k
+    # pivoted: L L^H is the permuted matrix and the pivots do not increase
+    np.testing.assert_allclose(np.tril(low) @ np.conj(np.tril(low).T), gram[perm][:, perm],
+                               rtol=1e-10, atol=1e-10 * np.abs(gram).max())
+    assert np.all(np.diff(piv) <= 1e-12 * piv[0])
+    x = np.empty(k, complex)
+    lmb._chol_solve(low, k, b[perm], x)
+    np.testing.assert_allclose(gram[perm][:, perm] @ x, b[perm], rtol=1e-8, atol=1e-9)
 
 
-@pytest.mark.parametrize("n,degrees,ext",
-                         [(6, (2, 1, 1), 0), (5, (3, 3, 3), 6), (40, (1, 2, 0), 0)])
-def test_moment_table_matches_direct_sums(n, degrees, ext):
-    """Every table entry the readers use equals the literal windowed sum."""
+def test_pivoted_cholesky_drops_dependent_columns():
+    rng = np.random.default_rng(4)
+    a = rng.standard_normal((8, 3)) + 1j * rng.standard_normal((8, 3))
+    a = np.concatenate([a, a[:, :1] * (2 - 1j) + a[:, 2:] * 0.5], axis=1)  # column 3 dependent
+    gram = np.conj(a.T) @ a
+    low = np.zeros((4, 4), complex)
+    perm = np.zeros(4, dtype=np.int64)
+    piv = np.empty(4)
+    rank = lmb.pivoted_cholesky(gram.copy(), 1e-10 * np.abs(gram).max(), low, perm, piv)
+    assert rank == 3
+    assert abs(piv[3]) < 1e-10 * np.abs(gram).max()
+    kept = perm[:3]
+    np.testing.assert_allclose(np.tril(low[:3, :3]) @ np.conj(np.tril(low[:3, :3]).T),
+                               gram[kept][:, kept], rtol=1e-10, atol=1e-12)
+
+
+@pytest.mark.parametrize("n,degrees,restart",
+                         [(6, (2, 1, 1), 6), (5, (3, 3, 3), 5), (40, (1, 2, 0), 40),
+                          (7, (2, 2, 2), 1)])
+def test_recurrence_moments_match_direct_sums(n, degrees, restart):
+    """Every moment the fit reads equals the literal windowed sum, and the rounding floor
+    of the R energies bounds their error and follows its definition."""
     rng = np.random.default_rng(11)
     nr, nz, nbat, k_out = 2, 3, 2, 150
     length = k_out + 2 * n
     R = rng.standard_normal((nbat, length, nr)) + 1j * rng.standard_normal((nbat, length, nr))
     Z = rng.standard_normal((nbat, length, nz)) + 1j * rng.standard_normal((nbat, length, nz))
-    tab, floor = lm._moment_table(R, Z, n, degrees, ext)
+    R[0, 60:] *= 1e-4  # a drop in level: the recurrence carries the louder past along
+    slot_i, slot_j, slot_top, p1 = lm._slot_pairs(nr, nz, degrees)
+    sel = np.ones((nbat, k_out), dtype=bool)
+    sel[1, :37] = False  # unselected leading bins are skipped, not stepped through
+    mom = np.full((nbat, k_out, len(slot_i) * p1), np.nan + 0j)
+    floor = np.full((nbat, k_out, nr), np.nan)
+    lmb.moments_and_floor(R, Z, n, sel, restart, slot_i, slot_j, slot_top, p1, mom, floor)
     base = np.concatenate([R, np.ones((nbat, length, 1)), Z], axis=-1)
     rho = np.arange(-n, n + 1) / n
-    top = lm._top_powers(degrees, ext)
-    kind = ["R"] * nr + ["1"] + ["Z"] * nz
-    slots = lm._table_slots(nr, nz, degrees, ext)
-    for i in range(nr + 1 + nz):
-        for j in range(nr + 1 + nz):
-            powers = np.arange(top["".join(sorted([kind[i], kind[j]], key="R1Z".index))] + 1)
-            index = lm._table_index(slots, np.full(powers.shape, i),
-                                    np.full(powers.shape, j), powers)
-            got = tab.gather(index).reshape(nbat, k_out, -1)
-            x = np.conj(base[..., i]) * base[..., j]
-            windows = np.lib.stride_tricks.sliding_window_view(x, 2 * n + 1, axis=1)
-            want = np.einsum("bkr,ar->bka", windows, rho[None, :] ** powers[:, None])
-            np.testing.assert_allclose(got, want, rtol=0, atol=1e-12 * np.abs(want).max())
-            if i == j < nr:  # the rounding floor bounds the FFT error of |R_p|^2 from above
-                err = np.abs(got[..., 0] - want[..., 0]).reshape(-1)
-                assert np.all(err <= floor[:, i])
-    assert floor.shape == (nbat * k_out, nr) and np.all(floor > 0)
-    # the floor is eps nfft times the sum of |R_p|^2 over the FFT block holding the bin
-    nfft = lm._fft_length(n)
-    step = nfft - 2 * n
+    for s in range(len(slot_i)):
+        x = np.conj(base[..., slot_i[s]]) * base[..., slot_j[s]]
+        windows = np.lib.stride_tricks.sliding_window_view(x, 2 * n + 1, axis=1)
+        powers = np.arange(slot_top[s] + 1)
+        want = np.einsum("bkr,ar->bka", windows, rho[None, :] ** powers[:, None])
+        got = mom[:, :, s * p1: s * p1 + len(powers)]
+        np.testing.assert_allclose(got[sel], want[sel], rtol=0,
+                                   atol=1e-12 * np.abs(want).max())
+        if slot_i[s] == slot_j[s] < nr:  # the floor bounds the error of sum |R_p|^2
+            err = np.abs(got[..., 0] - want[..., 0])[sel]
+            assert np.all(err <= floor[..., slot_i[s]][sel])
+    assert np.all(floor[sel] > 0)
+    # the floor is 2 eps (W + 2 restart) times the R energy of the samples covered by
+    # the windows of the segment (restart bins) that holds the bin
+    w = 2 * n + 1
     energy = np.abs(R) ** 2
-    for b, k in [(0, 0), (1, min(step, k_out) - 1), (1, min(step, k_out - 1)), (0, k_out - 1)]:
-        j0 = (k // step) * step
-        want = np.finfo(float).eps * nfft * energy[b, j0 : j0 + nfft].sum(axis=0)
-        np.testing.assert_allclose(floor[b * k_out + k], want, rtol=1e-12)
+    for b, k in [(0, 0), (0, restart - 1), (0, min(restart, k_out - 1)), (1, 37)]:
+        k0 = k - k % restart if b == 0 else 37
+        want = 2 * np.finfo(float).eps * (w + 2 * restart) * energy[
+            b, k0: k0 + restart + w - 1].sum(axis=0)
+        np.testing.assert_allclose(floor[b, k], want, rtol=1e-12)
 
 
 def test_chunking_and_batch_grouping_do_not_change_results(monkeypatch):
