@@ -551,12 +551,16 @@ def test_recurrence_moments_match_direct_sums(n, degrees, restart):
     R = rng.standard_normal((nbat, length, nr)) + 1j * rng.standard_normal((nbat, length, nr))
     Z = rng.standard_normal((nbat, length, nz)) + 1j * rng.standard_normal((nbat, length, nz))
     R[0, 60:] *= 1e-4  # a drop in level: the recurrence carries the louder past along
-    slot_i, slot_j, slot_top, p1 = lm._slot_pairs(nr, nz, degrees)
+    slot_i, slot_j, p1 = lm._slot_pairs(nr, nz, degrees)
+    top = lm._top_powers(degrees, 0)
+    kind = ["R"] * nr + ["1"] + ["Z"] * nz
+    slot_top = [top["".join(sorted([kind[i], kind[j]], key="R1Z".index))]
+                for i, j in zip(slot_i, slot_j)]
     sel = np.ones((nbat, k_out), dtype=bool)
     sel[1, :37] = False  # unselected leading bins are skipped, not stepped through
     mom = np.full((nbat, k_out, len(slot_i) * p1), np.nan + 0j)
     floor = np.full((nbat, k_out, nr), np.nan)
-    lmb.moments_and_floor(R, Z, n, sel, restart, slot_i, slot_j, slot_top, p1, mom, floor)
+    lmb.moments_and_floor(R, Z, n, sel, restart, slot_i, slot_j, p1, mom, floor)
     base = np.concatenate([R, np.ones((nbat, length, 1)), Z], axis=-1)
     rho = np.arange(-n, n + 1) / n
     for s in range(len(slot_i)):
@@ -596,3 +600,122 @@ def test_chunking_and_batch_grouping_do_not_change_results(monkeypatch):
             for name in ("G", "T", "noise_covariance", "G_cov", "condition"):
                 np.testing.assert_allclose(getattr(fit, name)[b], getattr(ref[b], name),
                                            rtol=1e-9, atol=1e-300)
+
+
+# ------------------------------------------------------- windows per bin, real signals
+def test_window_per_bin_matches_oracle():
+    """An integer array of half-widths: every bin is the oracle's fit at its own window."""
+    rng = np.random.default_rng(21)
+    m, nr, nz, degrees = 96, 2, 2, (2, 1, 1)
+    R, Z, _, _ = resonant_system(m, nz, nr, seed=4, noise=1e-3)
+    widths = rng.choice([6, 8, 11], size=m)
+    fit = local_model(R, Z, half_width=widths, degrees=degrees)
+    assert fit.dof.shape == (m,)
+    np.testing.assert_array_equal(fit.dof, 2 * widths + 1 - parameters_per_row(nr, degrees))
+    ok = ~fit.ill_posed
+    assert ok.all()
+    for n in (6, 8, 11):
+        bins = np.flatnonzero(widths == n)
+        ref = oracle_local_model(R, Z, n, degrees, bins=bins)
+        assert _max_rel(fit.G[bins], ref["G"][bins]) < 1e-6
+        assert _max_rel(fit.noise_variance[bins], ref["noise_variance"][bins]) < 1e-6
+        diff = np.linalg.norm(fit.G_cov[bins] - ref["G_cov"][bins], axis=(1, 2))
+        assert np.max(diff / np.linalg.norm(ref["G_cov"][bins], axis=(1, 2))) < 1e-6
+    # a constant array is the scalar window
+    same = local_model(R, Z, half_width=np.full(m, 8), degrees=degrees)
+    scalar = local_model(R, Z, half_width=8, degrees=degrees)
+    np.testing.assert_allclose(same.G, scalar.G, rtol=1e-12)
+    np.testing.assert_allclose(same.G_cov, scalar.G_cov, rtol=1e-12, atol=1e-300)
+    assert scalar.dof == 17 - parameters_per_row(nr, degrees)
+    # padded mode: a bin lacks a full window for its own width only
+    pad = local_model(R, Z, half_width=widths, degrees=degrees, circular=False)
+    k = np.arange(m)
+    full = (k - widths >= 0) & (k + widths <= m - 1)
+    assert np.isnan(pad.G[~full]).all() and pad.ill_posed[~full].all()
+    assert not pad.ill_posed[full].any()
+    with pytest.raises(ValueError, match="one half-width per bin"):
+        local_model(R, Z, half_width=widths[:-1], degrees=degrees)
+    with pytest.raises(ValueError, match="integer"):
+        local_model(R, Z, half_width=widths + 0.5, degrees=degrees)
+
+
+def test_real_signal_spectra_are_fitted_on_half_the_bins_and_mirrored():
+    """Spectra of real signals: G(M-k) = conj(G(k)) exactly, and still the oracle's fit."""
+    rng = np.random.default_rng(22)
+    m, n, degrees = 80, 9, (2, 2, 2)
+    r = rng.standard_normal((m, 2))
+    z = np.stack([np.convolve(np.tile(r[:, 0], 2), [1.0, 0.5, -0.3])[m: 2 * m]
+                  + 0.01 * rng.standard_normal(m),
+                  np.convolve(np.tile(r[:, 1], 2), [0.2, 1.0])[m: 2 * m]
+                  + 0.01 * rng.standard_normal(m)], axis=1)
+    R, Z = np.fft.fft(r, axis=0), np.fft.fft(z, axis=0)
+    fit = local_model(R, Z, half_width=n, degrees=degrees)
+    k = np.arange(1, m // 2)  # (DC and Nyquist are their own mirrors)
+    np.testing.assert_array_equal(fit.G[m - k], np.conj(fit.G[k]))
+    np.testing.assert_array_equal(fit.G_cov[m - k], np.conj(fit.G_cov[k]))
+    np.testing.assert_array_equal(fit.condition[m - k], fit.condition[k])
+    bins = np.array([0, 3, m // 2, m // 2 + 1, m - 5, m - 1])
+    ref = oracle_local_model(R, Z, n, degrees, bins=bins)
+    assert _max_rel(fit.G[bins], ref["G"][bins]) < 1e-6
+    diff = np.linalg.norm(fit.G_cov[bins] - ref["G_cov"][bins], axis=(1, 2))
+    assert np.max(diff / np.linalg.norm(ref["G_cov"][bins], axis=(1, 2))) < 1e-6
+
+
+# -------------------------------------------------------- exactly modelled, noiseless data
+@pytest.mark.parametrize("nr,nz", [(1, 1), (2, 3)])
+def test_exactly_modelled_data_give_G_not_nan(nr, nz):
+    """Denominator degree above the truth: numerator and denominator can share any factor
+    (1 + c rho), so the local parameters are not unique, but G = N(0)/D(0) is.  The
+    undetermined denominator term is dropped and G comes out exact, not NaN/flagged."""
+    m, n = 120, 12
+    k = np.arange(m)
+    G, T = continuous_resonance(k, nz, nr, seed=nr + nz, damping=0.02, width=6.0)
+    rng = np.random.default_rng(1)
+    R = np.exp(2j * np.pi * rng.random((m, nr)))
+    Z = np.einsum("kip,kp->ki", G, R) + T
+    fit = local_model(R, Z, half_width=n, degrees=(2, 2, 3), circular=False)
+    inner = slice(n, m - n)
+    assert not fit.ill_posed[inner].any()
+    assert (fit.dropped[inner] >= nz).all()  # at least one term per row was dropped
+    assert np.all(fit.condition[inner] > CONDITION_LIMIT)  # the full model is singular
+    assert _max_rel(fit.G[inner], G[inner]) < 1e-8
+    assert _max_rel(fit.T[inner], T[inner]) < 1e-7
+
+
+@pytest.mark.slow
+def test_noiseless_hdd_experiments_flag_no_bin_and_error_falls_with_n():
+    """Issue 12: noiseless HDD experiments lost up to half their slow bins (NaN, and
+    identify raised for a singular S) once the window became narrow in frequency."""
+    import lcmr_xr
+    from lcmr_xr import hdd
+
+    medians = []
+    for n_samples in (3600, 36000, 180000):
+        exp = hdd.simulate(n_samples=n_samples, noise=False, seed=1)
+        frf = lcmr_xr.identify(exp, window=30, degrees=(3, 3, 3), covariance=False)
+        assert not frf.ill_posed.any() and not frf.s_singular.any()
+        assert not frf.P_flag[1:].any()  # DC: the VCM's double integrator is infinite
+        true = hdd.true_frf(frf.frequency[1:]).values
+        medians.append(float(np.median(np.abs(frf.P.values[1:] - true) / np.abs(true))))
+    assert medians[0] > medians[1] > medians[2]
+    assert medians[2] < 1e-6
+
+
+def test_one_thread_inside_worker_threads():
+    import threading
+
+    assert lm._threads() >= 1
+    seen = []
+    worker = threading.Thread(target=lambda: seen.append(lm._threads()))
+    worker.start()
+    worker.join()
+    assert seen == [1]
+    rng = np.random.default_rng(23)
+    R, Z = _random_spectra(rng, 300, 2, 2)
+    main = local_model(R, Z, half_width=6, degrees=(1, 1, 1))
+    got = []
+    worker = threading.Thread(
+        target=lambda: got.append(local_model(R, Z, half_width=6, degrees=(1, 1, 1))))
+    worker.start()
+    worker.join()
+    np.testing.assert_allclose(got[0].G, main.G, rtol=1e-12)

@@ -165,52 +165,59 @@ def _tail_solve(u, q, nt, v, x):
 
 
 @numba.njit(**_JIT)
-def _base(rt, zt, b, j, c):
-    """Base series ``c`` at padded sample ``j``: ``R_0..R_{nr-1}``, ``1``, ``Z_0..``."""
+def _products(rt, zt, b, j, slot_i, slot_j, base, x):
+    """``x[s] = conj(base_i) base_j`` at padded sample ``j`` for every slot ``(i, j)``;
+    the bases are ``R_0..R_{nr-1}``, ``1``, ``Z_0..`` (``base`` is scratch)."""
     nr = rt.shape[2]
-    if c < nr:
-        return rt[b, j, c]
-    if c == nr:
-        return 1.0 + 0j
-    return zt[b, j, c - nr - 1]
+    for c in range(nr):
+        base[c] = rt[b, j, c]
+    base[nr] = 1.0
+    for c in range(zt.shape[2]):
+        base[nr + 1 + c] = zt[b, j, c]
+    for s in range(slot_i.shape[0]):
+        x[s] = base[slot_i[s]].conjugate() * base[slot_j[s]]
 
 
 @numba.njit(**_JIT)
-def direct_moments(rt, zt, b, k, slot_i, slot_j, slot_top, rho_pow, mom):
-    """``mom[s p1 + a] = sum_r rho^a conj(base_i) base_j`` over the window of output bin
-    ``k`` (padded samples ``k .. k + 2n``) by direct sums; ``(i, j) = (slot_i[s],
-    slot_j[s])``, powers ``a <= slot_top[s]``."""
-    p1 = rho_pow.shape[1]
+def direct_moments(rt, zt, b, k, slot_i, slot_j, rho_pow, mom, base, x):
+    """``mom[a n_slots + s] = sum_r rho^a conj(base_i) base_j`` over the window of output
+    bin ``k`` (padded samples ``k .. k + 2n``) by direct sums, ``(i, j) = (slot_i[s],
+    slot_j[s])``.  Power-major, so that the inner loops run over the slots."""
+    ns = slot_i.shape[0]
     for f in range(mom.shape[0]):
         mom[f] = 0j
     for r in range(rho_pow.shape[0]):
-        for s in range(slot_i.shape[0]):
-            x = (_base(rt, zt, b, k + r, slot_i[s]).conjugate()
-                 * _base(rt, zt, b, k + r, slot_j[s]))
-            for a in range(slot_top[s] + 1):
-                mom[s * p1 + a] += rho_pow[r, a] * x
+        _products(rt, zt, b, k + r, slot_i, slot_j, base, x)
+        for a in range(rho_pow.shape[1]):
+            w = rho_pow[r, a]
+            o = a * ns
+            for s in range(ns):
+                mom[o + s] += w * x[s]
 
 
 @numba.njit(**_JIT)
-def step_moments(rt, zt, b, k, n, slot_i, slot_j, slot_top, shift, lead, mom):
+def step_moments(rt, zt, b, k, n, slot_i, slot_j, shift, lead, mom, base, x_out, x_in, acc):
     """Moments of output bin ``k + 1`` from those of bin ``k``, in place.
 
     With ``x`` a product series and the window moved by one bin,
     ``S_a(k+1) = sum_c C(a, c) (-1/n)^(a-c) S_c(k) - (-(n+1)/n)^a x(k-n) + x(k+n+1)``
     (``shift[a, c]``, ``lead[a]``): ``O(p^2)`` per product, whatever the width.
     """
-    p1 = shift.shape[0]
-    j_in = k + 2 * n + 1  # padded sample entering the window
-    for s in range(slot_i.shape[0]):
-        ia, ib = slot_i[s], slot_j[s]
-        x_out = _base(rt, zt, b, k, ia).conjugate() * _base(rt, zt, b, k, ib)
-        x_in = _base(rt, zt, b, j_in, ia).conjugate() * _base(rt, zt, b, j_in, ib)
-        o = s * p1
-        for a in range(slot_top[s], -1, -1):  # descending: lower powers are still old
-            acc = 0j
-            for c in range(a + 1):
-                acc += shift[a, c] * mom[o + c]
-            mom[o + a] = acc - lead[a] * x_out + x_in
+    ns = slot_i.shape[0]
+    _products(rt, zt, b, k, slot_i, slot_j, base, x_out)
+    _products(rt, zt, b, k + 2 * n + 1, slot_i, slot_j, base, x_in)
+    for a in range(shift.shape[0] - 1, -1, -1):  # descending: lower powers are still old
+        la = lead[a]
+        for s in range(ns):
+            acc[s] = x_in[s] - la * x_out[s]
+        for c in range(a + 1):
+            w = shift[a, c]
+            o = c * ns
+            for s in range(ns):
+                acc[s] += w * mom[o + s]
+        o = a * ns
+        for s in range(ns):
+            mom[o + s] = acc[s]
 
 
 @numba.njit(**_JIT)
@@ -222,22 +229,25 @@ def _moment(mom, n_flat, f):
 
 
 @numba.njit(**_JIT)
-def moments_and_floor(rt, zt, n, sel, restart, slot_i, slot_j, slot_top, p1, mom_out,
-                      floor_out):
+def moments_and_floor(rt, zt, n, sel, restart, slot_i, slot_j, p1, mom_out, floor_out):
     """All moments and R-energy rounding floors of the selected bins, exactly as
-    :func:`fit_bins` computes them (for tests): ``mom_out`` (nbat, K, n_slots p1),
-    ``floor_out`` (nbat, K, nr)."""
+    :func:`fit_bins` computes them (for tests): ``mom_out`` (nbat, K, n_slots p1) slot
+    major (``s p1 + a``), ``floor_out`` (nbat, K, nr)."""
     nr = rt.shape[2]
+    ns = slot_i.shape[0]
     rho_pow, shift, lead = _recurrence(n, p1)
-    mom = np.empty(slot_i.shape[0] * p1, dtype=np.complex128)
+    mom = np.empty(ns * p1, dtype=np.complex128)
     floor = np.empty(nr)
+    scratch = np.empty((4, max(ns, nr + 1 + zt.shape[2])), dtype=np.complex128)
     for b in range(sel.shape[0]):
         k0 = -1
         for k in range(sel.shape[1]):
-            k0 = _advance(rt, zt, b, k, k0, sel[b], restart, n, slot_i, slot_j, slot_top,
-                          rho_pow, shift, lead, mom, floor)
+            k0 = _advance(rt, zt, b, k, k0, sel[b], restart, n, slot_i, slot_j, rho_pow,
+                          shift, lead, mom, floor, scratch)
             if sel[b, k]:
-                mom_out[b, k] = mom
+                for s in range(ns):
+                    for a in range(p1):
+                        mom_out[b, k, s * p1 + a] = mom[a * ns + s]
                 floor_out[b, k] = floor
     return 0
 
@@ -264,20 +274,22 @@ def _recurrence(n, p1):
 
 
 @numba.njit(**_JIT)
-def _advance(rt, zt, b, k, k0, sel_b, restart, n, slot_i, slot_j, slot_top, rho_pow, shift,
-             lead, mom, floor):
+def _advance(rt, zt, b, k, k0, sel_b, restart, n, slot_i, slot_j, rho_pow, shift, lead, mom,
+             floor, scratch):
     """Bring ``mom`` to output bin ``k`` (``k0``: bin of the last restart, -1 for none)
-    and return the new ``k0``.  Direct sums every ``restart`` bins (the recurrence's
-    rounding grows with the distance, by at most ``2^p`` within ``n`` bins), else one
-    step.  ``floor``: ``eps (W + 2 restart) 2`` times the R energy of the samples the
-    segment's windows cover, a bound of the absolute rounding of ``sum |R_p|^2``."""
+    and return the new ``k0``.  Direct sums at a wanted bin every ``restart`` bins (the
+    recurrence's rounding grows with the distance, by at most ``2^p`` within ``n``
+    bins), else one step.  ``floor``: ``2 eps (W + 2 restart)`` times the R energy of
+    the samples the segment's windows cover, a bound of the absolute rounding of the
+    windowed ``sum |R_p|^2``.  ``scratch`` (4, >= max(n_slots, n_bases))."""
     nr = rt.shape[2]
     if k0 >= 0 and k - k0 < restart:
-        step_moments(rt, zt, b, k - 1, n, slot_i, slot_j, slot_top, shift, lead, mom)
+        step_moments(rt, zt, b, k - 1, n, slot_i, slot_j, shift, lead, mom, scratch[0],
+                     scratch[1], scratch[2], scratch[3])
         return k0
     if not sel_b[k]:  # restart only at a wanted bin
         return -1
-    direct_moments(rt, zt, b, k, slot_i, slot_j, slot_top, rho_pow, mom)
+    direct_moments(rt, zt, b, k, slot_i, slot_j, rho_pow, mom, scratch[0], scratch[1])
     width = rho_pow.shape[0]
     hi = min(k + restart + width - 1, rt.shape[1])
     for p in range(nr):
@@ -289,7 +301,7 @@ def _advance(rt, zt, b, k, k0, sel_b, restart, n, slot_i, slot_j, slot_top, rho_
 
 
 @numba.njit(**_JIT)
-def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, slot_top, p1,
+def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
              aug_index, zz_index, a_base, a_pow, mean_pow, dof, mode, drop_tol,
              pivot_limit, sens_limit, out_g, out_t, out_ncov, out_cond, out_ill,
              out_reduced, out_gcov, out_gvar):
@@ -298,7 +310,7 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, slot_to
     ``rt``, ``zt`` (nbat, K + 2n, nr / nz): the chunk with its ``n``-bin halo on each
     side; ``sel`` (nbat, K) the bins to fit, whose flat output row is
     ``out_offset + b m_out + k``.  Windowed moments of the product pairs ``(slot_i,
-    slot_j)`` up to power ``slot_top`` (``p1`` powers per slot), read through
+    slot_j)``, ``p1`` powers each, power-major (entry ``a n_slots + s``), read through
     ``aug_index`` (q, q + nx) and ``zz_index`` (nz, nz, Rd+1, Rd+1) (entries from
     ``n_slots p1`` on are conjugates).  ``mode`` is ``COV_*``.  Outputs: ``G`` (., nz,
     nr), ``T`` (., nz), noise covariance (., nz, nz), condition estimate, ill-posed flag,
@@ -346,11 +358,12 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, slot_to
     rho_pow, shift, lead = _recurrence(n, p1)
     mom = np.empty(n_flat, dtype=np.complex128)
     floor = np.empty(nr)
+    scratch = np.empty((4, max(slot_i.shape[0], nr + 1 + nz)), dtype=np.complex128)
     for b in range(sel.shape[0]):
       k0 = -1
       for k in range(sel.shape[1]):
-        k0 = _advance(rt, zt, b, k, k0, sel[b], restart, n, slot_i, slot_j, slot_top,
-                      rho_pow, shift, lead, mom, floor)
+        k0 = _advance(rt, zt, b, k, k0, sel[b], restart, n, slot_i, slot_j, rho_pow, shift,
+                      lead, mom, floor, scratch)
         if not sel[b, k]:
             continue
         o = out_offset + b * m_out + k

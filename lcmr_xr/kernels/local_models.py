@@ -392,7 +392,7 @@ DROP_TOLERANCE = 1.0 / CONDITION_LIMIT**2
 
 #: A dropped denominator direction moves ``G`` (column-scaled) by at most this fraction
 #: of its own size, or the bin is flagged: there ``G`` itself is not determined.
-G_SENSITIVITY_LIMIT = 1e-6
+G_SENSITIVITY_LIMIT = 1e-2
 
 
 def _check_half_width(half_width, batch, m, nr, degrees):
@@ -692,7 +692,7 @@ def _fit_chunk(rt, zt, n, degrees, mode, sel, out_offset, m, dof, out):
     rd = degrees[2]
     nr, nz = rt.shape[-1], zt.shape[-1]
     slots = _slot_pairs(nr, nz, degrees)
-    lay = _layout(nr, nz, degrees, 0)
+    lay = _power_major_layout(nr, nz, degrees)
     mean_pow = _analytic_moments(n, 2 * rd) / (2 * n + 1)
     bins.fit_bins(np.ascontiguousarray(rt), np.ascontiguousarray(zt), n, np.ascontiguousarray(sel),
                   out_offset, m, _restart_interval(n), *slots, lay.aug_index, lay.zz_index,
@@ -711,19 +711,34 @@ def _restart_interval(half_width: int) -> int:
 
 @functools.lru_cache(maxsize=32)
 def _slot_pairs(nr, nz, degrees):
-    """``(slot_i, slot_j, slot_top, p1)`` of the moment slots (``_table_slots``)."""
+    """``(slot_i, slot_j, p1)`` of the moment slots (``_table_slots``): the base pairs
+    whose windowed moments the fit reads, with ``p1`` powers each."""
     slots = _table_slots(nr, nz, degrees, 0)
     slot_i = np.empty(slots.n_slots, dtype=np.int64)
     slot_j = np.empty(slots.n_slots, dtype=np.int64)
-    slot_top = np.empty(slots.n_slots, dtype=np.int64)
-    for power, start, ia, ib in slots.groups:
+    for _, start, ia, ib in slots.groups:
         slot_i[start: start + len(ia)] = ia
         slot_j[start: start + len(ia)] = ib
-        slot_top[start: start + len(ia)] = power
-    one = nr
-    rn, rm, rd = degrees
-    slot_i[-1] = slot_j[-1] = one  # the constant pair: analytic in the FFT version
-    slot_top[-1] = 2 * rm
-    for arr in (slot_i, slot_j, slot_top):
+    slot_i[-1] = slot_j[-1] = nr  # the constant pair comes last
+    for arr in (slot_i, slot_j):
         arr.flags.writeable = False
-    return slot_i, slot_j, slot_top, slots.p1
+    return slot_i, slot_j, slots.p1
+
+
+@functools.lru_cache(maxsize=32)
+def _power_major_layout(nr, nz, degrees):
+    """``_layout``'s gather indices, remapped from slot-major (``s p1 + a``, as
+    ``_table_index`` numbers them) to the compiled kernel's power-major ``a n_slots + s``
+    (conjugated half offset by ``n_slots p1`` in both)."""
+    lay = _layout(nr, nz, degrees, 0)
+    slots = _table_slots(nr, nz, degrees, 0)
+    n_flat = slots.n_slots * slots.p1
+
+    def remap(index):
+        half, f = np.divmod(index, n_flat)
+        s, a = np.divmod(f, slots.p1)
+        out = half * n_flat + a * slots.n_slots + s
+        out.flags.writeable = False
+        return np.ascontiguousarray(out)
+
+    return lay._replace(aug_index=remap(lay.aug_index), zz_index=remap(lay.zz_index))
