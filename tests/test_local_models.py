@@ -540,7 +540,7 @@ def test_pivoted_cholesky_drops_dependent_columns():
 
 
 @pytest.mark.parametrize("n,degrees,restart",
-                         [(6, (2, 1, 1), 6), (5, (3, 3, 3), 5), (40, (1, 2, 0), 40),
+                         [(6, (2, 1, 1), 4), (5, (3, 3, 3), 4), (40, (1, 2, 0), 32),
                           (7, (2, 2, 2), 1)])
 def test_recurrence_moments_match_direct_sums(n, degrees, restart):
     """Every moment the fit reads equals the literal windowed sum, and the rounding floor
@@ -557,7 +557,7 @@ def test_recurrence_moments_match_direct_sums(n, degrees, restart):
     slot_top = [top["".join(sorted([kind[i], kind[j]], key="R1Z".index))]
                 for i, j in zip(slot_i, slot_j)]
     sel = np.ones((nbat, k_out), dtype=bool)
-    sel[1, :37] = False  # unselected leading bins are skipped, not stepped through
+    sel[1, :37] = False  # segments without a wanted bin are skipped
     mom = np.full((nbat, k_out, len(slot_i) * p1), np.nan + 0j)
     floor = np.full((nbat, k_out, nr), np.nan)
     lmb.moments_and_floor(R, Z, n, sel, restart, slot_i, slot_j, p1, mom, floor)
@@ -580,7 +580,7 @@ def test_recurrence_moments_match_direct_sums(n, degrees, restart):
     w = 2 * n + 1
     energy = np.abs(R) ** 2
     for b, k in [(0, 0), (0, restart - 1), (0, min(restart, k_out - 1)), (1, 37)]:
-        k0 = k - k % restart if b == 0 else 37
+        k0 = k - k % restart  # segments start at multiples of restart
         want = 2 * np.finfo(float).eps * (w + 2 * restart) * energy[
             b, k0: k0 + restart + w - 1].sum(axis=0)
         np.testing.assert_allclose(floor[b, k], want, rtol=1e-12)
@@ -592,9 +592,10 @@ def test_chunking_and_batch_grouping_do_not_change_results(monkeypatch):
     Z = rng.standard_normal((3, 150, 2)) + 1j * rng.standard_normal((3, 150, 2))
     kw = {"half_width": 6, "degrees": (2, 1, 1)}
     ref = [local_model(R[b], Z[b], **kw) for b in range(3)]
-    # one step per chunk, per batch element; one step, 3 batch elements; all in one chunk
+    per_bin = lm._CHUNK_BYTES // lm._chunk_elements(2, 2, "full")  # bytes per bin
+    # one bin per chunk (a restart per bin); 200 bins, batch elements grouped; one chunk
     for elements in (1, 200, 10**6):
-        monkeypatch.setattr(lm, "_CHUNK_BYTES", elements * 16 * 400)
+        monkeypatch.setattr(lm, "_CHUNK_BYTES", elements * per_bin)
         fit = local_model(R, Z, **kw)
         for b in range(3):
             for name in ("G", "T", "noise_covariance", "G_cov", "condition"):

@@ -240,10 +240,10 @@ def moments_and_floor(rt, zt, n, sel, restart, slot_i, slot_j, p1, mom_out, floo
     floor = np.empty(nr)
     scratch = np.empty((4, max(ns, nr + 1 + zt.shape[2])), dtype=np.complex128)
     for b in range(sel.shape[0]):
-        k0 = -1
+        valid = False
         for k in range(sel.shape[1]):
-            k0 = _advance(rt, zt, b, k, k0, sel[b], restart, n, slot_i, slot_j, rho_pow,
-                          shift, lead, mom, floor, scratch)
+            valid = _advance(rt, zt, b, k, valid, sel[b], restart, 0, n, slot_i, slot_j,
+                             rho_pow, shift, lead, mom, floor, scratch)
             if sel[b, k]:
                 for s in range(ns):
                     for a in range(p1):
@@ -274,30 +274,41 @@ def _recurrence(n, p1):
 
 
 @numba.njit(**_JIT)
-def _advance(rt, zt, b, k, k0, sel_b, restart, n, slot_i, slot_j, rho_pow, shift, lead, mom,
-             floor, scratch):
-    """Bring ``mom`` to output bin ``k`` (``k0``: bin of the last restart, -1 for none)
-    and return the new ``k0``.  Direct sums at a wanted bin every ``restart`` bins (the
+def _advance(rt, zt, b, k, valid, sel_b, restart, k_base, n, slot_i, slot_j, rho_pow, shift,
+             lead, mom, floor, scratch):
+    """Bring ``mom`` to output bin ``k`` and return whether it holds valid moments.
+
+    Segments of ``restart`` bins start at global bins ``k_base + k`` that are multiples
+    of ``restart`` (so results do not depend on how the bins are chunked): direct sums
+    at a segment's start when one of its bins is wanted, then one step per bin (the
     recurrence's rounding grows with the distance, by at most ``2^p`` within ``n``
-    bins), else one step.  ``floor``: ``2 eps (W + 2 restart)`` times the R energy of
-    the samples the segment's windows cover, a bound of the absolute rounding of the
-    windowed ``sum |R_p|^2``.  ``scratch`` (4, >= max(n_slots, n_bases))."""
+    bins).  A chunk starting inside a segment starts with direct sums.  ``floor``:
+    ``2 eps (W + 2 restart)`` times the R energy of the samples the segment's windows
+    cover, a bound of the absolute rounding of the windowed ``sum |R_p|^2``.
+    ``scratch`` (4, >= max(n_slots, n_bases)).
+    """
     nr = rt.shape[2]
-    if k0 >= 0 and k - k0 < restart:
-        step_moments(rt, zt, b, k - 1, n, slot_i, slot_j, shift, lead, mom, scratch[0],
-                     scratch[1], scratch[2], scratch[3])
-        return k0
-    if not sel_b[k]:  # restart only at a wanted bin
-        return -1
+    phase = (k_base + k) % restart
+    if phase != 0 and (valid or k > 0):
+        if valid:
+            step_moments(rt, zt, b, k - 1, n, slot_i, slot_j, shift, lead, mom, scratch[0],
+                         scratch[1], scratch[2], scratch[3])
+        return valid
+    end = min(k + restart - phase, sel_b.shape[0])
+    want = False
+    for kk in range(k, end):
+        want = want or sel_b[kk]
+    if not want:
+        return False
     direct_moments(rt, zt, b, k, slot_i, slot_j, rho_pow, mom, scratch[0], scratch[1])
     width = rho_pow.shape[0]
-    hi = min(k + restart + width - 1, rt.shape[1])
+    hi = min(end + width - 1, rt.shape[1])
     for p in range(nr):
         e = 0.0
         for j in range(k, hi):
             e += rt[b, j, p].real ** 2 + rt[b, j, p].imag ** 2
         floor[p] = 2.0 * 2.220446049250313e-16 * (width + 2 * restart) * e
-    return k
+    return True
 
 
 @numba.njit(**_JIT)
@@ -309,7 +320,8 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
 
     ``rt``, ``zt`` (nbat, K + 2n, nr / nz): the chunk with its ``n``-bin halo on each
     side; ``sel`` (nbat, K) the bins to fit, whose flat output row is
-    ``out_offset + b m_out + k``.  Windowed moments of the product pairs ``(slot_i,
+    ``out_offset + b m_out + k`` (``out_offset mod m_out`` is the chunk's first bin, which
+    aligns the moment restarts, see ``_advance``).  Windowed moments of the product pairs ``(slot_i,
     slot_j)``, ``p1`` powers each, power-major (entry ``a n_slots + s``), read through
     ``aug_index`` (q, q + nx) and ``zz_index`` (nz, nz, Rd+1, Rd+1) (entries from
     ``n_slots p1`` on are conjugates).  ``mode`` is ``COV_*``.  Outputs: ``G`` (., nz,
@@ -360,10 +372,10 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
     floor = np.empty(nr)
     scratch = np.empty((4, max(slot_i.shape[0], nr + 1 + nz)), dtype=np.complex128)
     for b in range(sel.shape[0]):
-      k0 = -1
+      valid = False
       for k in range(sel.shape[1]):
-        k0 = _advance(rt, zt, b, k, k0, sel[b], restart, n, slot_i, slot_j, rho_pow, shift,
-                      lead, mom, floor, scratch)
+        valid = _advance(rt, zt, b, k, valid, sel[b], restart, out_offset % m_out, n, slot_i,
+                         slot_j, rho_pow, shift, lead, mom, floor, scratch)
         if not sel[b, k]:
             continue
         o = out_offset + b * m_out + k

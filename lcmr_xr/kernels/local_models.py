@@ -17,41 +17,31 @@ With a diagonal ``D`` the output rows decouple.  Row ``i`` has the regressors
 ``rho^b R_p`` and ``rho^c`` (the *shared* block ``A``, the same for every row) and the
 row-specific ``-rho^s Z_i`` (block ``B_i``).  Every entry of the normal equations is a
 windowed moment ``sum_{|r|<=n} rho^a x(k+r)`` of a product series ``x`` (``conj(R_p) R_q``,
-``conj(R_p) Z_i``, ``conj(Z_i) Z_j``, ...).  For all bins at once these are correlations
-with the kernels ``rho^a``, computed by FFT in short overlap-save blocks (transforms
-along the bin axis, so the result is already bins-first), so the cost does not grow with
-the window width.  The moments go into a table ``tab[bin, base, base, power]`` from which
-every Gram is gathered with precomputed flat indices.  Per bin, the shared block is
-Cholesky-factored once, with all rows' right-hand sides ``A^H rho^s Z_i`` carried along
-(a blocked, right-looking factorisation of ``[Gaa | A^H X]``: the forward substitution
-comes out of the same matrix products), and each row only needs its small ``Rd x Rd``
-Schur complement.
+``conj(R_p) Z_i``, ``conj(Z_i) Z_j``, ...).  Moving the window by one bin changes these by
+a fixed triangular combination (binomial in ``1/n``) plus the two end samples, so all
+moments of the next bin cost ``O(p^2)`` per product whatever the window width; direct
+sums restart the recurrence every ``n`` bins or less, which bounds its rounding (see
+:mod:`.local_model_bins`).  Per bin, the shared block is Cholesky-factored once with all
+rows' right-hand sides ``A^H rho^s Z_i`` carried along, and each row only needs its small
+``Rd x Rd`` Schur complement.  All of this is one compiled loop over bins
+(:func:`.local_model_bins.fit_bins`, numba, no BLAS); this module validates, pads,
+chunks (threads), and mirrors.  Flops per bin for the HDD problem (nr = 4, nz = 5,
+degrees (3, 3, 3)): about 1.5k complex multiply-adds for the moments and 7.5k for the
+fit; the covariance adds about 75k, explicit over the window (``O(2n+1)``).
 
-The linear algebra is written "bins first": arrays are ``(bins, matrix indices...)``, the
-large products are stacked ``np.matmul`` calls (BLAS per bin) and the Python loops run
-over matrix indices only.  Measured on this project's machine (one core): numpy's batched
-``linalg`` calls cost microseconds *per matrix* (``cholesky`` ~5 us on 20 x 20, ``solve``
-~15 us), stacked ``matmul`` ~0.4 ns per complex multiply-add on 20 x 20 blocks, about 4x
-less than elementwise passes; elementwise work on tiny trailing axes is the slow part,
-so it is kept to small arrays.
-
-The LRM covariance is the first-order sandwich (the equation error is ``d(r) V(r)``,
-not white): see :func:`local_model`, Notes.  Its weighted Grams are built from a table
-of moments with powers raised by ``2 Rd`` (``_sandwich``, bins-first ``np.matmul``).
-
-Numerics.  An FFT correlation has an absolute error of about ``eps`` times the norm of the
-block it transforms, so a bin whose local energy is far below that of its neighbours loses
-relative accuracy.  The blocks are therefore short (``_fft_length``: about four windows), which
-keeps the error local: a bin is only polluted by data within about two windows of it.  For
-the same reason an excitation energy ``sum_r |R_p|^2`` at or below that rounding level
-(``eps nfft`` times the block's sum of ``|R_p|^2``: the data are zero there) is treated as
+Numerics.  A sliding sum carries an absolute rounding error of about ``eps`` times the
+energy that passed through it since its restart, so a bin whose local energy is far
+below that of its neighbours loses relative accuracy; restarts every ``n`` bins or less keep the
+error local (a bin is only polluted by data within about two windows of it).  For the
+same reason an excitation energy ``sum_r |R_p|^2`` at or below that rounding level (the
+``floor`` of :func:`.local_model_bins.fit_bins`: the data are zero there) is treated as
 zero, so unexcited bins are flagged instead of being fitted to rounding noise.  The
 Schur-complement form of the residual (``||D z||^2 - ||L^-1 A^H D z||^2``) is exact for
-the computed ``D`` and stationary in it, so the residual variance keeps the accuracy of the
-moments.  Normal equations square the condition number; ``condition`` reports an estimate
-per bin and bins above :data:`CONDITION_LIMIT` are flagged.  The test suite checks agreement
-with a per-bin ``numpy.linalg.lstsq`` oracle to 1e-6 relative on data with a 1e4 dynamic
-range.
+the computed ``D`` and stationary in it, so the residual variance keeps the accuracy of
+the moments.  Normal equations square the condition number; ``condition`` reports an
+estimate per bin and bins whose shared block (which holds ``G``) is above
+:data:`CONDITION_LIMIT` are flagged.  The test suite checks agreement with a per-bin
+``numpy.linalg.lstsq`` oracle to 1e-6 relative on data with a 1e4 dynamic range.
 """
 
 from __future__ import annotations
@@ -63,7 +53,6 @@ from typing import NamedTuple
 
 import numba
 import numpy as np
-from scipy import fft as sp_fft
 
 from lcmr_xr.kernels import local_model_bins as bins
 
@@ -74,12 +63,7 @@ __all__ = ["CONDITION_LIMIT", "LocalModelFit", "local_model", "parameters_per_ro
 #: relative accuracy, so at 1e6 about four correct digits remain in the worst case.
 CONDITION_LIMIT = 1e6
 
-# Memory target of the main per-chunk arrays (moment table, augmented Gram, projected
-# Gram, the sandwich's basis Gram); chunks are rounded to whole overlap-save steps (a
-# partial block costs a full FFT).  Small chunks keep temporaries cache-sized and avoid
-# fresh multi-MB allocations (page faults); large ones amortise the ~200 numpy calls per
-# chunk.  Measured on 2**15 bins, n = 30, nr = 4, nz = 5, degrees (3, 3, 3) (~27 kB per
-# bin): 196 bins per chunk fastest (392 and 784: +15 %); small models get more bins.
+# Memory of one chunk's data copy and outputs (see _chunk_elements).
 _CHUNK_BYTES = 6 << 20
 
 
@@ -170,49 +154,6 @@ def _check_degrees(degrees):
 
 
 # ----------------------------------------------------------------------------- moments
-def _fft_length(half_width: int) -> int:
-    """FFT block length for the overlap-save moments: the power of two >= 4 windows.
-
-    Four windows keep the FFT's absolute error local (see the module notes) while the
-    overlap (2n of every block) costs at most about half of the work.  Measured: cost per
-    bin changes by < 1.5x between n = 10 and n = 100.
-    """
-    w = 2 * half_width + 1
-    return max(64, 1 << int(np.ceil(np.log2(4 * w))))
-
-
-@functools.lru_cache(maxsize=32)
-def _kernel_spectra(half_width: int, max_power: int, nfft: int) -> np.ndarray:
-    """``conj(fft(h_a))`` for ``h_a[t] = rho^a`` at ``t = r + n``, ``a = 0..max_power``.
-
-    Cached (every chunk of a call uses the same kernels); read-only.
-    """
-    n = half_width
-    rho = np.arange(-n, n + 1) / n if n > 0 else np.zeros(1)
-    h = np.zeros((max_power + 1, nfft))
-    h[:, : 2 * n + 1] = rho[None, :] ** np.arange(max_power + 1)[:, None]
-    out = np.conj(sp_fft.fft(h, axis=-1))
-    out.flags.writeable = False
-    return out
-
-
-def _blocks(x: np.ndarray, half_width: int):
-    """Overlap-save blocks of ``x`` (nbat, L, S) along the bin axis, zero padded at the end.
-
-    Returns ``(blocks, n_blocks, step)``; ``blocks`` (nbat, n_blocks, nfft, S) is a strided
-    view: block ``j`` covers bins ``j step .. j step + nfft - 1``.
-    """
-    n = half_width
-    nbat, length = x.shape[:2]
-    nfft = _fft_length(n)
-    step = nfft - 2 * n
-    n_blocks = -(-(length - 2 * n) // step)
-    padded = np.zeros((nbat, n_blocks * step + 2 * n) + x.shape[2:], dtype=x.dtype)
-    padded[:, :length] = x
-    blocks = np.lib.stride_tricks.sliding_window_view(padded, nfft, axis=1)[:, ::step]
-    return np.moveaxis(blocks, -1, 2), n_blocks, step
-
-
 @functools.lru_cache(maxsize=32)
 def _analytic_moments(half_width: int, max_power: int) -> np.ndarray:
     """``sum_{r=-n..n} rho^a`` for ``a = 0..max_power`` (the constant-column moments).
@@ -283,69 +224,6 @@ def _table_index(slots: _Slots, b1, b2, power):
     index = index + np.where(b1 > b2, slots.n_slots * slots.p1, 0)
     index.flags.writeable = False
     return index
-
-
-class _MomentTable(NamedTuple):
-    """Windowed moments of a chunk: row ``(b, k)`` is output bin ``k`` of batch element
-    ``b``; its first ``n_slots p1`` entries are the moments, the rest their conjugates."""
-
-    data: np.ndarray  # (nbat, n_blocks step, 2 n_slots p1); rows k < n_out are valid
-    n_out: int  # output bins per batch element (K)
-
-    def gather(self, index):
-        """``out[b k, ...] = row(b, k)[index]`` (bins-first, (nbat K, *index.shape))."""
-        out = np.take(self.data[:, : self.n_out], index, axis=-1)
-        return out.reshape((self.data.shape[0] * self.n_out,) + index.shape)
-
-
-def _moment_table(rt, zt, half_width, degrees, ext):
-    """Windowed moments ``sum_r rho^a conj(base_i) base_j`` of every base pair (i <= j).
-
-    The bases are ``R_0..R_{nr-1}``, the constant ``1``, ``Z_0..Z_{nz-1}``; ``rt`` (nbat,
-    K + 2n, nr) and ``zt`` (nbat, K + 2n, nz) are the haloed chunk.  Returns the table
-    (read it with ``_MomentTable.gather`` and ``_table_index``) and the rounding floor
-    (nbat K, nr) of the energies ``sum_r |R_p|^2`` (see the module notes).  Each FFT
-    batch multiplies and inverse-transforms in place in its slice of a scratch array, whose
-    valid rows are then copied into the table beside their conjugates; powers a pair does
-    not need (``_top_powers``) are left uninitialised and never read.
-    """
-    nr, nz = rt.shape[-1], zt.shape[-1]
-    nbat, length = rt.shape[:2]
-    k_out = length - 2 * half_width
-    slots = _table_slots(nr, nz, degrees, ext)
-    p1 = slots.p1
-    nfft = _fft_length(half_width)
-    step = nfft - 2 * half_width
-    n_blocks = -(-k_out // step)
-    data = np.empty((nbat, n_blocks, nfft, slots.n_slots, p1), dtype=complex)
-    base = np.concatenate([rt, np.ones((nbat, length, 1), dtype=complex), zt], axis=-1)
-    energy = np.empty((nbat, n_blocks, nr))  # sum over each FFT block of |R_p|^2
-    for power, start, ia, ib in slots.groups:
-        blocks, _, _ = _blocks(np.conj(base[..., ia]) * base[..., ib], half_width)
-        # scipy.fft: measured ~1.4x faster than numpy.fft on these short batched transforms
-        spectra = sp_fft.fft(blocks, axis=2, workers=1)  # (nbat, n_blocks, nfft, S)
-        own = np.nonzero((ia == ib) & (ia < nr))[0]
-        if len(own):  # the DC bin of |R_p|^2 >= 0 is its block sum (the rounding floor)
-            energy[..., ia[own]] = spectra[:, :, 0, own].real
-        kernels = _kernel_spectra(half_width, power, nfft).T  # (nfft, A)
-        view = data[:, :, :, start : start + len(ia), : power + 1]
-        np.multiply(spectra[..., None], kernels[:, None, :], out=view)
-        corr = sp_fft.ifft(view, axis=2, workers=1, overwrite_x=True)
-        if not np.may_share_memory(corr, data):  # scipy may decline to work in place
-            view[...] = corr
-    top11 = _top_powers(degrees, ext)["11"]
-    n_flat = slots.n_slots * p1
-    # the valid rows (t < step) of every block, then their conjugates (lower triangle)
-    table = np.empty((nbat, n_blocks, step, 2, n_flat), dtype=complex)
-    table[:, :, :, 0] = data[:, :, :step].reshape(nbat, n_blocks, step, n_flat)
-    const = table[:, :, :, 0].reshape(nbat, n_blocks, step, slots.n_slots, p1)
-    const[..., -1, : top11 + 1] = _analytic_moments(half_width, top11)
-    np.conjugate(table[:, :, :, 0], out=table[:, :, :, 1])
-    # FFT rounding floor of the windowed energies: eps nfft (block sum of |R_p|^2), the
-    # same bound for every output bin of a block (see the module notes)
-    floor = np.repeat(energy * (nfft * np.finfo(float).eps), step, axis=1)[:, :k_out]
-    table = _MomentTable(table.reshape(nbat, n_blocks * step, 2 * n_flat), k_out)
-    return table, floor.reshape(nbat * k_out, nr)
 
 
 class _Layout(NamedTuple):
@@ -589,14 +467,15 @@ def local_model(R, Z, *, half_width, degrees=(3, 3, 3), circular: bool = True,
 
     out = _allocate(n_batch, m, nz, nr, covariance)
     mode = {None: bins.COV_NONE, "diag": bins.COV_DIAG, "full": bins.COV_FULL}[covariance]
-    elements = _chunk_elements(nr, nz, degrees, n_max)
-    step = _fft_length(n_max) - 2 * n_max
-    chunk = step * max(1, round(elements / (step * n_batch)))
+    elements = _chunk_elements(nr, nz, covariance)
+    chunk = max(1, min(m, round(elements / n_batch)))
     batch_group = max(1, elements // chunk)
     threads = _threads()
     if threads > 1:  # enough chunks to keep every thread busy
-        per = -(-m // (2 * threads * step)) * step
-        chunk = max(step, min(chunk, per))
+        chunk = min(chunk, -(-m // (4 * threads)))
+    # whole restart segments (results then do not depend on the chunking)
+    align = _restart_interval(n_max)
+    chunk = align * max(1, round(chunk / align))
     tasks = []
     for g0 in range(0, n_batch, batch_group):
         g = slice(g0, min(n_batch, g0 + batch_group))
@@ -660,12 +539,12 @@ def _hermitian(x: np.ndarray) -> bool:
     return bool(np.all(np.abs(mirror - x) <= 64 * np.finfo(float).eps * scale))
 
 
-def _chunk_elements(nr, nz, degrees, half_width):
-    """(batch x bin) elements per chunk for ``_CHUNK_BYTES`` of moment table."""
-    slots = _table_slots(nr, nz, degrees, 0)
-    nfft = _fft_length(half_width)
-    # FFT scratch (nfft rows per step) and the table with its conjugated half
-    per_bin = slots.n_slots * slots.p1 * (nfft / (nfft - 2 * half_width) + 2)
+def _chunk_elements(nr, nz, covariance):
+    """(batch x bin) elements per chunk: ``_CHUNK_BYTES`` of the chunk's contiguous copy
+    of the data and of its outputs.  A chunk restarts the moment recurrence (direct sums
+    over one window), so chunks are long; they are the unit of work of the threads."""
+    ng = nz * nr
+    per_bin = nr + nz + ng + nz + nz * nz + (ng * ng if covariance == "full" else ng)
     return max(1, int(_CHUNK_BYTES // (16 * per_bin)))
 
 
@@ -703,10 +582,11 @@ def _fit_chunk(rt, zt, n, degrees, mode, sel, out_offset, m, dof, out):
 
 
 def _restart_interval(half_width: int) -> int:
-    """Bins between direct moment sums: the recurrence's rounding is amplified by at most
-    ``2^p`` over ``n`` steps, and a restart costs ``2 n + 1`` products per slot, so about
-    two products per slot and bin."""
-    return max(1, half_width)
+    """Bins between direct moment sums: the largest power of two <= ``n``.  Over at most
+    ``n`` steps the recurrence's rounding grows by at most ``2^p``; a restart costs
+    ``2 n + 1`` products per slot, so two to four per slot and bin.  Powers of two, so
+    that chunks aligned to the widest window's interval align every narrower one."""
+    return 1 << (max(1, int(half_width)).bit_length() - 1)
 
 
 @functools.lru_cache(maxsize=32)
