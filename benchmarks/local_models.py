@@ -13,7 +13,12 @@ Everything issue 12 asks for, in one run, with the user's default thread setting
 * M = 2**19 slow bins, covariance None, one thread, and 2 threads vs 1;
 * first call with an empty numba cache, and a new process with a warm cache;
 * ``identify`` with a second process keeping one core busy vs without (``--no-busy``
-  skips it).
+  skips it);
+* noiseless HDD experiments with N = 3600, 36000, 180000: flagged bins and median error
+  against the true FRF (``--no-noiseless`` skips it).
+
+The oracle runs with one BLAS thread (its best case; with threaded BLAS on a loaded
+machine it was measured 100x slower).
 
 Ratios are against baselines measured in the same process; each time is the best of a
 few repeats.  CPU times (``time.process_time``) are printed beside wall times for the
@@ -34,6 +39,7 @@ sys.path.insert(0, os.path.join(HERE, "..", "tests"))
 from _lrm_oracle import oracle_local_model, resonant_system  # noqa: E402
 
 import numba  # noqa: E402
+from threadpoolctl import threadpool_limits  # noqa: E402
 
 import lcmr_xr  # noqa: E402
 from lcmr_xr import hdd  # noqa: E402
@@ -68,12 +74,15 @@ def oracle_section(rows, label, R, Z, every=10):
     bins = np.arange(0, m, every)
     t_k = {cov: best_time(lambda c=cov: local_model(R, Z, covariance=c, **KW))
            for cov in (None, "diag", "full")}
-    t0 = time.perf_counter()
-    ref = oracle_local_model(R, Z, 30, (3, 3, 3), bins=bins)
-    t_oracle = (time.perf_counter() - t0) * m / len(bins)
-    t0 = time.perf_counter()
-    oracle_local_model(R, Z, 30, (3, 3, 3), bins=bins, covariance=False)
-    t_plain = (time.perf_counter() - t0) * m / len(bins)
+    # the oracle at its best: one BLAS thread (threaded BLAS on its small per-bin
+    # matrices is many times slower on a loaded machine)
+    with threadpool_limits(1):
+        t0 = time.perf_counter()
+        ref = oracle_local_model(R, Z, 30, (3, 3, 3), bins=bins)
+        t_oracle = (time.perf_counter() - t0) * m / len(bins)
+        t0 = time.perf_counter()
+        oracle_local_model(R, Z, 30, (3, 3, 3), bins=bins, covariance=False)
+        t_plain = (time.perf_counter() - t0) * m / len(bins)
     fit = local_model(R, Z, **KW)
     ok = bins[~fit.ill_posed[bins]]
 
@@ -139,6 +148,8 @@ def main(argv=None):
                         help="skip the first-call (compile) and warm-cache measurements")
     parser.add_argument("--no-busy", action="store_true",
                         help="skip identify with a busy second process")
+    parser.add_argument("--no-noiseless", action="store_true",
+                        help="skip the noiseless HDD experiments")
     args = parser.parse_args(argv)
     rows = [("numba threads (default)", str(numba.get_num_threads()))]
     exp, R, Z = hdd_spectra()
@@ -192,7 +203,24 @@ def main(argv=None):
         start_times(rows)
     if not args.no_busy:
         busy_section(rows, exp)
+    if not args.no_noiseless:
+        noiseless_section(rows)
     _print(rows)
+
+
+def noiseless_section(rows):
+    """Noiseless HDD experiments: no flagged bin, error falling with the length."""
+    for n_samples in (3600, 36000, 180000):
+        exp = hdd.simulate(n_samples=n_samples, noise=False, seed=1)
+        t0 = time.perf_counter()
+        frf = lcmr_xr.identify(exp, window=30, covariance=False, errors="ignore")
+        wall = time.perf_counter() - t0
+        true = hdd.true_frf(frf.frequency[1:]).values  # (DC: the VCM is infinite)
+        err = np.median(np.abs(frf.P.values[1:] - true) / np.abs(true))
+        rows.append((f"noiseless HDD N={n_samples}: flagged slow bins / median rel error / "
+                     "identify [s]",
+                     f"{int(frf.ill_posed.sum() + frf.s_singular.sum())} / {err:.1e} / "
+                     f"{wall:.2f}"))
 
 
 def _print(rows):

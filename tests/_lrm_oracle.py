@@ -79,7 +79,7 @@ def oracle_local_model(R, Z, half_width, degrees, circular=True, bins=None, cova
             K = np.stack(columns, axis=1)
             theta, *_ = np.linalg.lstsq(K, Zw[:, i], rcond=None)
             out["G"][k, i] = theta[0 : nr * (rn + 1) : rn + 1]
-            out["T"][k, i] = theta[nr * (rn + 1)]
+            out["T"][k, i] = theta[nr * (rn + 1)] if rm >= 0 else 0.0  # Rm = -1: no T
             resid[i] = Zw[:, i] - K @ theta
             if not covariance:
                 continue

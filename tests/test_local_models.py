@@ -51,6 +51,8 @@ CASES = [
     (2, 3, 9, (2, 2, 2)),  # MIMO LRM
     (3, 2, 10, (2, 2, 0)),  # MIMO LPM
     (2, 2, 7, (1, 0, 3)),  # high denominator degree
+    (2, 2, 7, (2, -1, 2)),  # no transient term (periodic data)
+    (1, 2, 6, (2, -1, 0)),  # LPM without transient
 ]
 
 
@@ -65,7 +67,10 @@ def test_agrees_with_lstsq_oracle(nr, nz, n, degrees, circular):
     assert fit.dof == ref["dof"] == 2 * n + 1 - parameters_per_row(nr, degrees)
     assert ok.sum() >= 96 - 2 * n
     assert _max_rel(fit.G, ref["G"], np.broadcast_to(ok[:, None, None], fit.G.shape)) < 1e-6
-    assert _max_rel(fit.T, ref["T"], np.broadcast_to(ok[:, None], fit.T.shape)) < 1e-6
+    if degrees[1] >= 0:
+        assert _max_rel(fit.T, ref["T"], np.broadcast_to(ok[:, None], fit.T.shape)) < 1e-6
+    else:  # no transient term (bins without a full window stay NaN)
+        assert np.all(fit.T[ok] == 0)
     assert _max_rel(fit.noise_variance, ref["noise_variance"],
                     np.broadcast_to(ok[:, None], fit.T.shape)) < 1e-6
     # covariances: compare relative to the norm of each bin's matrix (entries may be ~0)
@@ -424,6 +429,8 @@ def test_errors_say_what_to_fix():
         local_model(R, Z, half_width=6, degrees=(1, 1, 1), covariance="yes")
     with pytest.raises(ValueError, match="degrees must be three integers"):
         local_model(R, Z, half_width=6, degrees=(1, 1))
+    with pytest.raises(ValueError, match="Rm = -1: no transient"):
+        local_model(R, Z, half_width=6, degrees=(1, -2, 1))
     bad = Z.copy()
     bad[3] = np.nan
     with pytest.raises(ValueError, match="finite"):
@@ -560,7 +567,7 @@ def test_recurrence_moments_match_direct_sums(n, degrees, restart):
     sel[1, :37] = False  # segments without a wanted bin are skipped
     mom = np.full((nbat, k_out, len(slot_i) * p1), np.nan + 0j)
     floor = np.full((nbat, k_out, nr), np.nan)
-    lmb.moments_and_floor(R, Z, n, sel, restart, slot_i, slot_j, p1, mom, floor)
+    lmb.moments_and_floor(R, Z, n, sel, restart, 0, slot_i, slot_j, p1, mom, floor)
     base = np.concatenate([R, np.ones((nbat, length, 1)), Z], axis=-1)
     rho = np.arange(-n, n + 1) / n
     for s in range(len(slot_i)):
@@ -683,15 +690,16 @@ def test_exactly_modelled_data_give_G_not_nan(nr, nz):
     assert _max_rel(fit.T[inner], T[inner]) < 1e-7
 
 
-@pytest.mark.slow
 def test_noiseless_hdd_experiments_flag_no_bin_and_error_falls_with_n():
     """Issue 12: noiseless HDD experiments lost up to half their slow bins (NaN, and
-    identify raised for a singular S) once the window became narrow in frequency."""
+    identify raised for a singular S) once the window became narrow in frequency
+    (N = 18000 flagged 2631 bins, N = 36000 9000).  N = 180000 is in
+    ``benchmarks/local_models.py`` (too long for the suite)."""
     import lcmr_xr
     from lcmr_xr import hdd
 
     medians = []
-    for n_samples in (3600, 36000, 180000):
+    for n_samples in (3600, 18000, 36000):
         exp = hdd.simulate(n_samples=n_samples, noise=False, seed=1)
         frf = lcmr_xr.identify(exp, window=30, degrees=(3, 3, 3), covariance=False)
         assert not frf.ill_posed.any() and not frf.s_singular.any()
@@ -699,7 +707,7 @@ def test_noiseless_hdd_experiments_flag_no_bin_and_error_falls_with_n():
         true = hdd.true_frf(frf.frequency[1:]).values
         medians.append(float(np.median(np.abs(frf.P.values[1:] - true) / np.abs(true))))
     assert medians[0] > medians[1] > medians[2]
-    assert medians[2] < 1e-6
+    assert medians[2] < 1e-5
 
 
 def test_one_thread_inside_worker_threads():
@@ -720,3 +728,19 @@ def test_one_thread_inside_worker_threads():
     worker.start()
     worker.join()
     np.testing.assert_allclose(got[0].G, main.G, rtol=1e-12)
+
+
+def test_no_transient_term_is_exact_for_periodic_data():
+    """Rm = -1 (issue 14's periodic case): no transient column, T = 0, G exact."""
+    m, n, rn = 80, 8, 2
+    k = np.arange(m) / m
+    rng = np.random.default_rng(24)
+    cg = rng.standard_normal((rn + 1, 2, 2)) + 1j * rng.standard_normal((rn + 1, 2, 2))
+    G = np.einsum("bip,kb->kip", cg, k[:, None] ** np.arange(rn + 1))
+    R = np.exp(2j * np.pi * rng.random((m, 2)))
+    Z = np.einsum("kip,kp->ki", G, R)
+    fit = local_model(R, Z, half_width=n, degrees=(rn, -1, 0), circular=False)
+    inner = slice(n, m - n)
+    assert fit.dof == 2 * n + 1 - 2 * (rn + 1) == 2 * n + 1 - parameters_per_row(2, (rn, -1, 0))
+    assert _max_rel(fit.G[inner], G[inner]) < 1e-10
+    assert np.all(fit.T[inner] == 0)

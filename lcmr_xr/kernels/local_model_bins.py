@@ -229,10 +229,12 @@ def _moment(mom, n_flat, f):
 
 
 @numba.njit(**_JIT)
-def moments_and_floor(rt, zt, n, sel, restart, slot_i, slot_j, p1, mom_out, floor_out):
+def moments_and_floor(rt, zt, n, sel, restart, k_base, slot_i, slot_j, p1, mom_out,
+                      floor_out):
     """All moments and R-energy rounding floors of the selected bins, exactly as
     :func:`fit_bins` computes them (for tests): ``mom_out`` (nbat, K, n_slots p1) slot
-    major (``s p1 + a``), ``floor_out`` (nbat, K, nr)."""
+    major (``s p1 + a``), ``floor_out`` (nbat, K, nr); ``k_base`` the global index of the
+    first bin (see ``_advance``)."""
     nr = rt.shape[2]
     ns = slot_i.shape[0]
     rho_pow, shift, lead = _recurrence(n, p1)
@@ -242,8 +244,8 @@ def moments_and_floor(rt, zt, n, sel, restart, slot_i, slot_j, p1, mom_out, floo
     for b in range(sel.shape[0]):
         valid = False
         for k in range(sel.shape[1]):
-            valid = _advance(rt, zt, b, k, valid, sel[b], restart, 0, n, slot_i, slot_j,
-                             rho_pow, shift, lead, mom, floor, scratch)
+            valid = _advance(rt, zt, b, k, valid, sel[b], restart, k_base, n, slot_i,
+                             slot_j, rho_pow, shift, lead, mom, floor, scratch)
             if sel[b, k]:
                 for s in range(ns):
                     for a in range(p1):
@@ -335,7 +337,10 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
     rd1 = zz_index.shape[2]
     rd = rd1 - 1
     nr = out_g.shape[2]
-    nt = nr + 1
+    # T (the constant column rho^0) precedes G at the end of A, unless Rm = -1 (no
+    # transient term: periodic data)
+    has_t = q > nr and a_base[q - nr - 1] == nr
+    nt = nr + 1 if has_t else nr
     width = 2 * n + 1
     nan_c = complex(np.nan, np.nan)
     m = np.empty((q, q + nx), dtype=np.complex128)
@@ -476,7 +481,7 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
                     _tail_solve(m, q, nt, wa, tail)
                     sens = 0.0
                     for p in range(nr):
-                        sens += abs(tail[1 + p]) ** 2
+                        sens += abs(tail[nt - nr + p]) ** 2
                     if sens > sens_limit**2 * norm2:
                         ill = True
             # v_i = Y_i delta_i (the shared coordinates of D z_i); T, G from its tail
@@ -486,9 +491,9 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
                     acc += m[a, q + i * rd1 + s] * delta[i, s]
                 v[i, a] = acc
             _tail_solve(m, q, nt, v[i], tail)
-            out_t[o, i] = tail[0] * ds[q - nt]
+            out_t[o, i] = tail[0] * ds[q - nt] if has_t else 0j
             for p in range(nr):
-                out_g[o, i, p] = tail[1 + p] * ds[q - nr + p]
+                out_g[o, i, p] = tail[nt - nr + p] * ds[q - nr + p]
 
         # ---- residual cross products e_i^H e_j = delta_i^H X_i^H X_j delta_j - v_i^H v_j
         for i in range(nz):

@@ -148,8 +148,10 @@ def _check_degrees(degrees):
             f"degrees must be three integers (Rn, Rm, Rd), got {degrees!r}; "
             "for example degrees=(3, 3, 3), or (2, 2, 0) for the LPM."
         ) from None
-    if min(rn, rm, rd) < 0:
-        raise ValueError(f"degrees must be non-negative, got {(rn, rm, rd)}.")
+    if min(rn, rd) < 0 or rm < -1:
+        raise ValueError(
+            f"degrees must be non-negative (Rm = -1: no transient term), got {(rn, rm, rd)}."
+        )
     return rn, rm, rd
 
 
@@ -332,7 +334,9 @@ def local_model(R, Z, *, half_width, degrees=(3, 3, 3), circular: bool = True,
         chunk of a few hundred bins).
     degrees : tuple of int, default (3, 3, 3)
         ``(Rn, Rm, Rd)``: degrees of the numerator ``N``, transient ``Mt`` and the diagonal
-        denominator ``D`` in the local variable.  ``Rd = 0`` is the LPM.
+        denominator ``D`` in the local variable.  ``Rd = 0`` is the LPM; ``Rm = -1``
+        drops the transient term (periodic data, an integer number of periods: ``T`` is
+        then 0).
     circular : bool, default True
         ``True``: the bins cover the whole unit circle, the window at bin ``k`` uses bins
         ``(k + r) mod M``.  ``False``: the caller passed data already padded with ``n`` halo
