@@ -1,8 +1,8 @@
 """Command line: ``lcmr-xr identify | demo | simulate | sweep``.
 
     lcmr-xr identify EXPERIMENT.nc -o FRF.nc [--method lrm|lpm] [--window N]
-                     [--degrees RN RM RD] [--closed-loop indirect|direct] [--plot FILE.png]
-    lcmr-xr demo [--experiment FILE.nc] [--output-dir DIR]
+                     [--degrees RN-RM-RD] [--closed-loop indirect|direct] [--plot FILE.png]
+    lcmr-xr demo [--experiment FILE.nc] [--output-dir DIR] [--window N] [--degrees RN-RM-RD]
     lcmr-xr simulate -o EXPERIMENT.nc [--samples N] [--case 1..9] [--seed S] [--noiseless]
     lcmr-xr sweep ARCHIVE_DIR -o RESULT.nc --window 10 20 30 [--degrees 3-3-3 ...]
                   [--method lrm lpm] [--scheduler threads|processes|ADDRESS]
@@ -17,6 +17,12 @@ import argparse
 import sys
 from pathlib import Path
 
+from lcmr_xr.settings import CLOSED_LOOP, METHODS
+
+#: Help text of every ``--degrees`` option: one syntax on every command line.
+DEGREES_HELP = ("local model degrees RN-RM-RD: numerator, transient, denominator (default "
+                "3-3-3; LPM: 3-3-0, its RD must be 0)")
+
 
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
@@ -28,18 +34,17 @@ def _parser() -> argparse.ArgumentParser:
     ident = sub.add_parser("identify", help="identify the fast FRF of an experiment file")
     ident.add_argument("experiment", type=Path, help="experiment NetCDF file (lcmr-xr-1)")
     ident.add_argument("-o", "--output", type=Path, required=True, help="FRF NetCDF file to write")
-    ident.add_argument("--method", choices=("lrm", "lpm"), default="lrm")
+    ident.add_argument("--method", choices=tuple(METHODS), default="lrm")
     ident.add_argument("--window", type=int, default=30, help="local window half-width n (2n+1 bins)")
-    ident.add_argument("--degrees", type=int, nargs=3, metavar=("RN", "RM", "RD"), default=None,
-                       help="numerator, transient and denominator degrees (default 3 3 3; LPM: 3 3 0)")
-    ident.add_argument("--closed-loop", choices=("indirect", "direct"), default="indirect")
+    ident.add_argument("--degrees", nargs="+", metavar="RN-RM-RD", default=None, help=DEGREES_HELP)
+    ident.add_argument("--closed-loop", choices=tuple(CLOSED_LOOP), default="indirect")
     ident.add_argument("--plot", type=Path, default=None, help="also write a Bode plot PNG")
 
     demo = sub.add_parser("demo", help="identify the bundled HDD benchmark experiment")
     demo.add_argument("--experiment", type=Path, default=None)
     demo.add_argument("--output-dir", type=Path, default=Path("demo-output"))
     demo.add_argument("--window", type=int, default=30)
-    demo.add_argument("--degrees", type=int, nargs=3, default=(3, 3, 3), metavar=("RN", "RM", "RD"))
+    demo.add_argument("--degrees", nargs="+", metavar="RN-RM-RD", default=["3-3-3"], help=DEGREES_HELP)
     demo.add_argument("--no-plot", action="store_true")
 
     sim = sub.add_parser("simulate", help="simulate the HDD benchmark experiment to a file")
@@ -55,13 +60,30 @@ def _parser() -> argparse.ArgumentParser:
     return p
 
 
+def _one_degrees(args):
+    """The single ``--degrees`` setting of identify/demo (None: the method's default)."""
+    from lcmr_xr.settings import degrees_arguments
+
+    if args.degrees is None:
+        return None
+    settings = degrees_arguments(args.degrees)
+    if len(settings) != 1:
+        raise ValueError(f"--degrees takes one setting RN-RM-RD here, got {len(settings)} "
+                         f"({' '.join(settings)}); use 'lcmr-xr sweep' to compare several.")
+    return settings[0]
+
+
 def _identify(args) -> int:
     from lcmr_xr.identification import identify
     from lcmr_xr.io import open_experiment, save
+    from lcmr_xr.settings import estimator_settings
 
+    # the settings first: a typo is reported before the experiment is read
+    s = estimator_settings(method=args.method, window=args.window, degrees=_one_degrees(args),
+                           closed_loop=args.closed_loop)
     exp = open_experiment(args.experiment)
-    frf = identify(exp, method=args.method, window=args.window, degrees=args.degrees,
-                   closed_loop=args.closed_loop)
+    frf = identify(exp, method=s.method, window=s.window, degrees=s.degrees,
+                   closed_loop=s.closed_loop)
     save(frf, args.output)
     print(f"wrote {args.output}: P {dict(frf.P.sizes)}, "
           f"{int(frf.P_flag.sum())} flagged bins, method {args.method}, window {args.window}")
@@ -71,7 +93,7 @@ def _identify(args) -> int:
         matplotlib.use("Agg")
         from lcmr_xr.plot import bode, save_figure
 
-        save_figure(bode(frf), args.plot)
+        save_figure(bode(frf, title=f"{Path(args.experiment).name}: {frf.attrs['title']} (window {frf.attrs['window']}, degrees {', '.join(str(int(d)) for d in frf.attrs['degrees'])})"), args.plot)
         print(f"wrote {args.plot}")
     return 0
 
@@ -96,8 +118,11 @@ def main(argv=None) -> int:
         if args.command == "demo":
             from lcmr_xr.demo import run_demo
 
-            run_demo(args.experiment, args.output_dir, window=args.window,
-                     degrees=tuple(args.degrees), plot=not args.no_plot)
+            from lcmr_xr.settings import estimator_settings
+
+            s = estimator_settings(window=args.window, degrees=_one_degrees(args))
+            run_demo(args.experiment, args.output_dir, window=s.window,
+                     degrees=s.degrees, plot=not args.no_plot)
             return 0
         if args.command == "simulate":
             return _simulate(args)

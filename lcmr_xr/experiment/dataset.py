@@ -2,7 +2,7 @@
 
 One closed-loop multirate experiment: fast excitation ``r`` and plant input ``u`` on
 (``time``, ``input``), slow plant output ``y`` on (``slow_time``, ``output``), attributes
-``factor`` and ``conventions``.  See ``shared/conventions.md``.
+``factor`` and ``conventions``.  See ``docs/conventions.md``.
 """
 
 from __future__ import annotations
@@ -19,6 +19,7 @@ from lcmr_xr.conventions import (
     FACTOR,
     INPUT,
     OUTPUT,
+    PERIOD,
     SLOW_TIME,
     TIME,
     label_attrs,
@@ -239,9 +240,10 @@ def experiment(
         )
     except ValueError as err:  # conflicting sizes of a shared dim, e.g. `experiment`
         raise ValueError(f"r, u and y do not fit together: {err}. Check their shapes.") from err
-    for name in (EXPERIMENT,):
+    for name, long_name in ((EXPERIMENT, EXPERIMENT),
+                            (PERIOD, "period of the periodic excitation")):
         if name in ds.dims and name not in ds.coords:
-            ds = ds.assign_coords({name: (name, np.arange(ds.sizes[name]), label_attrs(name))})
+            ds = ds.assign_coords({name: (name, np.arange(ds.sizes[name]), label_attrs(long_name))})
     return validate_experiment(ds)
 
 
@@ -281,6 +283,35 @@ def _check_time(ds, dim: str, expected_spacing: float | None) -> float:
     return spacing
 
 
+#: ``r`` counts as repeating when its periods differ by at most this times its peak.
+PERIODIC_RTOL = 1e-9
+
+
+def _check_period_dims(ds):
+    """``period`` (repeated periods of one excitation) must be on ``u`` and ``y`` together."""
+    missing = [name for name in ("u", "y") if PERIOD not in ds[name].dims]
+    if missing:
+        _fail(
+            f"the dataset has a {PERIOD!r} dim but {missing} lack it",
+            f"the measured signals are recorded per period: give u and y the {PERIOD!r} dim "
+            f"(time then counts within a period), or drop it from r.",
+        )
+
+
+def _check_periodic_excitation(r):
+    """Every period of ``r`` must be the same signal (averaging over periods relies on it)."""
+    x = np.asarray(r.transpose(PERIOD, ...).values)
+    peak = float(np.max(np.abs(x))) if x.size else 0.0
+    diff = float(np.max(np.abs(x - x[:1]))) if x.size else 0.0
+    if diff > PERIODIC_RTOL * peak:
+        _fail(
+            f"r differs between periods (largest difference {diff:.3g}, {diff / peak:.2g} of its "
+            f"peak): along {PERIOD!r} the excitation must repeat exactly",
+            f"the {PERIOD!r} dim is for repeated periods of ONE periodic excitation; put records "
+            "with different excitations on an 'experiment' dim instead.",
+        )
+
+
 def validate_experiment(ds: xr.Dataset, *, check_values: bool = True) -> xr.Dataset:
     """Check an experiment dataset against the ``lcmr-xr-1`` contract; return it if valid.
 
@@ -288,9 +319,11 @@ def validate_experiment(ds: xr.Dataset, *, check_values: bool = True) -> xr.Data
     ----------
     ds : xarray.Dataset
         Candidate experiment dataset; extra dims (e.g. ``experiment``), variables and
-        attributes are allowed.
+        attributes are allowed.  A ``period`` dim holds repeated periods of ONE periodic
+        excitation (``time`` and ``slow_time`` then count within a period): ``u`` and ``y``
+        must carry it, and ``r`` must repeat exactly (to 1e-9 of its peak) along it.
     check_values : bool, default True
-        Also check the data for NaN and inf.  ``False`` reads metadata only, so lazy
+        Also check the data for NaN and inf (and that ``r`` repeats over periods).  ``False`` reads metadata only, so lazy
         (dask-backed) data are not computed; lazy consumers such as
         :func:`lcmr_xr.identify` then refuse non-finite data when they are computed.
 
@@ -307,7 +340,8 @@ def validate_experiment(ds: xr.Dataset, *, check_values: bool = True) -> xr.Data
         ``input``, ``output`` coordinates; ``N`` not a multiple of ``F`` or
         ``N != M F``; uneven spacing; time not starting at 0; slow spacing not ``F`` times
         the fast one; complex, boolean or non-numeric data; NaN or inf; duplicate or empty
-        channel labels.
+        channel labels; a ``period`` dim missing on ``u`` or ``y``, or an ``r`` that does not
+        repeat over periods.
     TypeError
         If ``ds`` is not a Dataset.
 
@@ -384,9 +418,13 @@ def validate_experiment(ds: xr.Dataset, *, check_values: bool = True) -> xr.Data
         _fail(f"N={n} fast samples but M={m} slow samples and F={factor} (M*F={m * factor})", "y must cover the same time span as r and u: N = M * F.")
     th = _check_time(ds, TIME, None)
     _check_time(ds, SLOW_TIME, factor * th)
+    if PERIOD in ds.dims:
+        _check_period_dims(ds)
 
     if not check_values:
         return ds
+    if PERIOD in ds["r"].dims and not _is_lazy(ds["r"].data):
+        _check_periodic_excitation(ds["r"])
     checks = {name: np.isfinite(ds[name].data).all() for name in required if ds[name].dtype.kind == "f"}
     if any(_is_lazy(c) for c in checks.values()):
         import dask

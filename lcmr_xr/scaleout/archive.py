@@ -21,6 +21,7 @@ import numpy as np
 import xarray as xr
 
 from lcmr_xr import conventions as cv
+from lcmr_xr.transforms._coords import even_spacing
 
 __all__ = ["save_archive", "open_archive", "archive_files"]
 
@@ -69,7 +70,8 @@ def _split(experiments) -> list[tuple[object, xr.Dataset]]:
 
 def _shape(ds: xr.Dataset) -> dict:
     """What must agree between the experiments of one archive (besides the data)."""
-    th = float(ds[cv.TIME][1] - ds[cv.TIME][0]) if ds.sizes.get(cv.TIME, 0) > 1 else float("nan")
+    n = ds.sizes.get(cv.TIME, 0)
+    th = even_spacing(ds[cv.TIME].values, cv.TIME)[1] if n > 1 else float("nan")
     return {
         "N": int(ds.sizes[cv.TIME]),
         "factor": int(np.asarray(ds.attrs.get(cv.FACTOR, -1)).item()),

@@ -1,6 +1,6 @@
 """``lcmr-xr sweep``: identify an archive for every combination of settings, in parallel.
 
-    lcmr-xr sweep ARCHIVE_DIR -o RESULT.nc [--window 10 20 30] [--degrees 3-3-3 2-2-2]
+    lcmr-xr sweep ARCHIVE_DIR -o RESULT.nc [--window 10 20 30] [--degrees 3-3-3 2-2-2 ...]
                   [--method lrm lpm] [--closed-loop indirect|direct]
                   [--scheduler threads|processes|synchronous|ADDRESS] [--select CHOICE.nc]
 
@@ -13,6 +13,8 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+
+from lcmr_xr.settings import CLOSED_LOOP, METHODS
 
 LOCAL_SCHEDULERS = ("threads", "processes", "synchronous")
 
@@ -37,7 +39,7 @@ def add_sweep_parser(subparsers) -> argparse.ArgumentParser:
     >>> _ = add_sweep_parser(p.add_subparsers(dest="command"))
     >>> args = p.parse_args(["sweep", "arc", "-o", "r.nc", "--window", "10", "20"])
     >>> args.window, args.degrees, args.method, args.scheduler
-    ([10, 20], ['3-3-3'], ['lrm'], 'threads')
+    ([10, 20], None, ['lrm'], 'threads')
     """
     sw = subparsers.add_parser(
         "sweep", help="identify an archive of experiments for every combination of settings",
@@ -47,10 +49,12 @@ def add_sweep_parser(subparsers) -> argparse.ArgumentParser:
     sw.add_argument("archive", type=Path, help="archive directory (one experiment .nc per file)")
     sw.add_argument("-o", "--output", type=Path, required=True, help="result NetCDF file to write")
     sw.add_argument("--window", type=int, nargs="+", default=[30], help="window half-widths n (default 30)")
-    sw.add_argument("--degrees", nargs="+", default=["3-3-3"], metavar="RN-RM-RD",
-                    help="local model degrees, e.g. 3-3-3 2-2-2 (LPM ignores RD; default 3-3-3)")
-    sw.add_argument("--method", nargs="+", choices=("lrm", "lpm"), default=["lrm"])
-    sw.add_argument("--closed-loop", choices=("indirect", "direct"), default="indirect")
+    sw.add_argument("--degrees", nargs="+", default=None, metavar="RN-RM-RD",
+                    help="local model degrees, one or more RN-RM-RD, e.g. 3-3-3 2-2-2; every one "
+                         "is combined with every --method, and LPM needs RD = 0 (default: the "
+                         "method's, 3-3-3 for LRM, 3-3-0 for LPM)")
+    sw.add_argument("--method", nargs="+", choices=tuple(METHODS), default=["lrm"])
+    sw.add_argument("--closed-loop", choices=tuple(CLOSED_LOOP), default="indirect")
     sw.add_argument("--no-covariance", action="store_true", help="skip P_std (less memory)")
     sw.add_argument("--scheduler", default="threads",
                     help="threads (default), processes, synchronous, or the address of a running "
@@ -106,15 +110,19 @@ def run_sweep(args) -> int:
     from lcmr_xr.io import save
     from lcmr_xr.scaleout.archive import open_archive
     from lcmr_xr.scaleout.select import select_settings
-    from lcmr_xr.scaleout.sweep import sweep
+    from lcmr_xr.scaleout.sweep import sweep, sweep_settings
+    from lcmr_xr.settings import degrees_arguments
 
     try:
+        settings = dict(window=args.window, method=args.method, closed_loop=args.closed_loop,
+                        covariance=not args.no_covariance,
+                        degrees=None if args.degrees is None else degrees_arguments(args.degrees))
+        sweep_settings(**settings)  # before the archive is opened
         for path in (args.output, args.select):
             if path is not None and not (path.parent if str(path.parent) else Path(".")).is_dir():
                 raise FileNotFoundError(f"directory of {path} does not exist; create it first.")
         experiments = open_archive(args.archive)
-        lazy = sweep(experiments, window=args.window, degrees=args.degrees, method=args.method,
-                     closed_loop=args.closed_loop, covariance=not args.no_covariance)
+        lazy = sweep(experiments, **settings)
         sizes = {d: lazy.sizes[d] for d in ("method", "degrees", "window", "experiment") if d in lazy.dims}
         print(f"sweeping {sizes} on scheduler {args.scheduler}", file=sys.stderr)
         result = _compute(lazy, args.scheduler)

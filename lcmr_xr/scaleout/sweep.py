@@ -7,9 +7,10 @@ validates its input, and on dask data that validation computes a pass over the d
 per setting.  Per block, the validation runs inside the task on data already in memory, so
 building the sweep reads nothing and computing it reads every experiment once per setting.
 
-The output structure (and every settings error: a window too small for the degrees, a
-window wider than the spectrum) is found before anything is computed by running
-``identify`` on a small synthetic probe with the same shape as one experiment.
+Every setting is checked by :func:`lcmr_xr.settings.estimator_settings` (the rules of
+``identify``) and against the experiment's size before anything is computed, and the
+output structure is derived from the layout of :func:`lcmr_xr.identify`'s result
+(:func:`lcmr_xr.identification.identify.result_template`): no data are read to build it.
 """
 
 from __future__ import annotations
@@ -17,70 +18,29 @@ from __future__ import annotations
 import itertools
 from collections.abc import Iterable
 
-import dask.array as dsa
 import numpy as np
 import xarray as xr
 
 from lcmr_xr import conventions as cv
+from lcmr_xr.settings import (
+    CLOSED_LOOP,
+    METHODS,
+    as_bool,
+    as_choice,
+    as_integer,
+    check_window_fits,
+    degrees_label,
+    estimator_settings,
+    parse_degrees,
+)
 
-__all__ = ["sweep", "parse_degrees", "degrees_label", "SETTING_DIMS"]
+__all__ = ["sweep", "sweep_settings", "parse_degrees", "degrees_label", "SETTING_DIMS"]
 
 #: Dims a sweep adds, outermost first.
 SETTING_DIMS = ("method", "degrees", "window")
-_CORE_DIMS = (cv.TIME, cv.SLOW_TIME, cv.INPUT, cv.OUTPUT)
+# ``period`` (repeated periods, averaged by identify) belongs to one experiment's record
+_CORE_DIMS = (cv.TIME, cv.SLOW_TIME, cv.INPUT, cv.OUTPUT, cv.PERIOD)
 _PER_SETTING_ATTRS = ("method", "window", "window_bins", "degrees", "parameters_per_row", "title")
-
-
-def parse_degrees(value) -> tuple[int, int, int]:
-    """``(Rn, Rm, Rd)`` from a label ``"Rn-Rm-Rd"`` or a sequence of three integers.
-
-    Parameters
-    ----------
-    value : str or sequence of int
-        ``"3-3-3"``, ``"3,3,3"`` or ``(3, 3, 3)``.
-
-    Returns
-    -------
-    tuple of int
-
-    Examples
-    --------
-    >>> parse_degrees("3-2-1"), parse_degrees((2, 2, 0))
-    ((3, 2, 1), (2, 2, 0))
-    """
-    parts = value.replace(",", "-").split("-") if isinstance(value, str) else value
-    try:
-        out = tuple(int(p) for p in parts)
-    except (TypeError, ValueError):
-        out = ()
-    if len(out) != 3 or min(out) < 0:
-        raise ValueError(
-            f"degrees {value!r} is not three non-negative integers Rn-Rm-Rd (numerator, "
-            "transient, denominator); write e.g. '3-3-3' or (3, 3, 3)."
-        )
-    return out
-
-
-def degrees_label(degrees) -> str:
-    """The ``"Rn-Rm-Rd"`` label of a degrees triple (the ``degrees`` coordinate of a sweep).
-
-    Parameters
-    ----------
-    degrees : tuple of int or str
-        ``(Rn, Rm, Rd)`` or a label such as ``"3-3-3"`` (anything :func:`parse_degrees`
-        accepts).
-
-    Returns
-    -------
-    str
-        ``"Rn-Rm-Rd"``.
-
-    Examples
-    --------
-    >>> degrees_label((3, 3, 0))
-    '3-3-0'
-    """
-    return "-".join(str(d) for d in parse_degrees(degrees))
 
 
 def _as_list(value, what: str) -> list:
@@ -94,9 +54,9 @@ def _as_list(value, what: str) -> list:
     return items
 
 
-def _degrees_list(degrees) -> list[tuple[int, int, int]]:
-    if degrees is None:
-        return [(3, 3, 3)]
+def _degrees_list(degrees, methods) -> list[tuple[int, int, int]]:
+    if degrees is None:  # the methods' defaults (settings.METHODS), each once
+        return list(dict.fromkeys(METHODS[m].default_degrees for m in methods))
     if isinstance(degrees, str):
         return [parse_degrees(degrees)]
     items = _as_list(degrees, "degrees")
@@ -112,11 +72,6 @@ def _unique(items, what):
             raise ValueError(f"{what} lists {it!r} twice; give each setting once.")
         seen.append(it)
     return seen
-
-
-def _effective_degrees(method: str, degrees):
-    """The LPM is the LRM with denominator degree 0: its ``Rd`` is ignored (set to 0)."""
-    return (degrees[0], degrees[1], 0) if method == "lpm" else tuple(degrees)
 
 
 def _leading_dims(ds: xr.Dataset) -> list[str]:
@@ -136,52 +91,78 @@ def _chunked(ds: xr.Dataset) -> xr.Dataset:
     return ds.chunk(chunks)
 
 
-def _probe(ds: xr.Dataset, lead: list[str]) -> xr.Dataset:
-    """One synthetic experiment with the shape, coords and attrs of ``ds`` (random data).
-
-    Random signals excite every lifted channel, so ``identify`` on the probe fails only for
-    reasons of the settings, and gives the exact output structure without touching the data.
-    """
-    one = ds.isel({d: 0 for d in lead}, drop=True)
-    one = one.drop_vars([c for c in one.coords if c not in one.dims and not set(one[c].dims) <= set(_CORE_DIMS)])
-    rng = np.random.default_rng(0)
-    data = {name: (one[name].dims, rng.standard_normal(one[name].shape), one[name].attrs)
-            for name in ("r", "u", "y")}
-    return xr.Dataset(data, coords=one.coords, attrs=ds.attrs)
-
-
-def _template(frf: xr.Dataset, ds: xr.Dataset, lead: list[str]) -> xr.Dataset:
-    """Lazy zeros shaped like the result of ``identify`` on all of ``ds`` (for map_blocks)."""
-    lead_chunks = tuple(ds["r"].chunks[ds["r"].get_axis_num(d)] for d in lead)
-    lead_shape = tuple(ds.sizes[d] for d in lead)
-    variables = {}
-    for name, var in frf.data_vars.items():
-        data = dsa.zeros(lead_shape + var.shape, dtype=var.dtype,
-                         chunks=lead_chunks + tuple((s,) for s in var.shape))
-        variables[name] = (tuple(lead) + var.dims, data, var.attrs)
-    out = xr.Dataset(variables, coords=frf.coords, attrs=frf.attrs)
-    # identify copies the experiment's coords that fit the output dims; so does the template
-    for name in ds.coords:
-        if name not in out.coords and set(ds[name].dims) <= set(out.dims):
-            out = out.assign_coords({name: ds[name]})
-    return out
-
-
 def _identify_block(block: xr.Dataset, **settings) -> xr.Dataset:
     from lcmr_xr.identification import identify
 
     return identify(block, errors="ignore", **settings)
 
 
-def _check_settings(windows, degrees_list, methods, closed_loop):
-    if closed_loop not in ("indirect", "direct"):
-        raise ValueError(f"closed_loop must be 'indirect' or 'direct', got {closed_loop!r}.")
-    for m in methods:
-        if m not in ("lrm", "lpm"):
-            raise ValueError(f"method {m!r} is unknown; use 'lrm' and/or 'lpm'.")
-    for w in windows:
-        if isinstance(w, (bool, np.bool_)) or int(w) != w:
-            raise ValueError(f"window {w!r} is not an integer half-width; use e.g. window=[10, 20, 30].")
+def sweep_settings(*, window=(30,), degrees=None, method=("lrm",), closed_loop="indirect",
+                   covariance=True, experiments: xr.Dataset | None = None) -> dict:
+    """Check every (method, degrees, window) of a sweep by the rules of ``identify``.
+
+    All invalid combinations are reported at once, before anything is computed.  Without
+    ``experiments`` only what does not depend on the data is checked (the command line
+    does that before it opens the archive); with it, also that each window fits the
+    number of local parameters and the length of the spectrum.
+
+    Parameters
+    ----------
+    window, degrees, method, closed_loop, covariance
+        As in :func:`sweep`.
+    experiments : xarray.Dataset, optional
+        The experiments (only sizes and the ``factor`` attribute are read).
+
+    Returns
+    -------
+    dict
+        ``{(method, degrees, window): EstimatorSettings}`` in sweep order, ``degrees`` as
+        the requested triple.
+
+    Raises
+    ------
+    TypeError, ValueError
+        A malformed list or value, or (``ValueError``) the list of invalid combinations.
+
+    Examples
+    --------
+    >>> list(sweep_settings(window=[20, 30], degrees=["3-3-0"], method=["lrm", "lpm"]))[:2]
+    [('lrm', (3, 3, 0), 20), ('lrm', (3, 3, 0), 30)]
+    """
+    windows = _unique([as_integer(w, "window", minimum=1, example=30)
+                       for w in _as_list(window, "window")], "window")
+    methods = _unique([as_choice(m, "method", METHODS) for m in _as_list(method, "method")], "method")
+    degrees_list = _unique(_degrees_list(degrees, methods), "degrees")
+    closed_loop = as_choice(closed_loop, "closed_loop", CLOSED_LOOP)
+    covariance = as_bool(covariance, "covariance")
+    fits = None
+    if experiments is not None:
+        factor = int(np.asarray(experiments.attrs[cv.FACTOR]).item())
+        fits = (factor * experiments.sizes[cv.INPUT], experiments.sizes[cv.SLOW_TIME])
+    checked, problems = {}, []
+    for m, deg, w in itertools.product(methods, degrees_list, windows):
+        try:
+            s = estimator_settings(method=m, window=w, degrees=deg, closed_loop=closed_loop,
+                                   covariance=covariance, errors="ignore")
+            if fits is not None:
+                check_window_fits(s.window, s.degrees, *fits)
+            checked[m, deg, w] = s
+        except ValueError as err:
+            problems.append(f"method={m}, degrees={degrees_label(deg)}, window={w}: {err}")
+    if problems:
+        hint = ""
+        if len(methods) > 1 and any(not METHODS[m].has_denominator and d[2] != 0
+                                    for m in methods for d in degrees_list):
+            hint = ("\nEvery degrees entry is combined with every method, and the LPM has Rd = 0: "
+                    "give degrees with Rd = 0 (e.g. '3-3-0'), or sweep method='lrm' alone with "
+                    "both '3-3-3' and '3-3-0' (the LRM with Rd = 0 is the LPM).")
+        where = "for these experiments " if experiments is not None else ""
+        raise ValueError(
+            f"{len(problems)} of {len(checked) + len(problems)} sweep settings are invalid "
+            f"{where}(nothing was computed); remove them from the sweep:\n  - "
+            + "\n  - ".join(problems) + hint
+        )
+    return checked
 
 
 def sweep(experiments: xr.Dataset, *, window=(30,), degrees=None, method=("lrm",),
@@ -198,10 +179,13 @@ def sweep(experiments: xr.Dataset, *, window=(30,), degrees=None, method=("lrm",
     window : int or sequence of int, default (30,)
         Local window half-widths ``n`` (``2 n + 1`` slow bins each).
     degrees : str, (int, int, int) or sequence of them, optional
-        Local model degrees ``(Rn, Rm, Rd)``, as triples or labels ``"Rn-Rm-Rd"``; default
-        ``"3-3-3"``.  For ``method="lpm"`` the denominator degree is 0 whatever ``Rd`` says
-        (the LPM is the LRM without denominator), so ``degrees="3-3-3"`` with LPM fits
-        ``(3, 3, 0)``; the coordinate ``denominator_degree`` (method, degrees) records it.
+        Local model degrees ``(Rn, Rm, Rd)``, as triples or labels ``"Rn-Rm-Rd"`` (the
+        rules of :func:`lcmr_xr.settings.parse_degrees`); default: each method's default
+        degrees (``"3-3-3"`` for LRM, ``"3-3-0"`` for LPM).  Every degrees entry is combined
+        with every method, and the LPM has no denominator: with ``method="lpm"`` every
+        entry needs ``Rd = 0`` (e.g. ``["2-2-0", "3-3-0"]``), or it is refused.  To compare
+        LRM and LPM on other degrees, sweep ``method="lrm"`` with both ``"3-3-3"`` and
+        ``"3-3-0"``: the LRM with ``Rd = 0`` is the LPM.
     method : str or sequence of str, default ("lrm",)
         ``"lrm"`` and/or ``"lpm"``.
     closed_loop : {"indirect", "direct"}, default "indirect"
@@ -226,9 +210,10 @@ def sweep(experiments: xr.Dataset, *, window=(30,), degrees=None, method=("lrm",
     ------
     ValueError
         Before anything is computed, listing every invalid combination: a window too small
-        for the number of local parameters, a window wider than the spectrum, unknown
-        methods or malformed degrees.  Data errors (NaN in the data, an excitation that
-        does not excite every lifted channel) are raised by the tasks when computed.
+        for the number of local parameters, a window wider than the spectrum, ``Rd != 0``
+        with the LPM; or unknown methods, malformed degrees or non-integer windows (see
+        :func:`sweep_settings`).  Data errors (NaN in the data, an excitation that does not
+        excite every lifted channel) are raised by the tasks when computed.
 
     Examples
     --------
@@ -242,41 +227,21 @@ def sweep(experiments: xr.Dataset, *, window=(30,), degrees=None, method=("lrm",
     True
     """
     from lcmr_xr.experiment import validate_experiment
-    from lcmr_xr.identification import identify
+    from lcmr_xr.identification.identify import result_template
     from lcmr_xr.kernels.local_models import parameters_per_row
 
     if not isinstance(experiments, xr.Dataset):
         raise TypeError(f"sweep expects an experiment Dataset, got {type(experiments).__name__}; "
                         "open an archive with lcmr_xr.scaleout.open_archive.")
-    windows = _unique([int(w) if not isinstance(w, (bool, np.bool_)) and int(w) == w else w
-                       for w in _as_list(window, "window")], "window")
-    degrees_list = _unique(_degrees_list(degrees), "degrees")
-    methods = _unique([str(m) for m in _as_list(method, "method")], "method")
-    _check_settings(windows, degrees_list, methods, closed_loop)
-
     ds = experiments
-    lead = _leading_dims(ds)
     if ds["r"].chunks is None:
         validate_experiment(ds)  # in memory: cheap, and errors surface here, not in a task
+    checked = sweep_settings(window=window, degrees=degrees, method=method,
+                             closed_loop=closed_loop, covariance=covariance, experiments=ds)
+    methods = list(dict.fromkeys(m for m, _, _ in checked))
+    degrees_list = list(dict.fromkeys(d for _, d, _ in checked))
+    windows = list(dict.fromkeys(w for _, _, w in checked))
     ds = _chunked(ds)
-    probe = _probe(ds, lead)
-
-    # Build every setting's probe result first: all invalid settings are reported at once.
-    probes, problems = {}, []
-    for m, deg, w in itertools.product(methods, degrees_list, windows):
-        eff = _effective_degrees(m, deg)
-        try:
-            probes[m, deg, w] = identify(probe, method=m, window=w, degrees=eff,
-                                         closed_loop=closed_loop, covariance=covariance,
-                                         errors="ignore")
-        except ValueError as err:
-            problems.append(f"method={m}, degrees={degrees_label(deg)}, window={w}: {err}")
-    if problems:
-        raise ValueError(
-            f"{len(problems)} of {len(probes) + len(problems)} sweep settings are invalid for "
-            f"these experiments (nothing was computed); remove them from the sweep:\n  - "
-            + "\n  - ".join(problems)
-        )
 
     nested = []
     for m in methods:
@@ -284,11 +249,11 @@ def sweep(experiments: xr.Dataset, *, window=(30,), degrees=None, method=("lrm",
         for deg in degrees_list:
             per_window = []
             for w in windows:
-                frf = probes[m, deg, w]
-                settings = dict(method=m, window=w, degrees=_effective_degrees(m, deg),
-                                closed_loop=closed_loop, covariance=covariance)
+                s = checked[m, deg, w]
+                settings = dict(method=m, window=s.window, degrees=s.degrees,
+                                closed_loop=s.closed_loop, covariance=s.covariance)
                 res = xr.map_blocks(_identify_block, ds, kwargs=settings,
-                                    template=_template(frf, ds, lead))
+                                    template=result_template(ds, s))
                 res = res.expand_dims({"method": [m], "degrees": [degrees_label(deg)], "window": [w]})
                 per_window.append(res)
             per_degree.append(per_window)
@@ -298,9 +263,9 @@ def sweep(experiments: xr.Dataset, *, window=(30,), degrees=None, method=("lrm",
     for key in _PER_SETTING_ATTRS:
         out.attrs.pop(key, None)
     nr_factor = int(ds.attrs[cv.FACTOR]) * ds.sizes[cv.INPUT]
-    ppr = np.array([[parameters_per_row(nr_factor, _effective_degrees(m, d)) for d in degrees_list]
-                    for m in methods])
-    rd = np.array([[_effective_degrees(m, d)[2] for d in degrees_list] for m in methods])
+    used = [[checked[m, d, windows[0]].degrees for d in degrees_list] for m in methods]
+    ppr = np.array([[parameters_per_row(nr_factor, d) for d in row] for row in used])
+    rd = np.array([[d[2] for d in row] for row in used])
     out = out.assign_coords({
         "method": ("method", methods, {"units": "1", "long_name": "local model (lrm: rational, lpm: polynomial)"}),
         "degrees": ("degrees", [degrees_label(d) for d in degrees_list],
