@@ -361,10 +361,12 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
     wa = np.empty(q, dtype=np.complex128)
     # covariance scratch (window-sized)
     cov = mode != 0
-    qmat = np.empty((width if cov else 0, q), dtype=np.complex128)
+    qh = np.empty((q, width if cov else 0), dtype=np.complex128)
     lev = np.empty(width if cov else 0)
-    umat = np.empty((nz, width if cov else 0, max(rd, 1)), dtype=np.complex128)
+    um = np.empty((nz, max(rd, 1), width if cov else 0), dtype=np.complex128)
     dwin = np.empty((nz, width if cov else 0), dtype=np.complex128)
+    vmat = np.empty((nz, max(rd, 1), width if cov else 0), dtype=np.complex128)
+    nuv = np.empty((nz, width if cov else 0))
     hgain = np.empty((nz * nr, width if cov else 0), dtype=np.complex128)
     ybk = np.empty((q, max(rd, 1)), dtype=np.complex128)
     wb = np.empty(max(rd, 1), dtype=np.complex128)
@@ -523,19 +525,30 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
                     out_ncov[o, i, j] = ehe[i, j].conjugate() / (dof * acc)
             continue
 
-        # ---- covariance, explicit over the window: Q_A = A~ L^-H (rows r) and lev(r)
+        # ---- covariance, explicit over the window (loops over r innermost, contiguous):
+        # qh = Q_A^H = L^-1 A~^H (q, W) and the leverages lev(r) = ||Q_A(r, :)||^2
+        for a in range(q):
+            sc = ds[a]
+            pw = a_pow[a]
+            if a_base[a] < nr:
+                col = a_base[a]
+                for r in range(width):
+                    qh[a, r] = rt[b, k + r, col].conjugate() * (sc * rho_pow[r, pw])
+            else:
+                for r in range(width):
+                    qh[a, r] = sc * rho_pow[r, pw]
+            for c in range(a):
+                f = m[c, a].conjugate()
+                for r in range(width):
+                    qh[a, r] -= f * qh[c, r]
+            inv = 1.0 / m[a, a].real
+            for r in range(width):
+                qh[a, r] *= inv
         for r in range(width):
-            for a in range(q):
-                base = rt[b, k + r, a_base[a]] if a_base[a] < nr else 1.0 + 0j
-                acc = base.conjugate() * (ds[a] * rho_pow[r, a_pow[a]])
-                for c in range(a):
-                    acc -= m[c, a].conjugate() * wa[c]
-                wa[a] = acc / m[a, a].real  # (L^-1 A~^H)[a, r]
-            le = 0.0
-            for a in range(q):
-                qmat[r, a] = wa[a].conjugate()
-                le += wa[a].real ** 2 + wa[a].imag ** 2
-            lev[r] = le
+            lev[r] = 0.0
+        for a in range(q):
+            for r in range(width):
+                lev[r] += qh[a, r].real ** 2 + qh[a, r].imag ** 2
         for i in range(nz):
             for r in range(width):
                 acc = delta[i, 0]
@@ -544,20 +557,28 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
                 dwin[i, r] = acc
             rk = rank[i]
             c0 = i * rd1
-            # U_i: the kept scaled D columns projected off A, whitened by L_s^-H
+            # U_i (rows j, over r): the kept scaled D columns projected off A, whitened
+            # by L_s^-H
             for j in range(rk):
                 s = perm[i, j]
                 for a in range(q):
                     ybk[a, j] = -tsc[i, s] * m[a, q + c0 + s + 1]
-            for r in range(width):
-                for j in range(rk):
-                    s = perm[i, j]
-                    acc = -tsc[i, s] * rho_pow[r, s + 1] * zt[b, k + r, i]
-                    for a in range(q):
-                        acc -= qmat[r, a] * ybk[a, j]
-                    for c in range(j):
-                        acc -= umat[i, r, c] * low[i, j, c].conjugate()
-                    umat[i, r, j] = acc / low[i, j, j].real
+            for j in range(rk):
+                s = perm[i, j]
+                f = -tsc[i, s]
+                for r in range(width):
+                    um[i, j, r] = f * rho_pow[r, s + 1] * zt[b, k + r, i]
+                for a in range(q):  # - Q_A Y~_B: Q_A(r, a) = conj(qh[a, r])
+                    f = ybk[a, j]
+                    for r in range(width):
+                        um[i, j, r] -= qh[a, r].conjugate() * f
+                for c in range(j):
+                    f = low[i, j, c].conjugate()
+                    for r in range(width):
+                        um[i, j, r] -= um[i, c, r] * f
+                inv = 1.0 / low[i, j, j].real
+                for r in range(width):
+                    um[i, j, r] *= inv
             # G rows of K_i^+: w_A = L^-1 e_g (non-zero on the trailing nr entries only),
             # w_B = -L_s^-1 Y~_B^H w_A; gain g~(r) = conj(Q_A w_A + U_i w_B)(r)
             for p in range(nr):
@@ -576,32 +597,43 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
                     for c in range(j):
                         acc -= low[i, j, c] * wb[c]
                     wb[j] = acc / low[i, j, j].real
+                x = i * nr + p
                 for r in range(width):
-                    acc = 0j
-                    for a in range(g, q):
-                        acc += qmat[r, a] * wa[a]
-                    for j in range(rk):
-                        acc += umat[i, r, j] * wb[j]
-                    hgain[i * nr + p, r] = acc.conjugate() * (ds[g] * dwin[i, r])
-        # tau_ij and s_ij = raw_ij / tau_ij (i <= j, Hermitian)
+                    hgain[x, r] = 0j
+                for a in range(g, q):
+                    f = wa[a].conjugate()
+                    for r in range(width):
+                        hgain[x, r] += qh[a, r] * f
+                for j in range(rk):
+                    f = wb[j].conjugate()
+                    for r in range(width):
+                        hgain[x, r] += um[i, j, r].conjugate() * f
+                for r in range(width):
+                    hgain[x, r] *= ds[g] * dwin[i, r]
+        # tau_ij and s_ij = raw_ij / tau_ij (i <= j, Hermitian).  Per row first: the
+        # weights 1 - lev - nu_i, and V_i = U_i conj(d_i), so that the trace term's
+        # U_i^H diag(d_i conj(d_j)) U_j is V_i^H V_j
+        for i in range(nz):
+            for r in range(width):
+                nu = 0.0
+                for s in range(rank[i]):
+                    u = um[i, s, r]
+                    nu += u.real * u.real + u.imag * u.imag
+                    vmat[i, s, r] = u * dwin[i, r].conjugate()
+                nuv[i, r] = nu
         for i in range(nz):
             for j in range(i, nz):
                 acc = 0j
                 for r in range(width):
-                    nu = 1.0 - lev[r]
-                    for s in range(rank[i]):
-                        nu -= umat[i, r, s].real ** 2 + umat[i, r, s].imag ** 2
-                    for s in range(rank[j]):
-                        nu -= umat[j, r, s].real ** 2 + umat[j, r, s].imag ** 2
-                    acc += dwin[i, r] * dwin[j, r].conjugate() * nu
+                    acc += dwin[i, r] * dwin[j, r].conjugate() * (1.0 - lev[r] - nuv[i, r]
+                                                                  - nuv[j, r])
                 for s in range(rank[j]):
                     for t in range(rank[i]):
                         uji = 0j  # (U_j^H U_i)[s, t]
-                        uci = 0j  # (U_i^H diag(c_ij) U_j)[t, s]
+                        uci = 0j  # (V_i^H V_j)[t, s] = (U_i^H diag(c_ij) U_j)[t, s]
                         for r in range(width):
-                            uji += umat[j, r, s].conjugate() * umat[i, r, t]
-                            uci += (umat[i, r, t].conjugate() * umat[j, r, s]
-                                    * dwin[i, r] * dwin[j, r].conjugate())
+                            uji += um[j, s, r].conjugate() * um[i, t, r]
+                            uci += vmat[i, t, r].conjugate() * vmat[j, s, r]
                         acc += uji * uci
                 tau[i, j] = acc
                 scov[i, j] = ehe[i, j].conjugate() / acc
