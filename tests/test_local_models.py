@@ -166,6 +166,13 @@ def test_leading_dims_broadcast():
 
 
 # ------------------------------------------------------------------------ exactness
+def _exact_rational_data(m, nr, nz):
+    """Noiseless spectra of a resonance rational in the bin index (second order)."""
+    G, T = continuous_resonance(np.arange(m), nz, nr, seed=nr + nz, damping=0.02, width=6.0)
+    R = np.exp(2j * np.pi * np.random.default_rng(1).random((m, nr)))
+    return R, np.einsum("kip,kp->ki", G, R) + T, G, T
+
+
 @pytest.mark.parametrize("nr,nz", [(1, 1), (2, 3)])
 @pytest.mark.parametrize("degrees", [(1, 1, 2), (2, 2, 2)])
 def test_lrm_exact_for_rational_system(nr, nz, degrees):
@@ -175,11 +182,7 @@ def test_lrm_exact_for_rational_system(nr, nz, degrees):
     transient degree must come out zero, so G and T are recovered to rounding.
     """
     m, n = 120, 12
-    k = np.arange(m)
-    G, T = continuous_resonance(k, nz, nr, seed=nr + nz, damping=0.02, width=6.0)
-    rng = np.random.default_rng(1)
-    R = np.exp(2j * np.pi * rng.random((m, nr)))
-    Z = np.einsum("kip,kp->ki", G, R) + T
+    R, Z, G, T = _exact_rational_data(m, nr, nz)
     # not periodic on the circle: use the padded mode (windows never wrap)
     fit = local_model(R, Z, half_width=n, degrees=degrees, circular=False)
     inner = slice(n, m - n)
@@ -676,11 +679,7 @@ def test_exactly_modelled_data_give_G_not_nan(nr, nz):
     (1 + c rho), so the local parameters are not unique, but G = N(0)/D(0) is.  The
     undetermined denominator term is dropped and G comes out exact, not NaN/flagged."""
     m, n = 120, 12
-    k = np.arange(m)
-    G, T = continuous_resonance(k, nz, nr, seed=nr + nz, damping=0.02, width=6.0)
-    rng = np.random.default_rng(1)
-    R = np.exp(2j * np.pi * rng.random((m, nr)))
-    Z = np.einsum("kip,kp->ki", G, R) + T
+    R, Z, G, T = _exact_rational_data(m, nr, nz)
     fit = local_model(R, Z, half_width=n, degrees=(2, 2, 3), circular=False)
     inner = slice(n, m - n)
     assert not fit.ill_posed[inner].any()
