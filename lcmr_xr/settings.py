@@ -276,6 +276,15 @@ def check_window_fits(window: int, degrees, n_excitation: int, n_bins: int) -> N
     from lcmr_xr.kernels.local_models import parameters_per_row
 
     p = parameters_per_row(n_excitation, degrees)
+    n_min = (p + 1) // 2
+    if 2 * n_min + 1 > n_bins:  # no window fits: a shorter window cannot help, only more data
+        raise ValueError(
+            f"the experiment is too short for the local model: it has M = {n_bins} slow samples "
+            f"(slow DFT bins), but degrees {tuple(degrees)} with {n_excitation} excitation "
+            f"channels need {p} parameters per row, i.e. window >= {n_min} and 2n+1 = "
+            f"{2 * n_min + 1} bins. Record at least {2 * n_min + 1} slow samples (N >= "
+            f"{2 * n_min + 1} x factor fast samples), or lower the degrees."
+        )
     if 2 * window + 1 <= p:  # at least one degree of freedom is left for the noise estimate
         raise ValueError(
             f"too few bins for the local model: window={window} gives 2n+1 = {2 * window + 1} bins "

@@ -25,6 +25,7 @@ from lcmr_xr.kernels.identification import (
     identify_window0_arrays,
     packed_width,
 )
+from lcmr_xr.identification import _guards
 from lcmr_xr.kernels.local_models import parameters_per_row
 from lcmr_xr.settings import as_bool, check_window_fits, estimator_settings
 from lcmr_xr.transforms._coords import even_spacing
@@ -41,7 +42,8 @@ def _validate(experiment):
         )
     lazy = any(experiment[v].chunks is not None for v in ("r", "u", "y") if v in experiment)
     # lazy data stay lazy: the NaN/inf check then happens in the kernel, at compute time
-    return validate_experiment(experiment, check_values=not lazy)
+    ds = validate_experiment(experiment, check_values=not lazy)
+    return _guards.rechunk_core(ds) if lazy else ds
 
 
 def _ratio_units(num: str, den: str) -> str:
@@ -374,8 +376,10 @@ def _estimate(r: xr.DataArray, u: xr.DataArray, y: xr.DataArray, s, *, factor: i
     split = dict(specs=specs, factor=factor, nu=nu, ny=ny, closed_loop=s.closed_loop)
     lazy = any(v.chunks is not None for v in (r, u, y))
     noise = plan.noise_covariance if plan is not None else None
+    th = even_spacing(r[cv.TIME].values, cv.TIME)[1]
     if plan is not None and plan.window0:  # G bin by bin over the experiments' periods
         def kernel(r_, u_, y_):
+            _guards.check_finite(r_, u_, y_, th=th, factor=factor)
             return _split(identify_window0_arrays(r_, u_, y_, factor=factor,
                                                   closed_loop=s.closed_loop,
                                                   covariance=s.covariance), **split)
@@ -384,14 +388,20 @@ def _estimate(r: xr.DataArray, u: xr.DataArray, y: xr.DataArray, s, *, factor: i
         results = xr.apply_ufunc(kernel, r, u, y, input_core_dims=[pooled_dims + c for c in core_in],
                                  **output_spec)
     elif s.frequency_chunks is None:
-        def kernel(r_, u_, y_, *noise_cov):
+        def fit(r_, u_, y_, noise_covariance=None):
             R, Z = experiment_spectra(r_, u_, y_, factor=factor, closed_loop=s.closed_loop)
             if check_rank and not lazy:  # lazy: the local model's condition numbers flag it
                 _check_excitation_rank(R, "r" if s.closed_loop == "indirect" else "u")
-            return _split(identify_spectra(R, Z, n_fast=n, factor=factor, nu=nu,
-                                           half_width=s.window, degrees=s.degrees,
-                                           closed_loop=s.closed_loop, covariance=s.covariance,
-                                           noise_covariance=noise_cov[0] if noise_cov else None),
+            return identify_spectra(R, Z, n_fast=n, factor=factor, nu=nu, half_width=s.window,
+                                    degrees=s.degrees, closed_loop=s.closed_loop,
+                                    covariance=s.covariance, noise_covariance=noise_covariance)
+
+        def kernel(r_, u_, y_, *noise_cov):
+            # lazy data were not checked by the validation: name the variable and time range
+            _guards.check_finite(r_, u_, y_, th=th, factor=factor)
+            # data of extreme magnitude are fitted scaled by powers of two (exact), then unscaled
+            return _split(_guards.scaled_call(fit, r_, u_, y_, closed_loop=s.closed_loop,
+                                              noise_covariance=noise_cov[0] if noise_cov else None),
                           **split)
 
         extra = [] if noise is None else [noise]
@@ -432,8 +442,21 @@ def _fit_frequency_chunked(r, u, y, s, *, factor, check_rank, noise=None):
     nr = factor * nu
     nz = nr + ny if closed_loop == "indirect" else ny
     SF = cv.SLOW_FREQUENCY
+    th = even_spacing(r[cv.TIME].values, cv.TIME)[1]
+
+    def spectra(r, u, y):
+        _guards.check_finite(r, u, y, th=th, factor=factor)
+        if _guards.scales(r, u, y) != (1.0, 1.0, 1.0):
+            raise ValueError(
+                f"r, u or y has magnitudes beyond {_guards.SAFE_MAGNITUDE:g} or below "
+                f"{1 / _guards.SAFE_MAGNITUDE:g}, where products of spectra overflow or underflow; "
+                "frequency_chunks does not rescale: drop frequency_chunks (identify then scales "
+                "internally) or express the data in other units."
+            )
+        return experiment_spectra(r, u, y, factor=factor, closed_loop=closed_loop)
+
     R, Z = xr.apply_ufunc(
-        lambda r, u, y: experiment_spectra(r, u, y, factor=factor, closed_loop=closed_loop),
+        spectra,
         r, u, y,
         input_core_dims=[[cv.TIME, cv.INPUT], [cv.TIME, cv.INPUT], [cv.SLOW_TIME, cv.OUTPUT]],
         output_core_dims=[[SF, "_r"], [SF, "_z"]], dask="parallelized",

@@ -18,6 +18,7 @@ import xarray as xr
 from lcmr_xr.conventions import CONVENTIONS, FREQUENCY, INPUT, OUTPUT
 from lcmr_xr.io._atomic import atomic_write
 from lcmr_xr.io.matfile import is_mat_path, open_mat_experiment, save_mat
+from lcmr_xr.io._guards import check_not_own_source
 from lcmr_xr.experiment.dataset import validate_experiment
 
 __all__ = ["open_dataset", "open_experiment", "open_frf", "save"]
@@ -134,7 +135,8 @@ def save(ds: xr.Dataset, path) -> Path:
         Target file; its directory must exist.  An existing file is replaced.  A path
         ending in ``.mat`` writes an FRF or experiment dataset for MATLAB instead
         (:func:`lcmr_xr.io.matfile.save_mat`: ``P`` as ``ny x nu x nf``, frequency in Hz,
-        ``Ts``, channel names, so that ``frd`` takes it in one line).
+        ``Ts``, channel names, so that ``frd`` takes it in one line).  The file a lazy
+        (dask-backed) ``ds`` was opened from and still reads is refused.
 
     Returns
     -------
@@ -145,8 +147,11 @@ def save(ds: xr.Dataset, path) -> Path:
     -----
     The data are written to a temporary file in the same directory, flushed to disk, and
     moved over ``path`` with :func:`os.replace` (atomic on POSIX), so a failure mid-write
-    never leaves a half-written file and never destroys an existing one.  Complex arrays
-    use the netCDF4 ``auto_complex`` compound type and read back bit for bit.
+    never leaves a half-written file and never destroys an existing one.  The temporary is
+    the hidden ``.NAME.HOST-PID.XXXXXXXX.tmp`` next to ``path``; when a process is killed
+    mid-write it stays behind, and the next ``save`` to the same ``path`` removes it (the
+    temporaries of writers that no longer run).  Complex arrays use the netCDF4
+    ``auto_complex`` compound type and read back bit for bit.
 
     Examples
     --------
@@ -162,6 +167,7 @@ def save(ds: xr.Dataset, path) -> Path:
             f"save writes an xarray.Dataset, got {type(ds).__name__}; for a DataArray use "
             "x.to_dataset(name='...')."
         )
+    check_not_own_source(ds, path)
     if is_mat_path(path):
         return save_mat(ds, path)
     flat = _map_attrs(ds, _flatten_attrs)
@@ -200,6 +206,11 @@ def open_dataset(path, chunks=None) -> xr.Dataset:
     [1.0, 2.0]
     """
     path = Path(path)
+    if path.is_dir():
+        raise IsADirectoryError(
+            f"{path} is a directory, not a NetCDF file; for an archive directory use "
+            "lcmr_xr.scaleout.open_archive (or lcmr-xr sweep)."
+        )
     if not path.is_file():
         raise FileNotFoundError(f"no such file: {path}; check the path.")
     try:
@@ -232,8 +243,9 @@ def _check_conventions(ds: xr.Dataset, path, kind: str) -> None:
     if conv != CONVENTIONS:
         raise ValueError(
             f"{path} is not an lcmr_xr {kind} file: its 'conventions' attribute is {conv!r}, "
-            f"expected {CONVENTIONS!r}. Convert it with lcmr_xr.experiment.experiment() or "
-            "open it with lcmr_xr.io.open_dataset."
+            f"expected {CONVENTIONS!r}. Build an experiment from its arrays "
+            "with lcmr_xr.experiment(r, u, y, factor=F, sampling_period=Th) (read them with "
+            "lcmr_xr.open_dataset), or open it as it is with lcmr_xr.open_dataset."
         )
 
 

@@ -113,6 +113,12 @@ def archive_files(directory) -> list[Path]:
     []
     """
     directory = Path(directory)
+    if directory.is_file():
+        raise NotADirectoryError(
+            f"archive {directory} is a file, not a directory; an archive is a directory of "
+            f"experiment files: give that directory (e.g. {directory.parent}), or open a single "
+            "experiment file with lcmr_xr.open_experiment."
+        )
     if not directory.is_dir():
         raise FileNotFoundError(f"archive directory {directory} does not exist; check the path "
                                 "or write one with lcmr_xr.scaleout.save_archive.")
@@ -120,8 +126,14 @@ def archive_files(directory) -> list[Path]:
     for path in sorted(directory.glob(f"*{SUFFIX}")):
         if path.name.startswith("."):  # temporary files of an interrupted atomic write
             continue
-        with xr.open_dataset(path, engine="netcdf4", decode_cf=False) as ds:  # metadata only
-            index = ds.attrs.get(ORDER_ATTR)
+        try:
+            with xr.open_dataset(path, engine="netcdf4", decode_cf=False) as ds:  # metadata only
+                index = ds.attrs.get(ORDER_ATTR)
+        except (OSError, ValueError, RuntimeError, KeyError, IndexError) as err:
+            raise ValueError(
+                f"{path} in archive {directory} is not a readable NetCDF file (truncated, "
+                f"corrupt, or another format: {err}); move it out of the archive directory."
+            ) from err
         keyed.append((0 if index is not None else 1, int(index) if index is not None else 0, path.name, path))
     return [k[-1] for k in sorted(keyed)]
 

@@ -5,18 +5,37 @@
                   [--scheduler threads|processes|synchronous|ADDRESS] [--select CHOICE.nc]
 
 ``ADDRESS`` (e.g. ``tcp://127.0.0.1:8786``) connects a ``distributed.Client`` to a running
-scheduler.  A progress bar is printed to stderr while the sweep computes.
+scheduler; when nothing, or something that is not a dask scheduler, answers there, the
+command fails with a one-line connection error within ``--connect-timeout`` seconds.
+Progress is printed to stderr while the sweep computes (plain lines when stderr is not a
+terminal).  Outputs are checked before anything is computed: neither ``-o`` nor ``--select``
+may lie inside the archive, and existing files are replaced only with ``--overwrite``.
 """
 
 from __future__ import annotations
 
 import argparse
+import socket
 import sys
 from pathlib import Path
+from urllib.parse import urlsplit
+
+from lcmr_xr._cli_support import (NETCDF_SUFFIXES, HelpFormatter, add_overwrite,
+                                  check_outputs, error_line, futures_progress, progress)
 
 from lcmr_xr.settings import CLOSED_LOOP, METHODS
 
 LOCAL_SCHEDULERS = ("threads", "processes", "synchronous")
+#: Seconds to wait for a dask scheduler to answer (``--connect-timeout``).
+CONNECT_TIMEOUT = 10.0
+#: What the ``criterion`` values of ``--select`` mean (help text and output).
+CRITERION_HELP = {
+    "cross": "held-out experiments: each experiment's estimate predicts the measured lifted "
+             "spectra of the other experiments from their excitation; score = median relative "
+             "prediction error, lower is better; used with two or more experiments",
+    "fpe": "final prediction error of the local model, sigma2 (1 + p / (2n + 1)), relative to "
+           "the measured spectra; lower is better; used with one experiment",
+}
 
 
 def add_sweep_parser(subparsers) -> argparse.ArgumentParser:
@@ -41,46 +60,155 @@ def add_sweep_parser(subparsers) -> argparse.ArgumentParser:
     >>> args.window, args.degrees, args.method, args.scheduler
     ([10, 20], None, ['lrm'], 'threads')
     """
+    criteria = " ".join(f"'{k}': {v}." for k, v in CRITERION_HELP.items())
     sw = subparsers.add_parser(
         "sweep", help="identify an archive of experiments for every combination of settings",
+        formatter_class=HelpFormatter,
         description="Identify every experiment of an archive directory for every combination "
                     "of --window, --degrees and --method, in parallel with dask, and write "
-                    "one FRF NetCDF file with a dim per setting.")
+                    "one FRF NetCDF file with a dim per setting. With --select, also write "
+                    f"the best settings per experiment by a validation criterion. {criteria}")
     sw.add_argument("archive", type=Path, help="archive directory (one experiment .nc per file)")
-    sw.add_argument("-o", "--output", type=Path, required=True, help="result NetCDF file to write")
-    sw.add_argument("--window", type=int, nargs="+", default=[30], help="window half-widths n (default 30)")
+    sw.add_argument("-o", "--output", type=Path, required=True,
+                    help="result NetCDF file to write (.nc; not inside the archive)")
+    sw.add_argument("--window", type=int, nargs="+", default=[30], help="window half-widths n")
     sw.add_argument("--degrees", nargs="+", default=None, metavar="RN-RM-RD",
                     help="local model degrees, one or more RN-RM-RD, e.g. 3-3-3 2-2-2; every one "
                          "is combined with every --method, and LPM needs RD = 0 (default: the "
                          "method's, 3-3-3 for LRM, 3-3-0 for LPM)")
-    sw.add_argument("--method", nargs="+", choices=tuple(METHODS), default=["lrm"])
-    sw.add_argument("--closed-loop", choices=tuple(CLOSED_LOOP), default="indirect")
-    sw.add_argument("--no-covariance", action="store_true", help="skip P_std (less memory)")
+    sw.add_argument("--method", nargs="+", choices=tuple(METHODS), default=["lrm"],
+                    help="local rational (lrm) and/or polynomial (lpm) model")
+    sw.add_argument("--closed-loop", choices=tuple(CLOSED_LOOP), default="indirect",
+                    help="indirect: P = PS S^-1 from the excitation (unbiased); direct: from "
+                         "the measured input (biased under feedback)")
+    sw.add_argument("--no-covariance", action="store_true",
+                    help="skip P_std (less memory; default: compute it)")
     sw.add_argument("--scheduler", default="threads",
-                    help="threads (default), processes, synchronous, or the address of a running "
+                    help="threads, processes, synchronous, or the address of a running "
                          "dask scheduler, e.g. tcp://127.0.0.1:8786")
+    sw.add_argument("--connect-timeout", type=float, default=CONNECT_TIMEOUT, metavar="SECONDS",
+                    help="how long to wait for the scheduler at ADDRESS to answer")
     sw.add_argument("--select", type=Path, default=None,
-                    help="also write the settings with the lowest validation error per experiment")
+                    help="also write the settings with the lowest validation error per "
+                         "experiment (default: no selection); criterion 'cross' with two or more "
+                         "experiments, else 'fpe' (see the description above)")
+    add_overwrite(sw)
     sw.set_defaults(func=run_sweep)
     return sw
 
 
-def _compute(ds, scheduler: str):
-    """Compute with a progress bar: dask's for local schedulers, distributed's for a cluster."""
+def _check_scheduler(scheduler: str) -> None:
+    """Refuse a ``--scheduler`` that is neither a local scheduler nor a ``tcp://host:port``."""
     if scheduler in LOCAL_SCHEDULERS:
-        from dask.diagnostics import ProgressBar
-
-        with ProgressBar(out=sys.stderr):
-            return ds.compute(scheduler=scheduler)
-    if "://" not in scheduler:
+        return
+    try:
+        parts = urlsplit(scheduler)
+        ok = parts.scheme in ("tcp", "tls") and bool(parts.hostname) and parts.port is not None
+    except ValueError:  # e.g. a port that is not a number
+        ok = False
+    if not ok:
         raise ValueError(f"--scheduler {scheduler!r} is neither {'/'.join(LOCAL_SCHEDULERS)} nor an "
                          "address like tcp://127.0.0.1:8786.")
-    from distributed import Client, progress
 
-    with Client(scheduler, timeout="20s") as client:
+
+def _probe(address: str, timeout: float) -> None:
+    """Check, with a plain socket, that a dask scheduler answers at ``address`` in time.
+
+    A dask server greets every new connection at once with a framed message whose first
+    8 bytes are its length (little-endian).  Nothing listening, no greeting within
+    ``timeout``, or a greeting that is not such a length (an HTTP or SSH server) are all
+    refused here, before ``distributed`` (which, in the version this was written against,
+    waits forever on a silent service and allocates by the junk of a foreign one).
+    """
+    parts = urlsplit(address)
+    try:
+        sock = socket.create_connection((parts.hostname, parts.port), timeout=timeout)
+    except OSError as err:
+        reason = err.strerror or type(err).__name__
+        raise ConnectionError(
+            f"no dask scheduler answers at {address} ({reason} within {timeout:g} s); start one "
+            "(dask scheduler) and pass its address, or use --scheduler threads."
+        ) from None
+    if parts.scheme != "tcp":  # tls: the greeting comes after the TLS handshake
+        sock.close()
+        return
+    header = b""
+    with sock:
+        sock.settimeout(timeout)
+        try:
+            while len(header) < 8:
+                chunk = sock.recv(8 - len(header))
+                if not chunk:
+                    break
+                header += chunk
+        except OSError:  # socket.timeout included
+            pass
+    length = int.from_bytes(header, "little") if len(header) == 8 else 0
+    if not 0 < length < 1 << 26:
+        what = ("did not greet within" if not header else "answered with something else than "
+                "the dask protocol within")
+        raise ConnectionError(
+            f"{address} answers, but not as a dask scheduler (it {what} {timeout:g} s); check "
+            "the host and port (a dask scheduler listens on 8786 by default), or use "
+            "--scheduler threads."
+        )
+
+
+def connect(address: str, timeout: float = CONNECT_TIMEOUT):
+    """A ``distributed.Client`` on the scheduler at ``address``, or a clear error in bounded time.
+
+    Parameters
+    ----------
+    address : str
+        ``tcp://host:port`` (or ``tls://``) of a running dask scheduler.
+    timeout : float, default 10
+        Seconds to wait for the connection and the scheduler's handshake.
+
+    Returns
+    -------
+    distributed.Client
+
+    Raises
+    ------
+    ConnectionError
+        Nothing listens at ``address`` (at once), or what answers is not a dask scheduler
+        (after at most ``timeout`` seconds).  distributed itself retries a refused
+        connection until its timeout and, when a service of another kind answers, may try
+        to allocate buffers sized by the junk it receives; both end here in one message.
+    """
+    import logging
+
+    from distributed import Client
+
+    _check_scheduler(address)
+    if not timeout > 0:
+        raise ValueError(f"--connect-timeout must be a positive number of seconds, got {timeout}.")
+    _probe(address, timeout)
+    quiet = logging.getLogger("distributed")
+    level = quiet.level
+    quiet.setLevel(logging.CRITICAL)  # its retries would print tracebacks before our one line
+    try:
+        return Client(address, timeout=f"{timeout}s")
+    except Exception as err:  # noqa: BLE001  (MemoryError, OSError, TimeoutError, protocol errors)
+        raise ConnectionError(
+            f"{address} answers, but not as a dask scheduler ({type(err).__name__} within "
+            f"{timeout:g} s); check the host and port (a dask scheduler listens on 8786 by "
+            "default), or use --scheduler threads."
+        ) from None
+    finally:
+        quiet.setLevel(level)
+
+
+def _compute(ds, scheduler: str, timeout: float = CONNECT_TIMEOUT):
+    """Compute with progress on stderr: dask's for local schedulers, distributed's for a cluster."""
+    if scheduler in LOCAL_SCHEDULERS:
+        with progress(sys.stderr):
+            return ds.compute(scheduler=scheduler)
+    from distributed import futures_of
+
+    with connect(scheduler, timeout) as client:
         persisted = client.persist(ds)
-        progress(persisted, notebook=False)
-        print(file=sys.stderr)
+        futures_progress(futures_of(persisted), out=sys.stderr)
         return persisted.compute()
 
 
@@ -103,7 +231,7 @@ def run_sweep(args) -> int:
     >>> import argparse
     >>> args = argparse.Namespace(archive=Path("no-such-dir"), output=Path("r.nc"), window=[30],
     ...     degrees=["3-3-3"], method=["lrm"], closed_loop="indirect", no_covariance=False,
-    ...     scheduler="threads", select=None)
+    ...     scheduler="threads", connect_timeout=10.0, select=None, overwrite=False)
     >>> run_sweep(args)
     2
     """
@@ -118,22 +246,24 @@ def run_sweep(args) -> int:
                         covariance=not args.no_covariance,
                         degrees=None if args.degrees is None else degrees_arguments(args.degrees))
         sweep_settings(**settings)  # before the archive is opened
-        for path in (args.output, args.select):
-            if path is not None and not (path.parent if str(path.parent) else Path(".")).is_dir():
-                raise FileNotFoundError(f"directory of {path} does not exist; create it first.")
+        _check_scheduler(args.scheduler)
+        check_outputs({"-o": (args.output, NETCDF_SUFFIXES), "--select": (args.select, NETCDF_SUFFIXES)},
+                      inputs=[args.archive], overwrite=getattr(args, "overwrite", False))
         experiments = open_archive(args.archive)
         lazy = sweep(experiments, **settings)
         sizes = {d: lazy.sizes[d] for d in ("method", "degrees", "window", "experiment") if d in lazy.dims}
         print(f"sweeping {sizes} on scheduler {args.scheduler}", file=sys.stderr)
-        result = _compute(lazy, args.scheduler)
+        result = _compute(lazy, args.scheduler, getattr(args, "connect_timeout", CONNECT_TIMEOUT))
         save(result, args.output)
         flagged = int(result["P_flag"].sum())
         print(f"wrote {args.output}: P {dict(result.P.sizes)}, {flagged} flagged bins")
         if args.select is not None:
             choice = select_settings(result, experiments)
             save(choice, args.select)
-            print(f"wrote {args.select}: criterion {choice.attrs['criterion']}")
+            criterion = choice.attrs["criterion"]
+            print(f"wrote {args.select}: criterion {criterion} "
+                  f"({CRITERION_HELP.get(criterion, 'see lcmr_xr.scaleout.select_settings')})")
     except (ValueError, TypeError, FileNotFoundError, OSError) as exc:
-        print(f"lcmr-xr sweep: error: {exc}", file=sys.stderr)
+        print(error_line("sweep", exc), file=sys.stderr)
         return 2
     return 0
