@@ -314,3 +314,29 @@ class TestErrors:
 
 def test_top_level_entry_point():
     assert lcmr_xr.identify is identify
+
+
+def test_first_row_covariance_is_the_linearisation_of_ps_s_inverse():
+    """``Cov(vec P_1) = J Cov(vec G) J^H`` with ``J`` the derivative of ``PS_1 S^-1``
+    (holomorphic in ``G``), here taken by central differences on random bins."""
+    from lcmr_xr.kernels.closed_loop import indirect_first_row
+
+    rng = np.random.default_rng(3)
+    m, nr, ny = 3, 3, 2
+    nz = nr + ny
+    G = rng.standard_normal((m, nz, nr)) + 1j * rng.standard_normal((m, nz, nr))
+    A = rng.standard_normal((m, nz * nr, nz * nr)) + 1j * rng.standard_normal((m, nz * nr, nz * nr))
+    C = A @ A.conj().transpose(0, 2, 1)
+    got = indirect_first_row(G, nr, C).first_row_cov
+    h = 1e-6
+    for b in range(m):
+        J = np.empty((ny * nr, nz * nr), complex)
+        for x in range(nz * nr):
+            dG = np.zeros(nz * nr, complex)
+            dG[x] = h
+            dG = dG.reshape(nz, nr)
+            plus = indirect_first_row(G[b] + dG, nr).first_row
+            minus = indirect_first_row(G[b] - dG, nr).first_row
+            J[:, x] = ((plus - minus) / (2 * h)).ravel()
+        want = J @ C[b] @ J.conj().T
+        assert np.abs(got[b] - want).max() <= 1e-7 * np.abs(want).max()

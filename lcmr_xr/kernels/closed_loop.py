@@ -83,9 +83,13 @@ def indirect_first_row(G: np.ndarray, n_lifted_inputs: int, G_cov: np.ndarray | 
             [-P1, np.broadcast_to(np.eye(ny), P1.shape[:-2] + (ny, ny))], axis=-1
         )  # (..., M, ny, nz)
         C = np.asarray(G_cov).reshape(G_cov.shape[:-2] + (nz, nr, nz, nr))
-        # J[a, c, i, b] = L[a, i] Sinv[b, c];  Cov = J C J^H
-        J = np.einsum("...ai,...bc->...acib", L, S_inv)
-        cov = np.einsum("...acib,...ibjd,...gejd->...acge", J, C, J.conj())
+        # Cov = J C J^H with J[a, c, i, b] = L[a, i] Sinv[b, c], one factor at a time:
+        # a single three-operand einsum loops over all eight indices at once (about 12x
+        # slower); two-operand einsums avoid BLAS on these tiny matrices
+        cov = np.einsum("...ai,...ibjd->...abjd", L, C)
+        cov = np.einsum("...abjd,...bc->...acjd", cov, S_inv)
+        cov = np.einsum("...acjd,...ej->...aced", cov, L.conj())
+        cov = np.einsum("...aced,...dg->...aceg", cov, S_inv.conj())
         cov = cov.reshape(cov.shape[:-4] + (ny * nr, ny * nr))
         cov = np.where(singular[..., None, None], np.nan, cov)
     return IndirectResult(P1, cov, cond, singular)
