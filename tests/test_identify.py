@@ -340,3 +340,20 @@ def test_first_row_covariance_is_the_linearisation_of_ps_s_inverse():
             J[:, x] = ((plus - minus) / (2 * h)).ravel()
         want = J @ C[b] @ J.conj().T
         assert np.abs(got[b] - want).max() <= 1e-7 * np.abs(want).max()
+
+
+def test_s_condition_on_mirrored_bins_equals_every_bin():
+    """The condition of ``S`` taken on half of an exactly mirrored estimate is that of
+    every bin; an estimate that is not mirrored takes every bin."""
+    from lcmr_xr.kernels.closed_loop import indirect_first_row
+
+    rng = np.random.default_rng(4)
+    m, nr = 9, 2
+    G = rng.standard_normal((m, nr + 1, nr)) + 1j * rng.standard_normal((m, nr + 1, nr))
+    G[0] = G[0].real
+    G[m // 2 + 1:] = np.conj(G[1: (m + 1) // 2][::-1])
+    want = np.linalg.cond(G[:, :nr])
+    np.testing.assert_allclose(indirect_first_row(G, nr).s_condition, want, rtol=1e-13)
+    G[-1, 0, 0] += 0.5
+    np.testing.assert_allclose(indirect_first_row(G, nr).s_condition, np.linalg.cond(G[:, :nr]),
+                               rtol=1e-13)
