@@ -99,6 +99,8 @@ def _condition(S: np.ndarray) -> np.ndarray:
     estimate is mirrored exactly (``S(M - k) = conj(S(k))``: the local model fits real
     signals' spectra that way), since a conjugate has the same singular values.  One small
     SVD costs about 10 us through numpy, 1 s for the 90 000 bins of ``N = 180 000``."""
+    if S.ndim < 3:  # one bin
+        return np.linalg.cond(S)
     m = S.shape[-3]
     k = np.arange(m)
     mirror = (-k) % m
