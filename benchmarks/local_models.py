@@ -7,7 +7,8 @@ Everything issue 12 asks for, in one run, with the user's default thread setting
   (3, 3, 3)): kernel and ``identify`` times with covariance None / "diag" / "full"
   (``identify(covariance=True)`` is the P_std path: it needs the full cross-row
   covariance); ratios to the per-bin lstsq oracle of the tests with and without
-  covariance, and the agreement with it;
+  covariance, and the agreement with it; ``identify(window="auto")`` (three candidate
+  windows) against one fixed window;
 * the same on complex data without conjugate symmetry (the kernel fits all bins);
 * window n = 100 vs n = 10 (fit, covariance None);
 * M = 2**19 slow bins, covariance None, one thread, and 2 threads vs 1;
