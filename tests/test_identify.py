@@ -357,3 +357,28 @@ def test_s_condition_on_mirrored_bins_equals_every_bin():
     G[-1, 0, 0] += 0.5
     np.testing.assert_allclose(indirect_first_row(G, nr).s_condition, np.linalg.cond(G[:, :nr]),
                                rtol=1e-13)
+
+
+def test_weak_direction_on_mirrored_bins_equals_every_bin():
+    """``recover_frf`` takes the weakest direction of ``S`` on half of an exactly
+    mirrored estimate; it equals the one taken on every bin."""
+    from lcmr_xr.kernels.adaptive import weak_direction
+    from lcmr_xr.kernels.identification import recover_frf
+
+    rng = np.random.default_rng(5)
+    m, nu, factor = 10, 1, 2
+    nr, nz = factor * nu, factor * nu + 1
+    G = rng.standard_normal((m, nz, nr)) + 1j * rng.standard_normal((m, nz, nr))
+    A = rng.standard_normal((m, nz * nr, nz * nr)) + 1j * rng.standard_normal((m, nz * nr, nz * nr))
+    C = A @ A.conj().transpose(0, 2, 1) * 1e-3
+    for x in (G, C):
+        x[0] = x[0].real
+        x[m // 2] = x[m // 2].real
+        x[m // 2 + 1:] = np.conj(x[1: m // 2][::-1])
+    from lcmr_xr.kernels.closed_loop import mirror_source
+
+    np.testing.assert_array_equal(mirror_source(G), [0, 1, 2, 3, 4, 5, 4, 3, 2, 1])
+    assert mirror_source(C) is not None and mirror_source(G[:-1]) is None
+    got = recover_frf(G, C, n_fast=m * factor, factor=factor, nu=nu, ny=1)["s_weak_rel_std"]
+    want, _ = weak_direction(G[:, :nr], C[:, : nr * nr, : nr * nr])
+    np.testing.assert_allclose(got, want, rtol=1e-12)

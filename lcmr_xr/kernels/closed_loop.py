@@ -94,20 +94,40 @@ def indirect_first_row(G: np.ndarray, n_lifted_inputs: int, G_cov: np.ndarray | 
     return IndirectResult(P1, cov, cond, singular)
 
 
+def mirror_source(G: np.ndarray) -> np.ndarray | None:
+    """Where bin ``k`` of an exactly mirrored estimate can be read on bins ``0..M/2``.
+
+    The local model fits real signals' spectra on half the bins and mirrors them,
+    ``G(M - k) = conj(G(k))``; quantities that a conjugation leaves unchanged (singular
+    values, variances) are then computed on ``M/2 + 1`` bins and gathered with this index.
+
+    Parameters
+    ----------
+    G : ndarray, shape (..., M, a, b)
+        Estimate per slow bin (any leading dims).
+
+    Returns
+    -------
+    ndarray of int, shape (M,), or None
+        ``min(k, M - k)`` when the mirror holds exactly (NaN where NaN), else None.
+    """
+    if G.ndim < 3 or G.shape[-3] <= 2:
+        return None
+    k = np.arange(G.shape[-3])
+    mirror = (-k) % k.size
+    if not np.array_equal(G[..., mirror, :, :], G.conj(), equal_nan=True):
+        return None
+    return np.minimum(k, mirror)
+
+
 def _condition(S: np.ndarray) -> np.ndarray:
-    """``np.linalg.cond`` of every ``S`` (..., M, nr, nr), on half the bins when the
-    estimate is mirrored exactly (``S(M - k) = conj(S(k))``: the local model fits real
-    signals' spectra that way), since a conjugate has the same singular values.  One small
-    SVD costs about 10 us through numpy, 1 s for the 90 000 bins of ``N = 180 000``."""
-    if S.ndim < 3:  # one bin
+    """``np.linalg.cond`` of every ``S`` (..., M, nr, nr), on half the bins of an exactly
+    mirrored estimate (:func:`mirror_source`): one small SVD costs about 10 us through
+    numpy, 1 s for the 90 000 bins of ``N = 180 000``."""
+    src = mirror_source(S)
+    if src is None:
         return np.linalg.cond(S)
-    m = S.shape[-3]
-    k = np.arange(m)
-    mirror = (-k) % m
-    if m > 2 and np.array_equal(S[..., mirror, :, :], S.conj()):
-        half = np.linalg.cond(S[..., : m // 2 + 1, :, :])
-        return np.take(half, np.minimum(k, mirror), axis=-1)
-    return np.linalg.cond(S)
+    return np.take(np.linalg.cond(S[..., : S.shape[-3] // 2 + 1, :, :]), src, axis=-1)
 
 
 def frf_variance_from_first_row(first_row_cov: np.ndarray, n_fast: int, factor: int,
