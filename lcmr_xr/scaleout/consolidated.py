@@ -256,7 +256,10 @@ def append_rows(path, rows, metas, *, expected_count=None) -> int:
 
 # ------------------------------------------------------------------ reading
 def read_header(path) -> dict:
-    """Shape, channel labels, count, labels and metadata kinds of an archive (reads no signals)."""
+    """Shape, channel labels, count, and the ``experiment`` coordinates (values, attributes).
+
+    Reads no signal data: only the small 1-d variables along ``experiment``.
+    """
     import netCDF4
 
     with netCDF4.Dataset(path, "r") as nc:
@@ -266,14 +269,21 @@ def read_header(path) -> dict:
                              "or write one with save_archive.")
         count = int(nc.getncattr(COUNT_ATTR))
         time = nc[cv.TIME][:2]
-        labels = nc[cv.EXPERIMENT][:count]
-        meta = {}
+        coords, kinds = {}, {}
         for name, var in nc.variables.items():
-            if var.dimensions == (cv.EXPERIMENT,) and name != cv.EXPERIMENT:
-                if "dtype" in var.ncattrs() and var.getncattr("dtype") == "bool":
-                    meta[name] = "b"  # xarray stores bools as int8 marked dtype="bool"
-                else:
-                    meta[name] = "U" if var.dtype is str else np.dtype(var.dtype).kind
+            if var.dimensions != (cv.EXPERIMENT,):
+                continue
+            var.set_auto_mask(False)
+            values = var[:count]
+            attrs = {k: var.getncattr(k) for k in var.ncattrs() if not k.startswith("_")}
+            if attrs.pop("dtype", None) == "bool":  # xarray stores bools as int8 marked so
+                values = np.asarray(values).astype(bool)
+            elif var.dtype is str:
+                values = np.asarray([str(v) for v in values], dtype=str) if count else np.array([], str)
+            coords[name] = (np.asarray(values), attrs)
+            if name != cv.EXPERIMENT:
+                kinds[name] = coords[name][0].dtype.kind
+        labels = coords[cv.EXPERIMENT][0]
         return {
             "N": len(nc.dimensions[cv.TIME]),
             "factor": int(np.asarray(nc.getncattr(cv.FACTOR)).item()) if cv.FACTOR in nc.ncattrs() else -1,
@@ -281,25 +291,27 @@ def read_header(path) -> dict:
             "inputs": [str(v) for v in nc[cv.INPUT][:]],
             "outputs": [str(v) for v in nc[cv.OUTPUT][:]],
             "count": count,
-            "labels": [v.item() if isinstance(v, np.generic) else v for v in np.asarray(labels)],
-            "metadata": meta,
+            "labels": labels.tolist(),
+            "metadata": kinds,
+            "coords": coords,
         }
 
 
 def open_consolidated(path, experiments_per_chunk: int) -> xr.Dataset:
     """Open a consolidated archive lazily: labels and metadata in memory, signals as dask."""
-    from lcmr_xr.io import open_dataset
+    from lcmr_xr.io.netcdf import _map_attrs, _restore_attrs
 
-    ds = open_dataset(path, chunks={cv.EXPERIMENT: experiments_per_chunk})
-    if ds.attrs.get(KIND_ATTR) != KIND:
-        raise ValueError(f"{path} is not a consolidated lcmr_xr archive; write one with "
-                         "lcmr_xr.scaleout.save_archive.")
+    header = read_header(path)
+    raw = xr.open_dataset(path, engine="h5netcdf", chunks={cv.EXPERIMENT: experiments_per_chunk},
+                          decode_timedelta=False, drop_variables=list(header["coords"]))
+    ds = _map_attrs(raw, lambda owner, attrs: _restore_attrs(attrs))
     count = int(ds.attrs.pop(COUNT_ATTR))
     ds.attrs.pop(KIND_ATTR)
     if ds.sizes[cv.EXPERIMENT] > count:  # rows of an interrupted append
         ds = ds.isel({cv.EXPERIMENT: slice(0, count)})
-    # the metadata are small and read once here: in memory they add no tasks to a sweep
-    small = [name for name, var in ds.coords.items() if var.dims == (cv.EXPERIMENT,)]
-    out = ds.assign_coords({name: ds[name].load() for name in small})
-    out.set_close(ds._close)  # close() releases the file (HDF5 locks it against appends)
+    # labels and metadata are small, read directly (as dask arrays they would cost a
+    # compute here and tasks in every sweep)
+    out = ds.assign_coords({name: (cv.EXPERIMENT, values, attrs)
+                            for name, (values, attrs) in header["coords"].items()})
+    out.set_close(raw.close)  # close() releases the file (HDF5 locks it against appends)
     return out
