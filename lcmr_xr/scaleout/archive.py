@@ -60,7 +60,7 @@ def _split(experiments) -> list[tuple[object, xr.Dataset]]:
             return [(label, experiments)]
         labels = (experiments[cv.EXPERIMENT].values if cv.EXPERIMENT in experiments.coords
                   else np.arange(experiments.sizes[cv.EXPERIMENT]))
-        return [(lab, experiments.isel({cv.EXPERIMENT: i})) for i, lab in enumerate(labels)]
+        return [(lab, experiments.isel({cv.EXPERIMENT: i})) for i, lab in enumerate(labels.tolist())]
     try:
         items = list(experiments)
     except TypeError:

@@ -131,6 +131,7 @@ def _leading_dims(ds: xr.Dataset) -> list[str]:
 EXPERIMENTS_PER_TASK = 8
 #: Output variable of a sweep: why an experiment failed ("" when it did not).
 ERROR_VAR = "experiment_error"
+ERROR_ATTRS = {"units": "1", "long_name": "why the experiment could not be identified ('' if it was)"}
 
 
 def _chunked(ds: xr.Dataset, per_task: int | None = None) -> xr.Dataset:
@@ -213,9 +214,7 @@ def _identify_or_flag(one: xr.Dataset, source, settings) -> xr.Dataset:
     except ValueError as err:
         message = f"{_where(one, source)}: {err}"
         res = _failed_result(one, settings)
-    return res.assign({ERROR_VAR: (tuple(lead), np.full(shape, message, dtype=object),
-                                   {"long_name": "why the experiment could not be identified "
-                                                 "('' if it was)"})})
+    return res.assign({ERROR_VAR: (tuple(lead), np.full(shape, message, dtype=object), ERROR_ATTRS)})
 
 
 def _where(one: xr.Dataset, source) -> str:
@@ -257,7 +256,7 @@ def _with_error(template: xr.Dataset, ds: xr.Dataset, lead: list[str]) -> xr.Dat
     """The template plus the lazy ``experiment_error`` (str) variable along the leading dims."""
     chunks = tuple(ds["r"].chunks[ds["r"].get_axis_num(d)] for d in lead)
     data = dsa.full(tuple(ds.sizes[d] for d in lead), "", dtype=object, chunks=chunks)
-    return template.assign({ERROR_VAR: (tuple(lead), data)})
+    return template.assign({ERROR_VAR: (tuple(lead), data, ERROR_ATTRS)})
 
 
 def _check_settings(windows, degrees_list, methods, closed_loop):
