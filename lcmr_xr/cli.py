@@ -6,6 +6,7 @@
     lcmr-xr simulate -o EXPERIMENT.nc [--samples N] [--case 1..9] [--seed S] [--noiseless]
     lcmr-xr sweep ARCHIVE_DIR -o RESULT.nc --window 10 20 30 [--degrees 3-3-3 ...]
                   [--method lrm lpm] [--scheduler threads|processes|ADDRESS]
+    lcmr-xr archive consolidate ARCHIVE_DIR -o ARCHIVE.nc [--overwrite]
 
 Errors in the input (a missing or foreign file, bad settings) print one line that says
 what is wrong and exit with status 2; nothing is written then.
@@ -49,9 +50,11 @@ def _parser() -> argparse.ArgumentParser:
     sim.add_argument("--seed", type=int, default=0)
     sim.add_argument("--noiseless", action="store_true")
 
+    from lcmr_xr.scaleout.archive_cli import add_archive_parser
     from lcmr_xr.scaleout.cli import add_sweep_parser
 
     add_sweep_parser(sub)
+    add_archive_parser(sub)
     return p
 
 
@@ -101,7 +104,7 @@ def main(argv=None) -> int:
             return 0
         if args.command == "simulate":
             return _simulate(args)
-        if args.command == "sweep":
+        if args.command in ("sweep", "archive"):
             return args.func(args)
     except (ValueError, TypeError, FileNotFoundError, OSError) as exc:
         print(f"lcmr-xr {args.command}: error: {exc}", file=sys.stderr)

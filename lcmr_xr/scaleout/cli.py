@@ -80,6 +80,22 @@ def _compute(ds, scheduler: str):
         return persisted.compute()
 
 
+def _stream(experiments, output, settings, scheduler: str) -> None:
+    """``sweep_to_disk`` on the scheduler named on the command line."""
+    from lcmr_xr.scaleout.stream import sweep_to_disk
+
+    if scheduler in LOCAL_SCHEDULERS:
+        sweep_to_disk(experiments, output, **settings, scheduler=scheduler, overwrite=True)
+        return
+    if "://" not in scheduler:
+        raise ValueError(f"--scheduler {scheduler!r} is neither {'/'.join(LOCAL_SCHEDULERS)} nor an "
+                         "address like tcp://127.0.0.1:8786.")
+    from distributed import Client
+
+    with Client(scheduler, timeout="20s") as client:
+        sweep_to_disk(experiments, output, **settings, client=client, overwrite=True)
+
+
 def run_sweep(args) -> int:
     """Run ``lcmr-xr sweep`` with parsed arguments; returns the exit status.
 
@@ -103,7 +119,9 @@ def run_sweep(args) -> int:
     >>> run_sweep(args)
     2
     """
-    from lcmr_xr.io import save
+    import numpy as np
+
+    from lcmr_xr.io import open_dataset, save
     from lcmr_xr.scaleout.archive import open_archive
     from lcmr_xr.scaleout.select import select_settings
     from lcmr_xr.scaleout.sweep import sweep
@@ -113,12 +131,21 @@ def run_sweep(args) -> int:
             if path is not None and not (path.parent if str(path.parent) else Path(".")).is_dir():
                 raise FileNotFoundError(f"directory of {path} does not exist; create it first.")
         experiments = open_archive(args.archive)
-        lazy = sweep(experiments, window=args.window, degrees=args.degrees, method=args.method,
-                     closed_loop=args.closed_loop, covariance=not args.no_covariance)
+        settings = dict(window=args.window, degrees=args.degrees, method=args.method,
+                        closed_loop=args.closed_loop, covariance=not args.no_covariance)
+        lazy = sweep(experiments, **settings)  # checks the settings before anything runs
         sizes = {d: lazy.sizes[d] for d in ("method", "degrees", "window", "experiment") if d in lazy.dims}
         print(f"sweeping {sizes} on scheduler {args.scheduler}", file=sys.stderr)
-        result = _compute(lazy, args.scheduler)
-        save(result, args.output)
+        if "experiment" in lazy.dims:
+            # results stream to disk as tasks finish; a rerun after a crash resumes
+            _stream(experiments, args.output, settings, args.scheduler)
+            result = open_dataset(args.output)
+        else:
+            result = _compute(lazy, args.scheduler)
+            save(result, args.output)
+        failed = [str(e) for e in np.unique(result["experiment_error"].values) if str(e)]
+        for message in failed:
+            print(f"lcmr-xr sweep: flagged {message}", file=sys.stderr)
         flagged = int(result["P_flag"].sum())
         print(f"wrote {args.output}: P {dict(result.P.sizes)}, {flagged} flagged bins")
         if args.select is not None:

@@ -120,14 +120,21 @@ def _read_strings(path: Path, name: str) -> np.ndarray:
         return np.asarray(nc[name][:], dtype=object)
 
 
-def _run_local(tasks, workers: int):
-    """Yield ``(index, result)`` as tasks finish, on a pool of threads in this process."""
+def _run_local(tasks, workers: int, scheduler: str):
+    """Yield ``(index, result)`` as tasks finish, on a pool of threads in this process.
+
+    ``scheduler="processes"``: each thread hands its task to dask's process pool.
+    """
     from concurrent.futures import ThreadPoolExecutor, as_completed
 
     import dask
 
+    if scheduler == "synchronous":
+        workers = 1
+    inner = "processes" if scheduler == "processes" else "synchronous"
+
     def run(task):
-        return dask.compute(task, scheduler="synchronous")[0]
+        return dask.compute(task, scheduler=inner)[0]
 
     pool = ThreadPoolExecutor(max_workers=workers)
     try:
@@ -155,7 +162,7 @@ def _run_client(tasks, client):
 def sweep_to_disk(experiments: xr.Dataset, output, *, window=(30,), degrees=None, method=("lrm",),
                   closed_loop: str = "indirect", covariance: bool = True,
                   experiments_per_task: int | None = None, client=None, workers: int | None = None,
-                  progress=True, overwrite: bool = False) -> Path:
+                  scheduler: str = "threads", progress=True, overwrite: bool = False) -> Path:
     """Run a sweep task by task, streaming each result to disk; resumable after a crash.
 
     Parameters
@@ -173,7 +180,11 @@ def sweep_to_disk(experiments: xr.Dataset, output, *, window=(30,), degrees=None
         and are written here, so the workers need no access to ``output``.  Default: a
         pool of ``workers`` threads in this process.
     workers : int, optional
-        Threads of the local pool (default: the number of CPUs); ignored with ``client``.
+        Tasks run at once in this process (default: the number of CPUs); ignored with
+        ``client``.
+    scheduler : {"threads", "processes", "synchronous"}, default "threads"
+        Without ``client``: run the tasks on threads, on dask's process pool, or one at a
+        time in this thread.
     progress : bool or callable, default True
         ``True``: a progress bar on stderr with experiments per second and the time left;
         a callable is called as ``progress(done, total, experiments_per_second)`` after
@@ -220,6 +231,9 @@ def sweep_to_disk(experiments: xr.Dataset, output, *, window=(30,), degrees=None
     from lcmr_xr.scaleout.sweep import (ERROR_VAR, SETTING_DIMS, _chunked, _effective_degrees,
                                         _identify_block, parse_degrees)
 
+    if scheduler not in ("threads", "processes", "synchronous"):
+        raise ValueError(f"scheduler must be 'threads', 'processes' or 'synchronous', got "
+                         f"{scheduler!r}; for a cluster pass client=distributed.Client(...).")
     output = Path(output)
     target_directory(output)
     if output.exists() and not overwrite:
@@ -250,7 +264,7 @@ def sweep_to_disk(experiments: xr.Dataset, output, *, window=(30,), degrees=None
         block = ds.isel({cv.EXPERIMENT: slice(a, b)})
         tasks.append(dask.delayed(_identify_block, pure=True)(block, **settings))
     finished = (_run_client(tasks, client) if client is not None
-                else _run_local(tasks, workers or os.cpu_count() or 1))
+                else _run_local(tasks, workers or os.cpu_count() or 1, scheduler))
     for i, result in finished:
         name, _, (a, b) = todo[i]
         save(result, parts / name)
