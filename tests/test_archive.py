@@ -34,8 +34,9 @@ def _labelled(i, **attrs):
 def test_consolidated_round_trip_is_lazy_and_selectable(tmp_path):
     items = [_labelled(i, drive_id=f"D{i % 2}") for i in range(3)]
     assert save_archive(items, tmp_path / "a.nc") == [tmp_path / "a.nc"]
-    with dask.config.set(scheduler=_forbid):  # opening reads no data
+    with dask.config.set(scheduler=_forbid):  # opening (and building a sweep) reads no data
         arc = open_archive(tmp_path / "a.nc")
+        assert sweep(arc, window=[12]).P.chunks[3] == (3,)  # metadata coords chunked alike
     assert arc.r.chunks is not None and arc.encoding["source"] == str(tmp_path / "a.nc")
     assert arc.experiment.values.tolist() == ["run0", "run1", "run2"]
     assert arc.seed.values.tolist() == [0, 1, 2] and arc.case.values.tolist() == [2, 2, 2]

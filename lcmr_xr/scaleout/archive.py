@@ -300,7 +300,6 @@ def _append_consolidated(items, first, path: Path) -> None:
                          "integers too (or rewrite the archive with string labels).")
     metas = [con.metadata_of(label, ds) for label, ds in items]
     con.check_metadata([(label, m) for (label, _), m in zip(items, metas)], header["metadata"])
-    con.drop_conflicting_attrs(path, [ds for _, ds in items])
     count = header["count"]
     for start in range(0, len(items), con.BATCH):
         count = con.append_rows(path, items[start:start + con.BATCH], metas[start:start + con.BATCH],

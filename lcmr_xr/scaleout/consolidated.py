@@ -200,23 +200,21 @@ def _open_for_append(path):
         ) from err
 
 
-def drop_conflicting_attrs(path, datasets) -> None:
+def _drop_conflicting_attrs(nc, datasets) -> None:
     """Delete the archive's attributes that the new experiments do not share (``drop_conflicts``)."""
     from lcmr_xr.io.netcdf import _flatten_attrs
 
-    keep = common_attrs(list(datasets))
-    flat = _flatten_attrs("the experiment", keep)
-    with _open_for_append(path) as nc:
-        for key in nc.ncattrs():
-            if key in (KIND_ATTR, COUNT_ATTR, "lcmr_attr_types"):
-                continue
-            value = nc.getncattr(key)
-            try:
-                same = key in flat and bool(np.array_equal(np.asarray(value), np.asarray(flat[key])))
-            except Exception:  # noqa: BLE001 - incomparable values differ
-                same = False
-            if not same:
-                nc.delncattr(key)
+    flat = _flatten_attrs("the experiment", common_attrs(list(datasets)))
+    for key in nc.ncattrs():
+        if key in (KIND_ATTR, COUNT_ATTR, "lcmr_attr_types"):
+            continue
+        value = nc.getncattr(key)
+        try:
+            same = key in flat and bool(np.array_equal(np.asarray(value), np.asarray(flat[key])))
+        except Exception:  # noqa: BLE001 - incomparable values differ
+            same = False
+        if not same:
+            nc.delncattr(key)
 
 
 def _signal_block(rows, name):
@@ -236,6 +234,8 @@ def append_rows(path, rows, metas, *, expected_count=None) -> int:
             raise RuntimeError(f"{path} changed while it was written (count {count}, expected "
                                f"{expected_count}); is another process appending to it?")
         stop = count + len(rows)
+        if count:  # the first rows of a new archive set its attributes
+            _drop_conflicting_attrs(nc, [ds for _, ds in rows])
         for name in _SIGNALS:
             nc[name][count:stop] = _signal_block(rows, name)
         labels = [label for label, _ in rows]

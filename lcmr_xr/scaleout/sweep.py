@@ -148,6 +148,8 @@ def _chunked(ds: xr.Dataset, per_task: int | None = None) -> xr.Dataset:
             chunks[d] = per_task or EXPERIMENTS_PER_TASK
         elif ds["r"].chunks is None:
             chunks[d] = -1
+        else:  # spelled out, so that numpy coords along d (metadata) get the same chunks
+            chunks[d] = ds["r"].chunks[ds["r"].get_axis_num(d)]
     return ds.chunk(chunks)
 
 
