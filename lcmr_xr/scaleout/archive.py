@@ -409,8 +409,8 @@ def consolidate_archive(directory, path, *, overwrite: bool = False, progress=No
     >>> ds = experiment(np.ones((3, 8, 1)), np.ones((3, 8, 1)), np.ones((3, 4, 1)), factor=2,
     ...                 sampling_period=0.5)
     >>> with tempfile.TemporaryDirectory() as d:
-    ...     _ = save_archive(ds, d)
-    ...     p = consolidate_archive(d, os.path.join(d, "..", os.path.basename(d) + ".nc"))
+    ...     _ = save_archive(ds, os.path.join(d, "runs"), layout="files")
+    ...     p = consolidate_archive(os.path.join(d, "runs"), os.path.join(d, "runs.nc"))
     ...     open_archive(p).sizes["experiment"]
     3
     """
