@@ -33,8 +33,8 @@ import xarray as xr
 
 from lcmr_xr import conventions as cv
 
-__all__ = ["METADATA", "KIND", "write_consolidated", "append_rows", "open_consolidated",
-           "is_consolidated"]
+# The functions below serve lcmr_xr.scaleout.archive (the public API); only these are public.
+__all__ = ["METADATA", "KIND", "is_consolidated"]
 
 #: Value of the file attribute ``lcmr_archive`` that marks a consolidated archive.
 KIND = "consolidated-1"
