@@ -19,7 +19,7 @@ $(VENV)/.installed-test: $(BIN)/python pyproject.toml
 	touch $@ $(VENV)/.installed
 
 demo: $(VENV)/.installed
-	$(BIN)/lcmr-xr demo --output-dir demo-output
+	$(BIN)/lcmr-xr demo --output-dir demo-output --overwrite
 
 # One BLAS/OpenMP thread: the kernels batch their own work, and threaded BLAS on tiny
 # matrices is much slower on a loaded two-core machine.

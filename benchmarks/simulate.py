@@ -16,7 +16,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from _multirate_oracle import simulate_multirate_oracle  # noqa: E402
 
 import lcmr_xr.hdd as hdd  # noqa: E402
-from lcmr_xr.kernels.ltisim import simulate_multirate  # noqa: E402
+from lcmr_xr.kernels.lti import simulate_multirate  # noqa: E402
 
 
 def best_of(repeats, func):

@@ -14,7 +14,7 @@ from lcmr_xr.excitation import multisine, orthogonal_multisines
 from lcmr_xr.experiment import experiment, validate_experiment
 from lcmr_xr.identification import identify, identify_single_rate
 from lcmr_xr.identification.lifted_system import frf_from_first_block_row, lifted_frf
-from lcmr_xr.io import open_dataset, open_experiment, open_frf, save
+from lcmr_xr.io import from_frd, open_dataset, open_experiment, open_frf, save, to_frd
 from lcmr_xr.simulation import simulate_closed_loop
 from lcmr_xr.transforms import dft, fast_spectrum_from_lifted, idft, lift, unlift
 
@@ -27,6 +27,7 @@ __all__ = [
     "experiment",
     "fast_spectrum_from_lifted",
     "frf_from_first_block_row",
+    "from_frd",
     "identify",
     "identify_single_rate",
     "idft",
@@ -39,6 +40,7 @@ __all__ = [
     "orthogonal_multisines",
     "save",
     "simulate_closed_loop",
+    "to_frd",
     "unlift",
     "validate_experiment",
 ]

@@ -1,76 +1,81 @@
 """The ``.lcmr`` accessor: forwards to the functions of :mod:`lcmr_xr`, holds no state.
 
 ``ds.lcmr.identify(window=30)`` is ``lcmr_xr.identify(ds, window=30)``; the functions are
-the API and carry the documentation.
+the API and carry the documentation.  Each method forwards ``*args, **kwargs`` unchanged
+and shows the function's signature (without its first argument) and docstring, so the
+accessor cannot fall behind the function.
 """
 
 from __future__ import annotations
 
+import functools
+import importlib
+import inspect
+
 import xarray as xr
 
 
-class _Forwarder:
-    """Common methods of the DataArray and Dataset accessors."""
+class _Forward:
+    """A method that calls ``module.name(obj, *args, **kwargs)``.
 
+    The function is imported on first use, not when ``lcmr_xr`` is imported (the plot
+    functions would pull in matplotlib).
+    """
+
+    def __init__(self, module: str, name: str):
+        self.module, self.name = module, name
+
+    @functools.cached_property
+    def function(self):
+        return getattr(importlib.import_module(self.module), self.name)
+
+    def __get__(self, accessor, owner=None):
+        func = self.function
+        if accessor is None:
+            return func
+        obj = accessor._obj
+
+        @functools.wraps(func)
+        def method(*args, **kwargs):
+            return func(obj, *args, **kwargs)
+
+        sig = inspect.signature(func)
+        method.__signature__ = sig.replace(parameters=list(sig.parameters.values())[1:])
+        del method.__wrapped__  # the signature is the one set here, without the data argument
+        return method
+
+
+#: Accessor method -> (module, function); the first argument of each function is the data.
+DATAARRAY_METHODS = {
+    "lift": ("lcmr_xr.transforms", "lift"),
+    "unlift": ("lcmr_xr.transforms", "unlift"),
+    "dft": ("lcmr_xr.transforms", "dft"),
+    "idft": ("lcmr_xr.transforms", "idft"),
+    "bode": ("lcmr_xr.plot", "bode"),
+}
+DATASET_METHODS = {
+    **DATAARRAY_METHODS,
+    "identify": ("lcmr_xr.identification", "identify"),
+    "validate": ("lcmr_xr.experiment", "validate_experiment"),
+    "save": ("lcmr_xr.io", "save"),
+}
+
+
+class _Accessor:
     def __init__(self, obj):
         self._obj = obj
 
-    def lift(self, factor=None, *, dim="time"):
-        """Lift the fast time dim; see :func:`lcmr_xr.lift`."""
-        from lcmr_xr.transforms import lift
-
-        return lift(self._obj, factor, dim=dim)
-
-    def unlift(self, *, dim="slow_time"):
-        """Undo :meth:`lift`; see :func:`lcmr_xr.unlift`."""
-        from lcmr_xr.transforms import unlift
-
-        return unlift(self._obj, dim=dim)
-
-    def dft(self, dim=None, *, one_sided=False):
-        """DFT along a time dim; see :func:`lcmr_xr.dft`."""
-        from lcmr_xr.transforms import dft
-
-        return dft(self._obj, dim, one_sided=one_sided)
-
-    def idft(self, dim=None):
-        """Inverse of :meth:`dft`; see :func:`lcmr_xr.idft`."""
-        from lcmr_xr.transforms import idft
-
-        return idft(self._obj, dim)
-
-    def bode(self, *, ax=None, truth=None, band=0.95, nyquist=True, db=True, xlim=None):
-        """Bode plot of an FRF; see :func:`lcmr_xr.plot.bode`."""
-        from lcmr_xr.plot import bode
-
-        return bode(self._obj, ax=ax, truth=truth, band=band, nyquist=nyquist, db=db, xlim=xlim)
-
 
 @xr.register_dataarray_accessor("lcmr")
-class LcmrDataArrayAccessor(_Forwarder):
+class LcmrDataArrayAccessor(_Accessor):
     """``DataArray.lcmr``: lift, unlift, dft, idft, bode."""
 
 
 @xr.register_dataset_accessor("lcmr")
-class LcmrDatasetAccessor(_Forwarder):
+class LcmrDatasetAccessor(_Accessor):
     """``Dataset.lcmr``: the DataArray methods plus identify, validate and save."""
 
-    def identify(self, *, method="lrm", window=30, degrees=None, closed_loop="indirect",
-                 covariance=True, errors="raise"):
-        """Identify the fast FRF of an experiment; see :func:`lcmr_xr.identify`."""
-        from lcmr_xr.identification import identify
 
-        return identify(self._obj, method=method, window=window, degrees=degrees,
-                        closed_loop=closed_loop, covariance=covariance, errors=errors)
-
-    def validate(self):
-        """Check the experiment conventions; see :func:`lcmr_xr.validate_experiment`."""
-        from lcmr_xr.experiment import validate_experiment
-
-        return validate_experiment(self._obj)
-
-    def save(self, path):
-        """Write atomically to NetCDF; see :func:`lcmr_xr.save`."""
-        from lcmr_xr.io import save
-
-        return save(self._obj, path)
+for _cls, _methods in ((LcmrDataArrayAccessor, DATAARRAY_METHODS), (LcmrDatasetAccessor, DATASET_METHODS)):
+    for _name, _target in _methods.items():
+        setattr(_cls, _name, _Forward(*_target))

@@ -1,7 +1,8 @@
 """Names, attributes and unit strings of the lcmr_xr data contract (``lcmr-xr-1``).
 
-Every module reads dimension names and attributes from here, so the contract in
-``shared/conventions.md`` is written down once.  Nothing here computes anything.
+Every module reads dimension, variable and attribute names from here, so the contract
+described in ``docs/conventions.md`` is written down once in code.  Nothing here computes
+anything.  Extend, never rename: files written by earlier versions use these names.
 """
 
 from __future__ import annotations
@@ -18,6 +19,9 @@ INPUT = "input"
 OUTPUT = "output"
 CHANNEL = "channel"
 EXPERIMENT = "experiment"
+# Repeated periods of one periodic excitation: ``time`` then runs within a period and
+# ``period`` counts the periods (the loop runs on across them).
+PERIOD = "period"
 
 # When a result carries the same dimension twice (a lifted matrix), the second copy
 # (the column side) gets this suffix, as in xarray-einstats.
@@ -26,20 +30,85 @@ SECOND = "2"
 LIFT_PHASE2 = LIFT_PHASE + SECOND
 INPUT2 = INPUT + SECOND
 
-# Variables of the FRF dataset.
+# Variables of the experiment dataset: fast excitation, measured fast plant input,
+# measured slow plant output.
+EXCITATION = "r"
+PLANT_INPUT = "u"
+SLOW_OUTPUT = "y"
+EXPERIMENT_VARIABLES = (EXCITATION, PLANT_INPUT, SLOW_OUTPUT)
+
+# Variables of the FRF dataset.  An uncertainty is the variable's name + STD_SUFFIX.
 P = "P"
 STD_SUFFIX = "_std"
+P_FLAG = "P_flag"  # bins where P could not be estimated (NaN there)
 LIFTED_S = "S"
 LIFTED_PS = "PS"
+TRANSIENT_U = "transient_u"
+TRANSIENT_Y = "transient_y"
 NOISE_VARIANCE_U = "noise_variance_u"
 NOISE_VARIANCE_Y = "noise_variance_y"
+CONDITION = "condition"  # of the local least-squares problem, per slow bin
+ILL_POSED = "ill_posed"  # flag: local model ill-conditioned
+S_CONDITION = "s_condition"  # of the estimated lifted sensitivity, per slow bin
+S_SINGULAR = "s_singular"  # flag: S not invertible, P_1 = PS_1 S^-1 not formed
+# Every variable identify may return (the indirect estimate has all, "direct" has no
+# S-side variables, the single-rate estimate only P, P_std and P_flag).
+FRF_VARIABLES = (
+    P, P + STD_SUFFIX, P_FLAG,
+    LIFTED_S, LIFTED_S + STD_SUFFIX, LIFTED_PS, LIFTED_PS + STD_SUFFIX,
+    TRANSIENT_U, TRANSIENT_Y, NOISE_VARIANCE_U, NOISE_VARIANCE_Y,
+    CONDITION, ILL_POSED, S_CONDITION, S_SINGULAR,
+)
+
+# Pooled estimates (identify on a ``period`` dim or with combine="experiment"): the noise
+# variances of the averaged spectra estimated from the spread over the records.
+PERIOD_NOISE_VARIANCE_U = "period_noise_variance_u"
+PERIOD_NOISE_VARIANCE_Y = "period_noise_variance_y"
+POOLED_VARIABLES = (PERIOD_NOISE_VARIANCE_U, PERIOD_NOISE_VARIANCE_Y)
 
 # Attribute names.
+CONVENTIONS_ATTR = "conventions"  # value CONVENTIONS, on experiment and FRF datasets
 SLOW_NYQUIST = "slow_nyquist"
 SAMPLING_PERIOD = "sampling_period"
 FACTOR = "factor"
 DFT_SCALING = "dft_scaling"
 DFT_SCALING_VALUE = "sum"  # X(k) = sum_n x(n) exp(-2j pi k n / N), as numpy.fft.fft
+
+# Settings recorded on an FRF dataset; METHOD, DEGREES and WINDOW are also the dims
+# (and coordinates) of a sweep result.
+METHOD = "method"
+CLOSED_LOOP = "closed_loop"
+WINDOW = "window"
+WINDOW_BINS = "window_bins"
+DEGREES = "degrees"
+N_SAMPLES = "n_samples"
+PARAMETERS_PER_ROW = "parameters_per_row"
+COVARIANCE = "covariance"
+TITLE = "title"
+FRF_ATTRS = (
+    CONVENTIONS_ATTR, METHOD, CLOSED_LOOP, WINDOW, WINDOW_BINS, DEGREES, FACTOR,
+    SAMPLING_PERIOD, SLOW_NYQUIST, N_SAMPLES, PARAMETERS_PER_ROW, COVARIANCE, TITLE,
+)
+# Added to FRF_ATTRS by a pooled estimate.
+COMBINE = "combine"
+PERIODS = "periods"
+TRANSIENT_PERIODS = "transient_periods"
+STEADY_PERIODS = "steady_periods"
+RECORDS_AVERAGED = "records_averaged"
+NOISE_ESTIMATE = "noise_estimate"
+NOISE_DOF = "noise_dof"
+POOLED_ATTRS = (COMBINE, PERIODS, TRANSIENT_PERIODS, STEADY_PERIODS, RECORDS_AVERAGED,
+                NOISE_ESTIMATE, NOISE_DOF)
+
+
+# ---- archives (lcmr_xr.scaleout): docs/conventions.md, "Files and archives"
+ARCHIVE_KIND_ATTR = "lcmr_archive"  # file attribute that marks a consolidated archive
+ARCHIVE_KIND = "consolidated-1"  # its value (layout version)
+ARCHIVE_COUNT_ATTR = "lcmr_archive_count"  # complete experiments in a consolidated archive
+ARCHIVE_ORDER_ATTR = "lcmr_archive_index"  # order of a file in an archive directory
+ARCHIVE_METADATA = ("seed", "case", "date", "drive_id")  # attrs that become coords along experiment
+ARCHIVE_PARTS_SUFFIX = ".parts"  # sweep_to_disk keeps finished tasks in .OUTPUT.parts/
+EXPERIMENT_ERROR = "experiment_error"  # sweep output: why an experiment failed ("" if it did not)
 
 
 def time_attrs(long_name: str = "time") -> dict:

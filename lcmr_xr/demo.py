@@ -17,6 +17,8 @@ import xarray as xr
 from lcmr_xr import conventions as cv
 
 BUNDLED = "hdd_case2_N3600.nc"
+#: Files :func:`run_demo` writes into its output directory: the FRF, then the two plots.
+OUTPUT_NAMES = ("hdd_frf.nc", "hdd_bode.png", "hdd_pzt_zoom.png")
 PZT_ZOOM_HZ = (38000.0, 50400.0)
 
 
@@ -81,6 +83,24 @@ def resonance_peaks(frf: xr.Dataset, truth: xr.DataArray, *, input: str = "pzt",
     return out
 
 
+def output_files(output_dir, *, plot: bool = True) -> list[Path]:
+    """The files :func:`run_demo` writes into ``output_dir`` (the FRF; with ``plot``, two PNGs).
+
+    Parameters
+    ----------
+    output_dir : str or pathlib.Path
+        The demo's output directory.
+    plot : bool, default True
+        Include the Bode plots.
+
+    Returns
+    -------
+    list of pathlib.Path
+    """
+    names = OUTPUT_NAMES if plot else OUTPUT_NAMES[:1]
+    return [Path(output_dir) / name for name in names]
+
+
 def run_demo(experiment_path=None, output_dir="demo-output", *, window: int = 30,
              degrees=(3, 3, 3), plot: bool = True, echo=print) -> dict:
     """Identify the bundled HDD experiment, write results, print an accuracy summary.
@@ -112,7 +132,6 @@ def run_demo(experiment_path=None, output_dir="demo-output", *, window: int = 30
     from lcmr_xr.io import open_experiment, save
 
     out_dir = Path(output_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
     path = Path(experiment_path) if experiment_path is not None else find_bundled_experiment()
     if path is None:
         echo("bundled experiment not found; simulating the paper's experiment (seed 0)")
@@ -126,7 +145,8 @@ def run_demo(experiment_path=None, output_dir="demo-output", *, window: int = 30
     case = int(exp.attrs.get("case", 2))
     # the VCM's rigid-body double integrator makes the exact FRF infinite at DC: leave DC out
     truth = hdd.true_frf(frf[cv.FREQUENCY][1:], case=case).reindex({cv.FREQUENCY: frf[cv.FREQUENCY]})
-    files = [out_dir / "hdd_frf.nc"]
+    files = output_files(out_dir, plot=False)
+    out_dir.mkdir(parents=True, exist_ok=True)  # only now: a failed run leaves no empty directory
     save(frf, files[0])
     if plot:
         files += _plots(frf, truth, out_dir)
@@ -159,12 +179,12 @@ def _plots(frf, truth, out_dir):
 
     full = bode(frf, truth=truth, band=0.95, nyquist=True)
     full.figure.suptitle("Dual-stage HDD: lifted closed-loop LRM estimate vs exact FRF")
-    p1 = out_dir / "hdd_bode.png"
+    p1 = out_dir / OUTPUT_NAMES[1]
     save_figure(full, p1)
     zoom = bode(frf.sel(input=["pzt"]), truth=truth.sel(input=["pzt"]), band=0.95,
                 nyquist=True, xlim=PZT_ZOOM_HZ)
     zoom.figure.suptitle("PZT resonances beyond the slow Nyquist frequency")
-    p2 = out_dir / "hdd_pzt_zoom.png"
+    p2 = out_dir / OUTPUT_NAMES[2]
     save_figure(zoom, p2)
     plt.close("all")
     return [p1, p2]

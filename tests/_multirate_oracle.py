@@ -1,7 +1,7 @@
 """Reference simulator of the multirate closed loop: plain loops, the block diagram literally.
 
 Slow and obviously correct on purpose; the fast simulator in
-:mod:`lcmr_xr.kernels.ltisim` is tested against it, and ``benchmarks/simulate.py`` times
+:mod:`lcmr_xr.kernels.lti` is tested against it, and ``benchmarks/simulate.py`` times
 the two against each other.  Works on 2-d signals ``(N, channels)`` only.
 
 At fast sample ``n = lF + j``:

@@ -109,7 +109,7 @@ def test_consolidate_directory_command(tmp_path, capsys):
     xr.testing.assert_identical(open_archive(tmp_path / "a.nc").compute(),
                                 open_archive(tmp_path / "dir").compute())
     assert cli_main(["archive", "consolidate", str(tmp_path / "dir"), "-o", str(tmp_path / "a.nc")]) == 2
-    assert "exists; pass overwrite=True (--overwrite)" in capsys.readouterr().err
+    assert "already exists; pass --overwrite" in capsys.readouterr().err
     with pytest.raises(FileExistsError):
         consolidate_archive(tmp_path / "dir", tmp_path / "a.nc")
 
@@ -164,10 +164,22 @@ def test_sweep_to_disk_survives_a_crash_and_resumes(tmp_path):
         sweep_to_disk(exps, tmp_path / "b.nc", window=[20])
 
 
+def test_sweep_to_disk_never_writes_into_or_over_its_archive(tmp_path):
+    save_archive([_labelled(i) for i in range(2)], tmp_path / "dir", layout="files")
+    save_archive([_labelled(i) for i in range(2)], tmp_path / "a.nc")
+    before = sorted(p.name for p in tmp_path.rglob("*"))
+    with pytest.raises(ValueError, match="inside the input directory"):
+        sweep_to_disk(open_archive(tmp_path / "dir"), tmp_path / "dir" / "r.nc", window=[12])
+    with pytest.raises(ValueError, match="the input file"):
+        sweep_to_disk(open_archive(tmp_path / "a.nc"), tmp_path / "a.nc", window=[12], overwrite=True)
+    assert sorted(p.name for p in tmp_path.rglob("*")) == before  # no parts directory either
+
+
 def test_sweep_to_disk_prints_experiments_per_second(tmp_path, capsys):
     sweep_to_disk(_stack(["a", "b"]), tmp_path / "s.nc", window=[12], scheduler="synchronous")
     err = capsys.readouterr().err
     assert "100% Completed | 2/2 experiment-settings" in err and "experiments/s" in err
+    assert "\r" not in err  # stderr is no terminal here: plain lines
 
 
 # ------------------------------------------------------------------------------- clusters

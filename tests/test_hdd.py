@@ -12,8 +12,8 @@ from _multirate_oracle import simulate_multirate_oracle
 from lcmr_xr.experiment import validate_experiment
 from lcmr_xr.hdd.disturbances import NOISE_SCALE, UNIFORM_STD
 from lcmr_xr.hdd.plants import PZT_DAMPINGS, PZT_FREQS, PZT_MODAL_GAINS, TEMPERATURES
-from lcmr_xr.kernels.ltisim import (dc_gain, frequency_response, simulate_lti, simulate_multirate,
-                                    static_gain, tf_q_inverse)
+from lcmr_xr.kernels.lti import (dc_gain, frequency_response, simulate_lti, simulate_multirate,
+                                 static_gain, tf_q_inverse)
 from lcmr_xr.simulation import simulate_closed_loop
 
 TH = 1 / 100800
@@ -274,7 +274,7 @@ def test_labelled_wrapper_equals_kernel_and_broadcasts():
     d_y = xr.DataArray(rng.standard_normal((16, 1)), dims=("time", "output"),
                        coords={"output": ["pos"]}, attrs={"units": "mm"})
     ds = simulate_closed_loop(plant, controller, None, 2, r, d_y=d_y, fast_output=True)
-    from lcmr_xr.kernels.ltisim import multirate_closed_loop
+    from lcmr_xr.kernels.lti import multirate_closed_loop
     loop = multirate_closed_loop(plant, controller, None, 2)
     ref = simulate_multirate(loop, r.values, d_y=d_y.values)
     np.testing.assert_allclose(ds.u.transpose("experiment", "time", "input").values, ref.u)

@@ -1,20 +1,21 @@
-"""Tests of lcmr_xr.kernels.ltisim against independent computations and the loop oracle."""
+"""Tests of lcmr_xr.kernels.lti against independent computations and the loop oracle."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
+import scipy.linalg
 import scipy.signal
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from _multirate_oracle import simulate_multirate_oracle
 from lcmr_xr.kernels.lifting import lifted_frf
-from lcmr_xr.kernels.ltisim import (StateSpace, block_diagonal, check_stable, continuous_zoh,
-                                    dc_gain, frequency_response, hstack, lift_statespace,
-                                    matched_notch, modal_zoh, multirate_closed_loop, notch_filter,
-                                    series, simulate_lti, simulate_multirate, spectral_radius,
-                                    static_gain, tf_q_inverse, vstack)
+from lcmr_xr.kernels.lti import (StateSpace, block_diagonal, check_stable, continuous_zoh,
+                                 dc_gain, frequency_response, hstack, lift_statespace,
+                                 matched_notch, modal_zoh, multirate_closed_loop, notch_filter,
+                                 series, simulate_lti, simulate_multirate, spectral_radius,
+                                 static_gain, tf_q_inverse, vstack)
 
 
 def random_system(rng, n, nu, ny, dt=1.0, rho=0.9, feedthrough=True, gain=1.0):
@@ -113,6 +114,31 @@ def test_continuous_zoh_of_first_order_is_exact():
     np.testing.assert_allclose(dc_gain(g), [[2.0 / a + 0.5]], rtol=1e-13)
 
 
+def test_continuous_zoh_is_the_block_exponential_and_the_integral_of_the_state_transition():
+    # continuous_zoh delegates to scipy.signal.cont2discrete(method="zoh"); it must give
+    # bit for bit the Van Loan block exponential exp([[A, B], [0, 0]] dt) it used to compute
+    # itself, and Bd must be the integral int_0^dt exp(A s) ds B (checked by quadrature).
+    import scipy.integrate
+
+    rng = np.random.default_rng(11)
+    for n, nu, dt in [(1, 1, 0.2), (3, 2, 0.05), (6, 3, 0.01)]:
+        A = rng.standard_normal((n, n)) - 2 * np.eye(n)
+        B = rng.standard_normal((n, nu))
+        C, D = rng.standard_normal((2, n)), rng.standard_normal((2, nu))
+        g = continuous_zoh(A, B, C, D, dt)
+        big = np.zeros((n + nu, n + nu))
+        big[:n, :n], big[:n, n:] = A * dt, B * dt
+        e = scipy.linalg.expm(big)
+        np.testing.assert_array_equal(g.A, e[:n, :n])
+        np.testing.assert_array_equal(g.B, e[:n, n:])
+        np.testing.assert_array_equal(g.C, C)
+        np.testing.assert_array_equal(g.D, D)
+        integral, _ = scipy.integrate.quad_vec(lambda s: scipy.linalg.expm(A * s) @ B, 0.0, dt,
+                                               epsabs=1e-15, epsrel=1e-13)
+        np.testing.assert_allclose(g.B, integral, rtol=1e-11, atol=1e-15)
+        np.testing.assert_allclose(g.A, scipy.linalg.expm(A * dt), rtol=1e-12)
+
+
 def test_tf_q_inverse_frf_matches_polynomial_ratio():
     num, den = [0.65, 0.020, -0.63], [1.0, -1.4, 0.51]
     g = tf_q_inverse(num, den, dt=1 / 50400)
@@ -190,6 +216,34 @@ def test_interconnection_refuses_mismatches():
         series(a, b)
     with pytest.raises(ValueError, match="sampling periods"):
         series(static_gain(1.0, 1.0), static_gain(1.0, 2.0))
+
+
+def test_stacks_are_the_block_matrices_of_their_parts():
+    # hstack: [A1 0; 0 A2], [B1 0; 0 B2], [C1 C2], [D1 D2]; vstack: [A1 0; 0 A2], [B1; B2],
+    # [C1 0; 0 C2], [D1; D2] -- exactly, since both are built from block_diagonal and a
+    # static summer or splitter in series.
+    rng = np.random.default_rng(5)
+    g1, g2 = random_system(rng, 2, 2, 3), random_system(rng, 3, 1, 3)
+    h = hstack(g1, g2)
+    bd = scipy.linalg.block_diag
+    np.testing.assert_array_equal(h.A, bd(g1.A, g2.A))
+    np.testing.assert_array_equal(h.B, bd(g1.B, g2.B))
+    np.testing.assert_array_equal(h.C, np.hstack([g1.C, g2.C]))
+    np.testing.assert_array_equal(h.D, np.hstack([g1.D, g2.D]))
+    g3, g4 = random_system(rng, 2, 2, 3), random_system(rng, 0, 2, 1)
+    v = vstack(g3, g4)
+    np.testing.assert_array_equal(v.A, bd(g3.A, g4.A))
+    np.testing.assert_array_equal(v.B, np.vstack([g3.B, g4.B]))
+    np.testing.assert_array_equal(v.C, bd(g3.C, g4.C))
+    np.testing.assert_array_equal(v.D, np.vstack([g3.D, g4.D]))
+    with pytest.raises(ValueError,
+                       match="hstack: every system must have the same number of outputs"):
+        hstack(g1, g4)
+    with pytest.raises(ValueError,
+                       match="vstack: every system must have the same number of inputs"):
+        vstack(g1, g2)
+    with pytest.raises(ValueError, match="at least one system"):
+        vstack()
 
 
 def test_frequency_response_equals_dtft_of_impulse_response():

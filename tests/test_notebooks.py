@@ -1,18 +1,20 @@
 """The notebooks and the README run as written.
 
-* every ``notebooks/*.ipynb`` executes top to bottom with nbclient, in a kernel started
-  from the running interpreter (a kernel spec written to a temporary prefix, so a
-  fresh ``.venv`` in CI needs no ``jupyter kernelspec install``), with ``MPLBACKEND=Agg``
-  and a temporary working directory;
-* the committed notebooks carry no outputs and are exactly what ``notebooks/_build.py``
-  writes (so they stay reviewable as Python);
+* the notebooks are jupytext percent scripts, ``notebooks/*.py`` (one source, reviewable
+  and mergeable as Python; no ``.ipynb`` is committed): each is read with jupytext and
+  executed top to bottom with nbclient, in a kernel started from the running
+  interpreter (a kernel spec written to a temporary prefix, so a fresh ``.venv`` in CI
+  needs no ``jupyter kernelspec install``), with ``MPLBACKEND=Agg`` and a temporary
+  working directory;
+* each script is in jupytext's canonical percent form (writing it back changes nothing),
+  and an ``.ipynb`` made from it and kept next to it (``jupytext --set-formats
+  ipynb,py:percent``) must hold the same cells: a pair out of sync fails;
 * every ```python block of README.md runs, in order, in one fresh interpreter in a
   temporary directory, and the pictures the README shows exist.
 """
 
 from __future__ import annotations
 
-import importlib.util
 import os
 import re
 import subprocess
@@ -27,7 +29,10 @@ NOTEBOOKS = ROOT / "notebooks"
 README = ROOT / "README.md"
 CELL_TIMEOUT_S = 120
 # The heavier notebooks (seed averages, a sweep) take 15-25 s each on 2 cores.
-SLOW_NOTEBOOKS = {"02_methods_compared.ipynb", "03_archive_and_sweeps.ipynb"}
+SLOW_NOTEBOOKS = {"02_methods_compared.py", "03_archive_and_sweeps.py"}
+# Percent cells and nothing else: no YAML header, no cell metadata.
+PERCENT = {"extension": ".py", "format_name": "percent",
+           "notebook_metadata_filter": "-all", "cell_metadata_filter": "-all"}
 README_HEAD = (
     "# lcmr_xr\n"
     "\n"
@@ -39,13 +44,19 @@ README_HEAD = (
 
 
 def _notebook_paths():
-    return sorted(NOTEBOOKS.glob("*.ipynb"))
+    return sorted(NOTEBOOKS.glob("*.py"))
 
 
 def _notebook_params():
     return [pytest.param(p, id=p.stem,
                          marks=[pytest.mark.slow] if p.name in SLOW_NOTEBOOKS else [])
             for p in _notebook_paths()]
+
+
+def _read(path):
+    import jupytext
+
+    return jupytext.read(path, fmt="py:percent")
 
 
 @pytest.fixture(scope="module")
@@ -59,18 +70,10 @@ def kernel_name(tmp_path_factory):
     return name, prefix / "share" / "jupyter" / "kernels"
 
 
-def _load_builder():
-    spec = importlib.util.spec_from_file_location("lcmr_notebook_builder", NOTEBOOKS / "_build.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
 def test_every_notebook_is_collected():
     # an empty glob would make the parametrised execution test pass vacuously
     names = [p.name for p in _notebook_paths()]
-    assert names == ["01_hdd_benchmark.ipynb", "02_methods_compared.ipynb",
-                     "03_archive_and_sweeps.ipynb"]
+    assert names == ["01_hdd_benchmark.py", "02_methods_compared.py", "03_archive_and_sweeps.py"]
 
 
 def _execute(nb, kernel, workdir):
@@ -90,10 +93,8 @@ def _execute(nb, kernel, workdir):
 @pytest.mark.notebook
 @pytest.mark.parametrize("path", _notebook_params())
 def test_notebook_executes(path, kernel_name, tmp_path, monkeypatch):
-    import nbformat
-
     monkeypatch.setenv("MPLBACKEND", "Agg")  # the kernel inherits the environment
-    nb = nbformat.read(path, as_version=4)
+    nb = _read(path)
     _execute(nb, kernel_name, tmp_path)
 
     code_cells = [c for c in nb.cells if c.cell_type == "code"]
@@ -129,31 +130,59 @@ def test_runner_fails_on_an_error_cell(kernel_name, tmp_path):
 
 
 @pytest.mark.parametrize("path", _notebook_paths(), ids=lambda p: p.stem)
-def test_committed_notebook_has_no_outputs(path):
+def test_notebook_scripts_are_canonical_percent_scripts(path):
+    import jupytext
     import nbformat
 
-    nb = nbformat.read(path, as_version=4)
+    text = path.read_text()
+    nb = _read(path)
     nbformat.validate(nb)
-    dirty = [i for i, c in enumerate(nb.cells) if c.cell_type == "code"
-             and (c.outputs or c.execution_count is not None)]
-    assert dirty == [], f"{path.name}: cells {dirty} have outputs; run notebooks/_build.py"
+    kinds = [c.cell_type for c in nb.cells]
+    assert kinds[0] == "markdown" and "code" in kinds, f"{path.name}: not a percent notebook"
+    assert all(c.source.strip() for c in nb.cells), f"{path.name} has an empty cell"
+    # what jupytext (or Jupyter with jupytext) writes back is the committed text
+    assert jupytext.writes(nb, fmt=PERCENT) == text, \
+        f"{path.name} is not in canonical percent form; run jupytext --to py:percent on it"
 
 
-def test_committed_notebooks_are_what_the_builder_writes():
+def _cells(nb):
+    return [(c.cell_type, c.source) for c in nb.cells]
+
+
+def test_no_notebook_json_is_committed():
+    tracked = subprocess.run(["git", "ls-files", "notebooks"], cwd=ROOT, capture_output=True,
+                             text=True)
+    if tracked.returncode != 0:
+        pytest.skip("not a git checkout")
+    assert [n for n in tracked.stdout.split() if n.endswith(".ipynb")] == [], \
+        "commit the percent scripts only: the .ipynb is made from them"
+
+
+def _out_of_sync(script: Path) -> str | None:
+    """Why the ``.ipynb`` next to ``script`` differs from it, or None (also when there is none)."""
     import nbformat
 
-    built = _load_builder().build_notebooks()
-    assert sorted(built) == [p.name for p in _notebook_paths()]
-    for name, nb in built.items():
-        committed = nbformat.read(NOTEBOOKS / name, as_version=4)
-        assert [(c.cell_type, c.source) for c in committed.cells] == \
-               [(c.cell_type, c.source) for c in nb.cells], \
-               f"{name} differs from notebooks/_build.py; rerun it"
+    paired = script.with_suffix(".ipynb")
+    if paired.exists() and _cells(nbformat.read(paired, as_version=4)) != _cells(_read(script)):
+        return f"{paired.name} and {script.name} differ: run jupytext --sync {script.name}"
+    return None
 
 
-def test_builder_refuses_unknown_names(capsys):
-    assert _load_builder().main(["04_missing.ipynb"]) == 2
-    assert "unknown notebook" in capsys.readouterr().err
+def test_paired_notebooks_are_in_sync():
+    """An .ipynb kept next to a script (jupytext pairing, Jupyter) holds the same cells."""
+    problems = [p for p in map(_out_of_sync, _notebook_paths()) if p]
+    assert problems == []
+
+
+def test_out_of_sync_pair_is_detected(tmp_path):
+    import jupytext
+
+    script = tmp_path / "01_hdd_benchmark.py"
+    script.write_text((NOTEBOOKS / script.name).read_text())
+    jupytext.write(_read(script), script.with_suffix(".ipynb"), fmt="ipynb")
+    assert _out_of_sync(script) is None  # a freshly paired notebook is in sync
+    script.write_text(script.read_text().replace("N, SEED = 3600", "N, SEED = 3601"))
+    assert "differ: run jupytext --sync" in _out_of_sync(script)
 
 
 # ---------------------------------------------------------------------------- README

@@ -40,6 +40,7 @@ K95 = math.sqrt(math.log(20.0))  # 95 % radius of a circular complex Gaussian, i
 # The functions bode/lifted shadow their modules as attributes of lcmr_xr.plot.
 BODE_MODULE = importlib.import_module("lcmr_xr.plot.bode")
 LIFTED_MODULE = importlib.import_module("lcmr_xr.plot.lifted")
+SHARED_MODULE = importlib.import_module("lcmr_xr.plot._shared")
 
 
 @pytest.fixture(autouse=True)
@@ -135,6 +136,14 @@ def db(x):
     return 20 * np.log10(np.abs(x))
 
 
+def at_bins(line, f):
+    """y data of ``line`` at the frequencies ``f`` (drops the NaN breaks a wrapped phase gets)."""
+    x, y = line.get_xdata(), line.get_ydata()
+    keep = np.isin(x, f)
+    np.testing.assert_array_equal(x[keep], f)
+    return y[keep]
+
+
 # ------------------------------------------------------------------------------ bode
 
 
@@ -172,15 +181,16 @@ def test_bode_absolute_magnitude_and_rad_per_s():
     np.testing.assert_allclose(line.get_xdata(), 2 * np.pi * frf.frequency.values[1:], rtol=1e-15)
     np.testing.assert_allclose(line.get_ydata(), np.abs(frf.P.values[1:, 0, 1]), rtol=1e-12)
     assert result.axes[0, 0].get_yscale() == "log"
-    assert result.axes[0, 0].get_ylabel() == "plant FRF [m/1]"
+    assert result.axes[0, 0].get_ylabel() == "plant FRF [m/unit]"  # units "m/1": per input unit
     assert result.axes[-1, 0].get_xlabel() == "frequency [rad/s]"
 
 
 def test_bode_phase_unwrapped_and_wrapped():
     frf = make_frf()
     wrapped_expected = np.degrees(np.angle(frf.P.values[1:, 0, 0]))
-    unwrapped = bode(frf).lines[("position", "vcm")]["estimate"][1].get_ydata()
-    wrapped = bode(frf, unwrap=False).lines[("position", "vcm")]["estimate"][1].get_ydata()
+    unwrapped = bode(frf, unwrap=True).lines[("position", "vcm")]["estimate"][1].get_ydata()
+    wrapped_line = bode(frf, unwrap=False).lines[("position", "vcm")]["estimate"][1]
+    wrapped = at_bins(wrapped_line, frf.frequency.values[1:])
     np.testing.assert_allclose(wrapped, wrapped_expected, rtol=1e-12)
     # Same angle modulo 360, continuous, and it really leaves (-180, 180].
     np.testing.assert_allclose(np.mod(unwrapped - wrapped + 180, 360) - 180, 0, atol=1e-9)
@@ -191,9 +201,9 @@ def test_bode_phase_unwrapped_and_wrapped():
 
 def test_bode_labels_and_titles_from_attrs():
     result = bode(make_frf(n_outputs=2))
-    assert result.axes[0, 0].get_ylabel() == "plant FRF [dB re 1 m/1]"
+    assert result.axes[0, 0].get_ylabel() == "plant FRF [dB re 1 m/unit]"
     assert result.axes[1, 0].get_ylabel() == "plant FRF phase [deg]"
-    assert result.axes[2, 0].get_ylabel() == "plant FRF [dB re 1 m/1]"
+    assert result.axes[2, 0].get_ylabel() == "plant FRF [dB re 1 m/unit]"
     assert result.axes[0, 1].get_ylabel() == ""  # only the first column is labelled
     assert result.axes[-1, 1].get_xlabel() == "frequency [Hz]"
     assert result.axes[0, 1].get_title() == "position <- pzt"
@@ -213,10 +223,16 @@ def test_bode_band_edges_are_magnitude_plus_minus_k_std(band, k):
     np.testing.assert_allclose(upper.get_ydata(), db(mag + radius), rtol=1e-12)
     positive = mag - radius > 0
     assert positive.any() and (~positive).any()  # the fixture exercises both cases
-    np.testing.assert_allclose(lower.get_ydata()[positive], db(mag - radius)[positive], rtol=1e-12)
-    # Where the disk contains 0 the edge sits on the floor: 20 dB under the lowest point.
-    floor = 0.1 * min(mag.min(), (mag - radius)[positive].min())
-    np.testing.assert_allclose(lower.get_ydata()[~positive], db(floor), rtol=1e-12)
+    # The band is clipped 20 dB under the lowest point of the estimate: the edge line
+    # stops there (no spike towards zero), the fill goes down to the floor.
+    floor = 0.1 * mag.min()
+    above = mag - radius > floor
+    assert (positive & ~above).any() or band != 0.95  # a positive edge under the floor exists
+    np.testing.assert_allclose(lower.get_ydata()[above], db(mag - radius)[above], rtol=1e-12)
+    assert np.isnan(lower.get_ydata()[~above]).all()
+    fill_y = np.concatenate([p.vertices[:, 1] for p in fill.get_paths()])
+    assert fill_y.min() == pytest.approx(db(floor), rel=1e-12)
+    assert (fill_y >= db(floor) - 1e-9).all()
 
 
 @settings(max_examples=40, deadline=None)
@@ -229,9 +245,9 @@ def test_band_edges_bracket_the_magnitude(band, mag, rel):
     """Upper edge = |P| + k std exactly; lower edge is below |P| and positive."""
     values = np.asarray(mag) * np.exp(1j * np.arange(len(mag)))
     sigma = rel * np.asarray(mag)
-    k = BODE_MODULE._band_factor(band)
+    k = SHARED_MODULE.confidence_radius(band)
     assert k == pytest.approx(math.sqrt(-math.log(1 - band)), rel=1e-12)
-    upper, lower = BODE_MODULE._band_edges(values, sigma, k)
+    upper, lower, _ = SHARED_MODULE._band_edges(values, sigma, k)
     np.testing.assert_allclose(upper, np.abs(values) + k * sigma, rtol=1e-12)
     assert np.all(lower > 0) and np.all(lower <= np.abs(values) * (1 + 1e-12))
 
@@ -388,13 +404,18 @@ def test_bode_zero_and_nan_bins_are_gaps_without_warnings():
     frf = make_frf(zero_bin=5, nan_bin=9)
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        result = bode(frf, db=True)
+        result = bode(frf, db=True, unwrap=True)
+        bode(frf)  # wrapped: the gaps are gaps there too
         bode(frf, db=False)
         result.figure.canvas.draw()
     pair = result.lines[("position", "vcm")]
     mag, ph = (line.get_ydata() for line in pair["estimate"])
     upper, lower = (line.get_ydata() for line in pair["band"][:2])
-    for arr in (mag, ph, upper, lower):
+    # the lower edge also stops where it is clipped at the floor (20 dB under the minimum)
+    p_vcm, radius = frf.P.values[1:, 0, 0], K95 * frf.P_std.values[1:, 0, 0]
+    drawn = np.abs(p_vcm) > 0  # False at the zero and NaN bins (the gaps)
+    clipped = drawn & (np.abs(p_vcm) - radius <= 0.1 * np.abs(p_vcm[drawn]).min())
+    for arr in (mag, ph, upper, np.where(clipped, 0.0, lower)):
         assert np.isnan(arr[[4, 8]]).all()  # bins 5 and 9 minus DC
         assert np.isfinite(np.delete(arr, [4, 8])).all()
     # The unwrapped phase keeps going across the gaps.
@@ -584,3 +605,127 @@ def test_truth_phase_moves_by_whole_turns_onto_the_estimate(turns, outlier):
     reference[0] += 360.0 * outlier  # a noisy lowest bin that unwrapped onto another turn
     aligned = BODE_MODULE._align_phase(phase, reference)
     np.testing.assert_allclose(aligned, np.linspace(-30.0, -900.0, 40), atol=1e-9)
+
+
+# ------------------------------------------------------------------------------ at a glance
+
+
+def test_bode_phase_is_wrapped_by_default_and_broken_at_wraps():
+    frf = make_frf()
+    result = bode(frf, truth=frf.P)
+    f = frf.frequency.values[1:]
+    for inp in ("vcm", "pzt"):
+        line = result.lines[("position", inp)]["estimate"][1]
+        y = at_bins(line, f)
+        expected = np.degrees(np.angle(frf.P.sel(input=inp).values[1:, 0]))
+        np.testing.assert_allclose(y, np.where(expected <= -180, expected + 360, expected), rtol=1e-12)
+        assert (y > -180).all() and (y <= 180).all()
+        # drawn without vertical jumps: every wrap gets a NaN break between its two bins
+        drawn = line.get_ydata()
+        pieces = np.split(drawn, np.flatnonzero(np.isnan(drawn)))
+        assert all(np.all(np.abs(np.diff(p[np.isfinite(p)])) < 180) for p in pieces)
+        x = line.get_xdata()
+        assert np.all(np.diff(x[~np.isnan(x)]) > 0)
+        # the truth is drawn on the same (wrapped) branch
+        np.testing.assert_array_equal(result.lines[("position", inp)]["truth"][1].get_ydata(), drawn)
+    vcm_breaks = np.isnan(result.lines[("position", "vcm")]["estimate"][1].get_ydata()).sum()
+    assert vcm_breaks >= 1  # the 3-sample delay wraps the vcm phase
+    phase_ax = result.axes[1, 0]
+    assert list(phase_ax.get_yticks()) == [-180, -90, 0, 90, 180]
+    assert phase_ax.get_ylim() == (-225.0, 225.0)
+    # -180 exactly is shown as +180 (the interval is half-open)
+    assert BODE_MODULE._phase_deg(np.array([complex(-1.0, -0.0)]), False)[0] == 180.0
+
+
+@pytest.mark.parametrize("units, db, label", [
+    ("m", True, "plant FRF [dB re 1 m/unit]"),
+    ("m/1", False, "plant FRF [m/unit]"),
+    ("m/N", True, "plant FRF [dB re 1 m/N]"),
+    ("m/(V s)", False, "plant FRF [m/(V s)]"),
+    ("1", True, "plant FRF [dB]"),
+])
+def test_magnitude_is_labelled_output_units_per_input_unit(units, db, label):
+    frf = make_frf()
+    frf["P"].attrs["units"] = units
+    assert bode(frf, db=db).axes[0, 0].get_ylabel() == label
+
+
+def test_lower_band_edge_is_clipped_not_a_spike():
+    frf = make_frf()
+    # a lower edge that comes very close to zero without reaching it: a spike in dB before
+    p = frf.P.values[1:, 0, 0]
+    frf["P_std"][20, 0, 0] = (np.abs(frf.P.values[20, 0, 0]) * (1 - 1e-9)) / K95
+    result = bode(frf, truth=frf.P)
+    mag_ax = result.axes[0, 0]
+    floor_db = db(0.1 * np.abs(p).min())
+    lower = result.lines[("position", "vcm")]["band"][1].get_ydata()
+    assert np.isnan(lower[19])  # clipped: the edge line stops at the floor
+    assert np.nanmin(lower) > floor_db
+    bottom, top = mag_ax.get_ylim()
+    # the axis ends just under the floor (matplotlib's 5 % margin), not 180 dB lower
+    assert floor_db - 0.06 * (top - floor_db) <= bottom <= floor_db
+
+
+def test_legend_lists_only_what_is_in_view():
+    frf = make_frf()
+    nyquist = frf.attrs["slow_nyquist"]  # 125 Hz
+    wide = bode(frf, truth=frf.P, label="LRM")
+    texts = [t.get_text() for t in wide.axes[0, 0].get_legend().get_texts()]
+    assert sorted(texts) == ["95% confidence", "LRM", "slow Nyquist", "truth"]
+    zoom = bode(frf, truth=frf.P.sel(frequency=slice(0, 150)), label="LRM", xlim=(200.0, 480.0))
+    assert nyquist < 200.0
+    texts = [t.get_text() for t in zoom.axes[0, 0].get_legend().get_texts()]
+    assert sorted(texts) == ["95% confidence", "LRM"]  # Nyquist line and truth are outside
+
+
+def test_zoomed_log_axis_gets_enough_ticks():
+    frf = make_frf()
+    result = bode(frf, xlim=(200.0, 480.0))
+    for a in result.axes.flat:
+        lo, hi = a.get_xlim()
+        ticks = [t for t in a.get_xticks() if lo <= t <= hi]
+        assert ticks == [200.0, 300.0, 400.0], ticks  # a log axis labels none of them
+        formatter = a.xaxis.get_major_formatter()
+        assert formatter(300.0) == "300" and formatter(40000.0) == "40k"
+    # a wide view keeps matplotlib's decade ticks
+    wide = bode(frf)
+    assert type(wide.axes[0, 0].xaxis.get_major_formatter()).__name__.startswith("Log")
+    # the lifted plots too
+    lifted_zoom = lifted(frf, which="PS", xlim=(20.0, 100.0))
+    lo, hi = lifted_zoom.axes[0, 0].get_xlim()
+    ticks = [t for t in lifted_zoom.axes[0, 0].get_xticks() if lo <= t <= hi]
+    assert ticks == [20.0, 40.0, 60.0, 80.0, 100.0], ticks
+
+
+def test_bode_title_and_cli_plot_title(tmp_path, monkeypatch):
+    assert bode(make_frf(), title="LRM, window 30").figure.get_suptitle() == "LRM, window 30"
+    assert bode(make_frf()).figure.get_suptitle() == ""
+    from lcmr_xr import cli
+
+    exp_path = tmp_path / "exp.nc"
+    assert cli.main(["simulate", "-o", str(exp_path), "--samples", "800", "--noiseless"]) == 0
+    saved = {}
+    monkeypatch.setattr(lcmr_xr.plot, "save_figure",
+                        lambda result, path: saved.update(title=result.figure.get_suptitle()))
+    assert cli.main(["identify", str(exp_path), "-o", str(tmp_path / "frf.nc"), "--window", "20",
+                     "--plot", str(tmp_path / "bode.png")]) == 0
+    assert saved["title"] == ("exp.nc: lifted indirect closed-loop LRM FRF estimate "
+                              "(window 20, degrees 3, 3, 3)")
+
+
+def test_wrapped_estimate_is_drawn_beside_a_truth_at_the_wrap():
+    frf = make_frf().isel(input=[0])
+    f = frf.frequency.values
+    truth_phase = np.where(f < 200, 179.0, 100.0)
+    est_phase = np.where(f < 200, -179.0, -100.0)  # agrees, then disagrees by 160 deg
+    frf["P"][:, 0, 0] = np.exp(1j * np.radians(est_phase))
+    truth = frf.P.copy(data=np.exp(1j * np.radians(truth_phase))[:, None, None])
+    pair = bode(frf, truth=truth).lines[("position", "vcm")]
+    drawn = at_bins(pair["estimate"][1], f[1:])
+    low = f[1:] < 200
+    np.testing.assert_allclose(drawn[low], 181.0, rtol=1e-12)  # beside the truth at 179
+    np.testing.assert_allclose(drawn[~low], -100.0, rtol=1e-12)  # 260 would leave the axis
+    np.testing.assert_allclose(at_bins(pair["truth"][1], f[1:]), truth_phase[1:], rtol=1e-12)
+    # without a truth the estimate is strictly wrapped
+    alone = at_bins(bode(frf).lines[("position", "vcm")]["estimate"][1], f[1:])
+    np.testing.assert_allclose(alone, est_phase[1:], rtol=1e-12)

@@ -146,7 +146,8 @@ def test_sweep_is_lazy_and_equals_in_memory_on_the_cluster(cluster_client):
     _, client = cluster_client
     exps = _stack(["e0", "e1", "e2"])
     with dask.config.set(scheduler=_forbid):
-        res = sweep(exps, window=[10, 20], degrees=["2-2-2", "3-3-3"], method=["lrm", "lpm"])
+        # the LPM has no denominator: a sweep over both methods takes degrees with Rd = 0
+        res = sweep(exps, window=[10, 20], degrees=["2-2-0", "3-3-0"], method=["lrm", "lpm"])
     assert res.P.chunks is not None and res.S.chunks is not None
     assert dict(res.P.sizes) == {"method": 2, "degrees": 2, "window": 2, "experiment": 3,
                                  "frequency": 241, "output": 1, "input": 1}
@@ -155,7 +156,7 @@ def test_sweep_is_lazy_and_equals_in_memory_on_the_cluster(cluster_client):
         assert {"units", "long_name"} <= set(res[name].attrs), name
     computed = client.compute(res).result()
     for m in ("lrm", "lpm"):
-        for label, deg in (("2-2-2", (2, 2, 2)), ("3-3-3", (3, 3, 3))):
+        for label, deg in (("2-2-0", (2, 2, 0)), ("3-3-0", (3, 3, 0))):
             for w in (10, 20):
                 got = computed.sel({"method": m, "degrees": label, "window": w}, drop=True)
                 want = _in_memory(exps, m, deg if m == "lrm" else deg[:2] + (0,), w)
@@ -206,7 +207,8 @@ def test_worker_killed_mid_sweep_loses_nothing(cluster_client):
 
 
 def test_sweep_result_round_trips_through_netcdf(tmp_path):
-    res = sweep(_stack(["e0", "e1"]), window=[15], method=["lrm", "lpm"]).compute(scheduler="synchronous")
+    res = sweep(_stack(["e0", "e1"]), window=[15], degrees=["3-3-0"],
+                method=["lrm", "lpm"]).compute(scheduler="synchronous")
     save(res, tmp_path / "sweep.nc")
     xr.testing.assert_identical(open_dataset(tmp_path / "sweep.nc"), res)
 
@@ -229,7 +231,8 @@ def _true_error(res):
 @pytest.fixture(scope="module")
 def resonant_sweep():
     exps = _stack([f"run{i}" for i in range(4)])
-    res = sweep(exps, window=[8, 15, 30], degrees=["1-1-1", "3-3-3"], method=["lrm", "lpm"])
+    # the LPM is the LRM with Rd = 0: degrees "1-1-0" and "3-3-0" are the LPMs of these orders
+    res = sweep(exps, window=[8, 15, 30], degrees=["1-1-0", "1-1-1", "3-3-0", "3-3-3"], method=["lrm"])
     return exps, res.compute(scheduler="synchronous")
 
 
@@ -242,7 +245,7 @@ def test_selection_picks_the_settings_that_fit_a_resonance(resonant_sweep, crite
     assert choice.best_method.values.tolist() == ["lrm"] * 4
     assert choice.best_degrees.values.tolist() == ["3-3-3"] * 4
     # degrees too low for the resonance lose clearly, for every experiment and window
-    low = choice.score.sel({"method": "lpm", "degrees": "1-1-1"})
+    low = choice.score.sel({"method": "lrm", "degrees": "1-1-0"})  # the LPM of degree 1
     assert bool((low > 3 * choice.best_score).all())
     # and against the known truth the chosen settings are in the better half of the sweep
     # (the scores of the good settings are close to the noise floor, so near-ties between
@@ -320,11 +323,11 @@ def test_cli_sweep_writes_the_same_result(tmp_path, capsys, cluster_client, sche
     save_archive(exps, tmp_path / "arc")
     address = cluster.scheduler_address if scheduler == "cluster" else scheduler
     status = _cli(["sweep", str(tmp_path / "arc"), "-o", str(tmp_path / "res.nc"), "--window", "12", "20",
-                   "--degrees", "3-3-3", "2-2-2", "--method", "lrm", "lpm", "--scheduler", address,
+                   "--degrees", "3-3-0", "2-2-0", "--method", "lrm", "lpm", "--scheduler", address,
                    "--select", str(tmp_path / "choice.nc")])
     assert status == 0
     got = open_dataset(tmp_path / "res.nc")
-    want = sweep(exps, window=[12, 20], degrees=["3-3-3", "2-2-2"], method=["lrm", "lpm"])
+    want = sweep(exps, window=[12, 20], degrees=["3-3-0", "2-2-0"], method=["lrm", "lpm"])
     xr.testing.assert_allclose(got, want.compute(scheduler="synchronous"), rtol=1e-12)
     choice = open_dataset(tmp_path / "choice.nc")
     assert choice.best_window.dims == ("experiment",)

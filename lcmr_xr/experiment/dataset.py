@@ -2,7 +2,7 @@
 
 One closed-loop multirate experiment: fast excitation ``r`` and plant input ``u`` on
 (``time``, ``input``), slow plant output ``y`` on (``slow_time``, ``output``), attributes
-``factor`` and ``conventions``.  See ``shared/conventions.md``.
+``factor`` and ``conventions``.  See ``docs/conventions.md``.
 """
 
 from __future__ import annotations
@@ -19,6 +19,7 @@ from lcmr_xr.conventions import (
     FACTOR,
     INPUT,
     OUTPUT,
+    PERIOD,
     SLOW_TIME,
     TIME,
     label_attrs,
@@ -51,10 +52,39 @@ def _labels(given, default_prefix: str, count: int, what: str) -> np.ndarray:
     return labels
 
 
+def _scalar(value, name: str, meaning: str):
+    """A Python number from a number or any size-1 array (``scipy.io.loadmat`` gives (1, 1))."""
+    if isinstance(value, (bool, np.bool_)):
+        raise TypeError(f"{name} must be a number ({meaning}), got the boolean {value!r}.")
+    arr = np.asarray(value)
+    if arr.dtype.kind not in "iuf" or arr.size != 1:
+        shape = f"an array of shape {arr.shape}" if arr.ndim else f"{value!r}"
+        raise TypeError(
+            f"{name} must be a single real number ({meaning}), got {shape} of dtype {arr.dtype}; "
+            f"pass a number, e.g. {name}=float(x) (for a MATLAB (1, 1) value: x.item())."
+        )
+    return arr.reshape(()).item()
+
+
+def _check_orientation(arr: np.ndarray, time_dim: str, chan_dim: str, what: str) -> None:
+    """Refuse numpy data that are almost surely transposed: more channels than samples."""
+    samples, channels = arr.shape[-2], arr.shape[-1]
+    if channels > samples:
+        lead = "(experiment, " if arr.ndim == 3 else "("
+        fix = f"np.swapaxes({what}, -1, -2)" if arr.ndim == 3 else f"{what}.T"
+        raise ValueError(
+            f"{what} has shape {arr.shape}, i.e. {channels} channels of {samples} sample(s): it "
+            f"looks transposed. numpy input is {lead}{time_dim}, {chan_dim}); pass {fix} "
+            f"(a MATLAB row vector is (1, N))."
+        )
+
+
 def _numpy_to_dataarray(a, time_dim, chan_dim, what: str) -> xr.DataArray:
     arr = np.asarray(a)
     if arr.ndim == 1:
         arr = arr[:, None]  # a single channel
+    if arr.ndim in (2, 3):
+        _check_orientation(arr, time_dim, chan_dim, what)
     if arr.ndim == 2:
         dims = (time_dim, chan_dim)
     elif arr.ndim == 3:
@@ -158,9 +188,12 @@ def experiment(
                 f"attrs must not set {key!r}: it is part of the contract and set by experiment(); "
                 "pass factor=... instead."
             )
-    if isinstance(factor, (bool, np.bool_)) or int(factor) != factor or int(factor) < 1:
+    factor_value = _scalar(factor, "factor", "the multirate factor F = Tl/Th")
+    if not np.isfinite(factor_value) or int(factor_value) != factor_value or factor_value < 1:
         raise ValueError(f"factor must be a positive integer, got {factor!r}.")
-    factor = int(factor)
+    factor = int(factor_value)
+    if sampling_period is not None:
+        sampling_period = _scalar(sampling_period, "sampling_period", "the fast sample time Th in s")
 
     r_da = _as_signal(r, TIME, INPUT, "r")
     u_da = _as_signal(u, TIME, INPUT, "u")
@@ -239,9 +272,10 @@ def experiment(
         )
     except ValueError as err:  # conflicting sizes of a shared dim, e.g. `experiment`
         raise ValueError(f"r, u and y do not fit together: {err}. Check their shapes.") from err
-    for name in (EXPERIMENT,):
+    for name, long_name in ((EXPERIMENT, EXPERIMENT),
+                            (PERIOD, "period of the periodic excitation")):
         if name in ds.dims and name not in ds.coords:
-            ds = ds.assign_coords({name: (name, np.arange(ds.sizes[name]), label_attrs(name))})
+            ds = ds.assign_coords({name: (name, np.arange(ds.sizes[name]), label_attrs(long_name))})
     return validate_experiment(ds)
 
 
@@ -257,7 +291,45 @@ def _fail(problem: str, fix: str):
     raise ValueError(f"invalid experiment dataset: {problem}. {fix}")
 
 
-def _check_time(ds, dim: str, expected_spacing: float | None) -> float:
+def _check_leading_dims(ds) -> None:
+    """u and y carry the same leading dims, and r no dim they lack.
+
+    An ``r`` with an ``experiment`` dim but ``u``, ``y`` without it would broadcast one
+    measurement over every experiment (a silent wrong answer).  The converse, one ``r``
+    shared by experiments whose ``u``, ``y`` differ (a repeated excitation), is valid.
+    """
+    core = {TIME, SLOW_TIME, INPUT, OUTPUT}
+    lead = {name: [d for d in ds[name].dims if d not in core] for name in ("r", "u", "y")}
+    if set(lead["u"]) != set(lead["y"]) or not set(lead["r"]) <= set(lead["u"]):
+        listing = ", ".join(f"{name} {tuple(dims)}" for name, dims in lead.items())
+        _fail(
+            f"r, u and y have different leading dims ({listing}), so a measurement would be "
+            "shared across experiments it does not belong to",
+            "give u and y the same leading dims, and r no dim they lack (select one experiment "
+            "with .isel(experiment=0), or stack the measurements of every experiment).",
+        )
+
+
+def _factor_hint(ds, factor: int) -> str:
+    """Name the factor the data imply when it differs from the ``factor`` attribute."""
+    n, m = ds.sizes[TIME], ds.sizes[SLOW_TIME]
+    candidates = []
+    if m and n % m == 0 and n // m != factor:
+        candidates.append(f"N/M = {n}/{m} = {n // m}")
+    try:
+        ratio = even_spacing(ds[SLOW_TIME].values, SLOW_TIME)[1] / even_spacing(ds[TIME].values, TIME)[1]
+    except (KeyError, ValueError):
+        ratio = None
+    if ratio is not None and abs(ratio - round(ratio)) < 1e-6 * ratio and round(ratio) != factor:
+        candidates.append(f"slow_time spacing / time spacing = {round(ratio)}")
+    if not candidates:
+        return ""
+    return (f" The attribute says factor={factor}, but the data suggest "
+            f"{' and '.join(candidates)}: if the data are right, set ds.attrs['factor'] to that; "
+            "otherwise fix y or the time coordinates.")
+
+
+def _check_time(ds, dim: str, expected_spacing: float | None, hint: str = "") -> float:
     if dim not in ds.coords:
         _fail(f"coordinate {dim!r} is missing", f"assign it, e.g. ds.assign_coords({dim}=np.arange(n) * T).")
     values = np.asarray(ds[dim].values)
@@ -276,9 +348,38 @@ def _check_time(ds, dim: str, expected_spacing: float | None) -> float:
         _fail(
             f"{dim!r} is spaced by {spacing} s, but factor * (time spacing) = {expected_spacing} s",
             "the slow period must be F times the fast period: check the factor attribute and "
-            "both time coordinates.",
+            f"both time coordinates.{hint}",
         )
     return spacing
+
+
+#: ``r`` counts as repeating when its periods differ by at most this times its peak.
+PERIODIC_RTOL = 1e-9
+
+
+def _check_period_dims(ds):
+    """``period`` (repeated periods of one excitation) must be on ``u`` and ``y`` together."""
+    missing = [name for name in ("u", "y") if PERIOD not in ds[name].dims]
+    if missing:
+        _fail(
+            f"the dataset has a {PERIOD!r} dim but {missing} lack it",
+            f"the measured signals are recorded per period: give u and y the {PERIOD!r} dim "
+            f"(time then counts within a period), or drop it from r.",
+        )
+
+
+def _check_periodic_excitation(r):
+    """Every period of ``r`` must be the same signal (averaging over periods relies on it)."""
+    x = np.asarray(r.transpose(PERIOD, ...).values)
+    peak = float(np.max(np.abs(x))) if x.size else 0.0
+    diff = float(np.max(np.abs(x - x[:1]))) if x.size else 0.0
+    if diff > PERIODIC_RTOL * peak:
+        _fail(
+            f"r differs between periods (largest difference {diff:.3g}, {diff / peak:.2g} of its "
+            f"peak): along {PERIOD!r} the excitation must repeat exactly",
+            f"the {PERIOD!r} dim is for repeated periods of ONE periodic excitation; put records "
+            "with different excitations on an 'experiment' dim instead.",
+        )
 
 
 def validate_experiment(ds: xr.Dataset, *, check_values: bool = True) -> xr.Dataset:
@@ -288,9 +389,11 @@ def validate_experiment(ds: xr.Dataset, *, check_values: bool = True) -> xr.Data
     ----------
     ds : xarray.Dataset
         Candidate experiment dataset; extra dims (e.g. ``experiment``), variables and
-        attributes are allowed.
+        attributes are allowed.  A ``period`` dim holds repeated periods of ONE periodic
+        excitation (``time`` and ``slow_time`` then count within a period): ``u`` and ``y``
+        must carry it, and ``r`` must repeat exactly (to 1e-9 of its peak) along it.
     check_values : bool, default True
-        Also check the data for NaN and inf.  ``False`` reads metadata only, so lazy
+        Also check the data for NaN and inf (and that ``r`` repeats over periods).  ``False`` reads metadata only, so lazy
         (dask-backed) data are not computed; lazy consumers such as
         :func:`lcmr_xr.identify` then refuse non-finite data when they are computed.
 
@@ -307,7 +410,8 @@ def validate_experiment(ds: xr.Dataset, *, check_values: bool = True) -> xr.Data
         ``input``, ``output`` coordinates; ``N`` not a multiple of ``F`` or
         ``N != M F``; uneven spacing; time not starting at 0; slow spacing not ``F`` times
         the fast one; complex, boolean or non-numeric data; NaN or inf; duplicate or empty
-        channel labels.
+        channel labels; a ``period`` dim missing on ``u`` or ``y``, or an ``r`` that does not
+        repeat over periods.
     TypeError
         If ``ds`` is not a Dataset.
 
@@ -328,7 +432,7 @@ def validate_experiment(ds: xr.Dataset, *, check_values: bool = True) -> xr.Data
     if not isinstance(ds, xr.Dataset):
         raise TypeError(
             f"an experiment must be an xarray.Dataset, got {type(ds).__name__}; build one with "
-            "lcmr_xr.experiment.experiment(r, u, y, factor=...)."
+            "lcmr_xr.experiment(r, u, y, factor=F, sampling_period=Th)."
         )
     conv = ds.attrs.get("conventions")
     if conv is None:
@@ -336,7 +440,8 @@ def validate_experiment(ds: xr.Dataset, *, check_values: bool = True) -> xr.Data
     if conv != CONVENTIONS:
         _fail(
             f"conventions is {conv!r}, expected {CONVENTIONS!r}",
-            "this file follows another data contract; convert it with lcmr_xr.experiment.experiment().",
+            "this file follows another data contract; build an experiment from its arrays with "
+            "lcmr_xr.experiment(r, u, y, factor=F, sampling_period=Th).",
         )
     if FACTOR not in ds.attrs:
         _fail("attribute 'factor' is missing", "set ds.attrs['factor'] = F (the multirate factor Tl/Th).")
@@ -377,16 +482,23 @@ def validate_experiment(ds: xr.Dataset, *, check_values: bool = True) -> xr.Data
         if len(set(labels.tolist())) != labels.size:
             _fail(f"{dim!r} labels {labels.tolist()} contain duplicates", "give every channel a unique label.")
 
+    if PERIOD in ds.dims:  # the more specific message first
+        _check_period_dims(ds)
+    _check_leading_dims(ds)
+
     n, m = ds.sizes[TIME], ds.sizes[SLOW_TIME]
+    hint = _factor_hint(ds, factor)
     if n % factor:
-        _fail(f"N={n} fast samples is not a multiple of factor F={factor}", f"trim the experiment to {n - n % factor} fast samples.")
+        _fail(f"N={n} fast samples is not a multiple of factor F={factor}", f"trim the experiment to {n - n % factor} fast samples.{hint}")
     if n != m * factor:
-        _fail(f"N={n} fast samples but M={m} slow samples and F={factor} (M*F={m * factor})", "y must cover the same time span as r and u: N = M * F.")
+        _fail(f"N={n} fast samples but M={m} slow samples and F={factor} (M*F={m * factor})", f"y must cover the same time span as r and u: N = M * F.{hint}")
     th = _check_time(ds, TIME, None)
-    _check_time(ds, SLOW_TIME, factor * th)
+    _check_time(ds, SLOW_TIME, factor * th, hint)
 
     if not check_values:
         return ds
+    if PERIOD in ds["r"].dims and not _is_lazy(ds["r"].data):
+        _check_periodic_excitation(ds["r"])
     checks = {name: np.isfinite(ds[name].data).all() for name in required if ds[name].dtype.kind == "f"}
     if any(_is_lazy(c) for c in checks.values()):
         import dask
@@ -397,5 +509,16 @@ def validate_experiment(ds: xr.Dataset, *, check_values: bool = True) -> xr.Data
         values = checks
     bad = [name for name, ok in values.items() if not bool(ok)]
     if bad:
-        _fail(f"{bad} contain NaN or inf", "remove or interpolate the bad samples before identification.")
+        where = "; ".join(_bad_samples(ds[name]) for name in bad if not _is_lazy(ds[name].data))
+        _fail(f"{bad} contain NaN or inf{' (' + where + ')' if where else ''}",
+              "remove or interpolate the bad samples before identification.")
     return ds
+
+
+def _bad_samples(var: xr.DataArray) -> str:
+    """``name: N samples, time = a s to b s`` for the non-finite samples of an in-memory variable."""
+    dim = TIME if TIME in var.dims else SLOW_TIME
+    bad = ~np.isfinite(var.transpose(dim, ...).values)
+    rows = np.flatnonzero(bad.reshape(bad.shape[0], -1).any(axis=1))
+    t = np.asarray(var[dim].values)
+    return f"{var.name}: {rows.size} {dim} sample(s) from {dim} = {t[rows[0]]:.6g} s to {t[rows[-1]]:.6g} s"

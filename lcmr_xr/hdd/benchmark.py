@@ -5,12 +5,13 @@ from __future__ import annotations
 import numpy as np
 import xarray as xr
 
-from lcmr_xr.conventions import FREQUENCY, INPUT, OUTPUT, TIME, frequency_attrs, label_attrs, time_attrs
+from lcmr_xr.conventions import (FREQUENCY, INPUT, OUTPUT, PERIOD, SLOW_TIME, TIME,
+                                 frequency_attrs, label_attrs, time_attrs)
 from lcmr_xr.hdd.control import controller, notch_filters
 from lcmr_xr.hdd.disturbances import fan_vibration, repeatable_runout, rotational_vibration
 from lcmr_xr.hdd.plants import FACTOR, FAST_PERIOD, INPUTS, OUTPUTS, check_case, plant, pzt_plant, vcm_plant
 from lcmr_xr.kernels.excitation import random_phase_multisine
-from lcmr_xr.kernels.ltisim import frequency_response, simulate_lti
+from lcmr_xr.kernels.lti import frequency_response, simulate_lti
 from lcmr_xr.simulation import simulate_closed_loop
 
 BENCHMARK = "IEEJ dual-stage HDD benchmark (Atsumi 2022, MATLAB File Exchange 111515)"
@@ -59,7 +60,7 @@ def true_frf(frequency, case: int = 2) -> xr.DataArray:
 
 
 def simulate(n_samples: int = 3600, case: int = 2, noise: bool = True, seed: int = 0,
-             rms=PAPER_RMS, *, fast_output: bool = False) -> xr.Dataset:
+             rms=PAPER_RMS, *, fast_output: bool = False, periods: int | None = None) -> xr.Dataset:
     """Simulate the paper's closed-loop identification experiment on the HDD benchmark.
 
     Random-phase multisines with flat amplitude on every fast bin ``1..N/2`` (one period of
@@ -87,18 +88,30 @@ def simulate(n_samples: int = 3600, case: int = 2, noise: bool = True, seed: int
     fast_output : bool, optional
         Also return ``y_fast`` (fast head position, m) and ``pzt_displacement`` (the PZT's
         own displacement ``Pp u_pzt``, m, for the 50 nm stroke check); default False.
+    periods : int, optional
+        Apply ``periods`` periods of the one multisine (``n_samples`` samples each) in one
+        run from rest: the loop and the disturbances run on across the periods (the
+        disturbances are drawn as one record of ``periods * n_samples`` samples).  The
+        result gets a ``period`` dim (coordinate ``0..P-1``); ``time`` and ``slow_time``
+        count within a period.  The first period carries the loop's transient from rest:
+        drop it in :func:`lcmr_xr.identify` with ``transient_periods=1``.  Default: one
+        period and no ``period`` dim (the paper's experiment).  Without ``noise``, period 0
+        equals the record of ``periods=None`` (to rounding).
 
     Returns
     -------
     xarray.Dataset
         Experiment dataset (``lcmr-xr-1``): ``r``, ``u`` (input units ``"1"``), ``y`` (m);
-        attributes ``benchmark``, ``case``, ``seed``, ``rms``, ``noise`` (1 on, 0 off).
+        attributes ``benchmark``, ``case``, ``seed``, ``rms``, ``noise`` (1 on, 0 off) and,
+        with ``periods``, ``periods``.
 
     Examples
     --------
     >>> ds = simulate(n_samples=400, noise=False)
     >>> ds.sizes["time"], ds.sizes["slow_time"], ds.input.values.tolist()
     (400, 200, ['vcm', 'pzt'])
+    >>> dict(simulate(n_samples=400, noise=False, periods=3).y.sizes)
+    {'period': 3, 'slow_time': 200, 'output': 1}
     """
     case = check_case(case)
     n_samples = int(n_samples)
@@ -113,24 +126,39 @@ def simulate(n_samples: int = 3600, case: int = 2, noise: bool = True, seed: int
     r = xr.DataArray(random_phase_multisine(n_samples, len(INPUTS), bins, rms, excitation_rng),
                      dims=(TIME, INPUT), coords={TIME: time, INPUT: list(INPUTS)},
                      attrs={"units": "1", "long_name": "fast-rate excitation"})
+    if periods is not None and (isinstance(periods, (bool, np.bool_))
+                                or not isinstance(periods, (int, np.integer)) or periods < 1):
+        raise ValueError(f"periods must be a positive integer (number of periods), got {periods!r}.")
+    n_periods = 1 if periods is None else int(periods)
+    n_total = n_periods * n_samples  # the disturbances are one continuous record
+
+    def shaped(x, dims):  # (P L, c) -> (P, L, c) with a period dim, or (L, c) without
+        if periods is None:
+            return xr.DataArray(x, dims=dims, attrs={"units": "m"})
+        return xr.DataArray(x.reshape((n_periods, -1) + x.shape[1:]), dims=(PERIOD,) + dims,
+                            attrs={"units": "m"})
+
     disturbances = {}
     if noise:
-        d_f = np.zeros((n_samples, len(INPUTS)))
-        d_f[:, 0] = rotational_vibration(n_samples, rotation_rng)
+        d_f = np.zeros((n_total, len(INPUTS)))
+        d_f[:, 0] = rotational_vibration(n_total, rotation_rng)
         disturbances = dict(
-            d_u=r.copy(data=d_f),
-            d_y=xr.DataArray(fan_vibration(n_samples, fan_rng)[:, None], dims=(TIME, OUTPUT),
-                             attrs={"units": "m"}),
-            reference=xr.DataArray(repeatable_runout(n_samples // FACTOR, runout_rng)[:, None],
-                                   dims=("slow_time", OUTPUT), attrs={"units": "m"}),
+            d_u=shaped(d_f, (TIME, INPUT)).assign_coords({INPUT: list(INPUTS)}).assign_attrs(units="1"),
+            d_y=shaped(fan_vibration(n_total, fan_rng)[:, None], (TIME, OUTPUT)),
+            reference=shaped(repeatable_runout(n_total // FACTOR, runout_rng)[:, None],
+                             (SLOW_TIME, OUTPUT)),
         )
     attrs = {"benchmark": BENCHMARK, "case": case, "seed": int(seed), "rms": rms,
              "noise": int(bool(noise)), "excitation": "random-phase multisine, bins 1..N/2"}
+    if periods is not None:
+        attrs["periods"] = n_periods
     ds = simulate_closed_loop(plant(case), controller(), notch_filters(), FACTOR, r,
                               outputs=list(OUTPUTS), output_units="m", fast_output=fast_output,
-                              attrs=attrs, **disturbances)
+                              attrs=attrs, periods=periods, **disturbances)
     if fast_output:
-        stroke = simulate_lti(pzt_plant(case), ds.u.sel(input="pzt").values[:, None])[:, 0]
+        u_pzt = ds.u.sel(input="pzt").values.reshape(-1, 1)  # periods run on: one record
+        stroke = simulate_lti(pzt_plant(case), u_pzt)[:, 0].reshape(ds.u.sel(input="pzt").shape)
         ds["pzt_displacement"] = xr.DataArray(
-            stroke, dims=(TIME,), attrs={"units": "m", "long_name": "PZT displacement Pp u_pzt"})
+            stroke, dims=ds.u.sel(input="pzt").dims,
+            attrs={"units": "m", "long_name": "PZT displacement Pp u_pzt"})
     return ds

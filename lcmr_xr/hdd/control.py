@@ -8,8 +8,8 @@ from __future__ import annotations
 import functools
 
 from lcmr_xr.hdd.plants import FACTOR, FAST_PERIOD, SLOW_PERIOD, check_case, plant
-from lcmr_xr.kernels.ltisim import (MultirateClosedLoop, StateSpace, block_diagonal,
-                                    multirate_closed_loop, notch_filter, tf_q_inverse, vstack)
+from lcmr_xr.kernels.lti import (MultirateClosedLoop, StateSpace, block_diagonal,
+                                 multirate_closed_loop, notch_filter, tf_q_inverse, vstack)
 
 # The paper prints "- 0.63 q^-1" on the last numerator term of Cv; q^-2 is meant
 # (a repeated q^-1 term would simply have been added to 0.020 q^-1).
@@ -108,7 +108,7 @@ def closed_loop(case: int = 2) -> MultirateClosedLoop:
     Returns
     -------
     MultirateClosedLoop
-        See :func:`lcmr_xr.kernels.ltisim.multirate_closed_loop` for the signal ordering.
+        See :func:`lcmr_xr.kernels.lti.multirate_closed_loop` for the signal ordering.
 
     Examples
     --------

@@ -21,7 +21,7 @@ import numpy as np
 
 from lcmr_xr.hdd.plants import FAST_PERIOD
 from lcmr_xr.kernels.excitation import check_rng
-from lcmr_xr.kernels.ltisim import StateSpace, continuous_zoh, modal_zoh, simulate_lti
+from lcmr_xr.kernels.lti import StateSpace, continuous_zoh, modal_zoh, simulate_lti
 
 #: Fan-vibration modes (k, zeta, f Hz) of ``sum k / (s^2 + 2 zeta w s + w^2)``.
 FAN_MODES = ((0.6, .008, 2200), (0.3, .005, 2937), (1, .005, 3300), (0.5, .005, 3545),
@@ -97,7 +97,7 @@ def stationary_std(sys: StateSpace, noise_std: float) -> np.ndarray:
 
     Examples
     --------
-    >>> from lcmr_xr.kernels.ltisim import tf_q_inverse
+    >>> from lcmr_xr.kernels.lti import tf_q_inverse
     >>> round(float(stationary_std(tf_q_inverse([1.0], [1.0, -0.6], 1.0), 1.0)[0]), 6)
     1.25
     """

@@ -11,7 +11,7 @@ import functools
 
 import numpy as np
 
-from lcmr_xr.kernels.ltisim import StateSpace, hstack, modal_zoh
+from lcmr_xr.kernels.lti import StateSpace, hstack, modal_zoh
 
 #: Slow (output) sampling period Tl in s: 7200 rpm, 420 sectors per revolution.
 SLOW_PERIOD = 1.0 / 50400.0
@@ -131,7 +131,7 @@ def pzt_plant(case: int = 2) -> StateSpace:
 
     Examples
     --------
-    >>> from lcmr_xr.kernels.ltisim import dc_gain
+    >>> from lcmr_xr.kernels.lti import dc_gain
     >>> round(float(dc_gain(pzt_plant(5))[0, 0]), 12)
     1.05
     """

@@ -3,30 +3,32 @@
 A thin layer: dimension names are mapped onto the trailing axes of
 :func:`lcmr_xr.kernels.identification.identify_arrays` with ``xarray.apply_ufunc``
 (``dask="parallelized"``, so leading dims such as ``experiment`` may be chunked), and
-the arrays that come back are labelled per ``shared/conventions.md``.
+the arrays that come back are labelled per the data contract, ``docs/conventions.md``.
 """
 
 from __future__ import annotations
+
+__all__ = ["identify", "identify_single_rate", "output_specs", "output_sizes", "result_template",
+           "stacked_local_model"]
 
 import numpy as np
 import xarray as xr
 
 from lcmr_xr import conventions as cv
+from lcmr_xr.identification import pooling
 from lcmr_xr.kernels.identification import (
     excitation_rank,
     experiment_spectra,
     finish_packed,
     fit_packed,
-    identify_arrays,
-    identify_single_rate_arrays,
-    lifted_spectra,
+    identify_spectra,
+    identify_window0_arrays,
     packed_width,
 )
+from lcmr_xr.identification import _guards
 from lcmr_xr.kernels.local_models import parameters_per_row
-
-METHODS = {"lrm": None, "lpm": 0}
-DEFAULT_DEGREES = {"lrm": (3, 3, 3), "lpm": (3, 3, 0)}
-ERRORS = ("raise", "ignore")
+from lcmr_xr.settings import as_bool, check_window_fits, estimator_settings
+from lcmr_xr.transforms._coords import even_spacing
 
 
 def _validate(experiment):
@@ -40,53 +42,8 @@ def _validate(experiment):
         )
     lazy = any(experiment[v].chunks is not None for v in ("r", "u", "y") if v in experiment)
     # lazy data stay lazy: the NaN/inf check then happens in the kernel, at compute time
-    return validate_experiment(experiment, check_values=not lazy)
-
-
-def _resolve_degrees(method, degrees):
-    if method not in METHODS:
-        raise ValueError(f"method must be 'lrm' or 'lpm', got {method!r}.")
-    if degrees is None:
-        return DEFAULT_DEGREES[method]
-    try:
-        degrees = tuple(int(d) for d in degrees)
-    except TypeError:
-        raise TypeError(
-            f"degrees must be a sequence (Rn, Rm, Rd) of three non-negative integers, got {degrees!r}."
-        ) from None
-    if len(degrees) == 2 and method == "lpm":
-        degrees = degrees + (0,)
-    if len(degrees) != 3 or min(degrees) < 0:
-        raise ValueError(
-            f"degrees must be (Rn, Rm, Rd), three non-negative integers, got {degrees!r}."
-        )
-    if method == "lpm" and degrees[2] != 0:
-        raise ValueError(
-            f"method='lpm' is the local polynomial model, whose denominator degree Rd is 0; "
-            f"got degrees={degrees}. Pass degrees=({degrees[0]}, {degrees[1]}, 0) or method='lrm'."
-        )
-    return degrees
-
-
-def _check_window(window, degrees, nr, m):
-    window = int(window)
-    if window < 1:
-        raise ValueError(f"window (the half-width n of the 2n+1-bin local window) must be >= 1, got {window}.")
-    p = parameters_per_row(nr, degrees)
-    if 2 * window + 1 <= p:  # at least one degree of freedom is left for the noise estimate
-        n_min = (p + 1) // 2
-        raise ValueError(
-            f"too few bins for the local model: window={window} gives 2n+1 = {2 * window + 1} bins "
-            f"per row but degrees {degrees} with {nr} lifted excitation channels need "
-            f"{p} parameters per row and at least one more bin for the noise estimate. "
-            f"Use window >= {n_min} (or lower degrees)."
-        )
-    if 2 * window + 1 > m:
-        raise ValueError(
-            f"the local window (2n+1 = {2 * window + 1} bins for window={window}) is wider than the "
-            f"spectrum ({m} slow bins). Use window <= {(m - 1) // 2} or a longer experiment."
-        )
-    return window
+    ds = validate_experiment(experiment, check_values=not lazy)
+    return _guards.rechunk_core(ds) if lazy else ds
 
 
 def _ratio_units(num: str, den: str) -> str:
@@ -99,7 +56,8 @@ def _ratio_units(num: str, den: str) -> str:
 
 def identify(experiment: xr.Dataset, *, method: str = "lrm", window: int = 30, degrees=None,
              closed_loop: str = "indirect", covariance: bool = True, errors: str = "raise",
-             frequency_chunks: int | None = None) -> xr.Dataset:
+             frequency_chunks: int | None = None, stacked: bool = False,
+             transient_periods: int | None = None, combine: str | None = None) -> xr.Dataset:
     """Identify the fast-rate FRF of a plant in multirate closed loop (paper, Procedure 1).
 
     The fast excitation ``r`` and plant input ``u`` are lifted by the factor ``F``, the
@@ -118,10 +76,12 @@ def identify(experiment: xr.Dataset, *, method: str = "lrm", window: int = 30, d
         Local rational model, or local polynomial model (denominator degree ``Rd = 0``).
     window : int, default 30
         Half-width ``n`` of the local window: each estimate uses ``2 n + 1`` slow bins.
-    degrees : (int, int, int), optional
+        A whole number (``30.0`` is 30; ``30.5`` is refused, not rounded).
+    degrees : (int, int, int) or str, optional
         ``(Rn, Rm, Rd)``: degrees of the numerator, transient and (diagonal) denominator
-        polynomials in the local frequency variable.  Default ``(3, 3, 3)`` for LRM and
-        ``(3, 3, 0)`` for LPM (a pair ``(Rn, Rm)`` is accepted for LPM).
+        polynomials in the local frequency variable, or the label ``"Rn-Rm-Rd"``.  Default
+        ``(3, 3, 3)`` for LRM and ``(3, 3, 0)`` for LPM, whose ``Rd`` must be 0 (a pair
+        ``(Rn, Rm)`` is accepted for LPM).  The rules: :mod:`lcmr_xr.settings`.
     closed_loop : {"indirect", "direct"}, default "indirect"
         ``"indirect"`` (the paper): estimate ``[S; PS_1]`` from the lifted excitation and
         form ``PS_1 S^-1`` -- unbiased under feedback.  ``"direct"``: local model from the
@@ -143,8 +103,31 @@ def identify(experiment: xr.Dataset, *, method: str = "lrm", window: int = 30, d
         rounding.  Default: one chunk (leading dims such as ``experiment`` are still
         parallel when the experiment is dask-backed).  The singular-``S`` check of
         ``errors="raise"`` runs only on computed (not lazy) results.
+    stacked : bool, default False
+        Also return the local-model estimate as the kernel fits it, one matrix per slow
+        bin: ``G`` (``slow_frequency``, ``response``, ``excitation``) mapping the lifted
+        excitation spectra (``F nu`` columns) to the spectra ``[U; Y]`` (rows; ``Y`` alone
+        for ``"direct"``), its ``G_std`` and the residual variances of its rows
+        ``noise_variance`` (``slow_frequency``, ``response``).  ``S``, ``PS`` and the
+        ``noise_variance_u/y`` are the blocks of these.
+    transient_periods : int, optional
+        Records with a ``period`` dim (repeated periods of one periodic excitation, e.g.
+        ``hdd.simulate(..., periods=P)``): number of leading periods dropped as transient;
+        default 1.  The steady-state periods left are averaged, and with two or more of
+        them the band uses the noise covariance estimated from the period-to-period spread
+        (Pintelon and Schoukens, *System Identification: A Frequency Domain Approach*, 2nd
+        ed., 2012, ch. 2 and 7: the robust LPM); see :mod:`lcmr_xr.identification.pooling`.
+    combine : {None, "experiment"}, default None
+        ``"experiment"``: one estimate from all experiments of the ``experiment`` dim.
+        Experiments with the same excitation are averaged (like periods).  Experiments with
+        different excitations: ``window=0`` with ``E >= F nu`` periodic experiments gives
+        ``G(k) = Z(k) R(k)^+`` at every slow bin, no local model, with the band from the
+        nonparametric noise (bins where the experiments' lifted excitations are not of full
+        rank, e.g. the slow bin 0 of multisines without DC, are NaN and flagged
+        ``ill_posed``); with a local window they need a pooled local-model kernel that does
+        not exist yet (refused with a message).
 
-    Returns
+Returns
     -------
     xarray.Dataset
         ``P`` (``frequency``, ``output``, ``input``), complex: fast FRF at bins
@@ -156,13 +139,19 @@ def identify(experiment: xr.Dataset, *, method: str = "lrm", window: int = 30, d
         ``S_std``, ``PS_std``; residual noise variances ``noise_variance_u``,
         ``noise_variance_y``; transients ``transient_u``, ``transient_y``; ``condition``,
         ``ill_posed``, ``s_condition``, ``s_singular``.  Attributes record every setting.
+        Pooled estimates add ``period_noise_variance_u``, ``period_noise_variance_y`` (the
+        nonparametric noise variances of the averaged spectra, when estimated) and the
+        attributes ``combine``, ``periods``, ``transient_periods``, ``steady_periods``,
+        ``records_averaged``, ``noise_estimate`` ("periods" or "residual") and ``noise_dof``.
 
     Raises
     ------
     TypeError
-        ``experiment`` is not an experiment dataset.
+        ``experiment`` is not an experiment dataset, or a setting has the wrong type
+        (``covariance="no"``).
     ValueError
-        Invalid settings, too few bins for the number of parameters, a window wider than
+        Invalid settings (checked before the data are read, also for dask input; see
+        :func:`lcmr_xr.settings.estimator_settings`), too few bins for the number of parameters, a window wider than
         the spectrum, an excitation that does not excite all ``F nu`` lifted channels, or
         (with ``errors="raise"``) a non-invertible estimated ``S``.
 
@@ -176,25 +165,109 @@ def identify(experiment: xr.Dataset, *, method: str = "lrm", window: int = 30, d
     ('frequency', 'output', 'input')
     >>> float(frf.frequency[-1])  # fast Nyquist frequency, Hz
     50400.0
+    >>> pooled = lcmr_xr.identify(hdd.simulate(n_samples=1200, periods=3, seed=1), window=20,
+    ...                           transient_periods=1)
+    >>> pooled.attrs["steady_periods"], pooled.attrs["noise_estimate"]
+    (2, 'periods')
     """
-    if errors not in ERRORS:
-        raise ValueError(f"errors must be 'raise' or 'ignore', got {errors!r}.")
+    window0 = pooling.is_window0(window)
+    pooling.check_settings(window=window, transient_periods=transient_periods, combine=combine,
+                           degrees=degrees)
+    s = estimator_settings(method=method, window=1 if window0 else window, degrees=degrees,
+                           closed_loop=closed_loop, covariance=covariance, errors=errors,
+                           frequency_chunks=None if window0 else frequency_chunks)
+    stacked = as_bool(stacked, "stacked")
     ds = _validate(experiment)
-    degrees = _resolve_degrees(method, degrees)
     factor = int(ds.attrs[cv.FACTOR])
-    n = ds.sizes[cv.TIME]
-    m = ds.sizes[cv.SLOW_TIME]
-    nu = ds.sizes[cv.INPUT]
-    ny = ds.sizes[cv.OUTPUT]
-    nr = factor * nu  # lifted r (indirect) or lifted u (direct): F nu channels either way
-    window = _check_window(window, degrees, nr, m)
-    th = float(ds[cv.TIME][1] - ds[cv.TIME][0])
-    _check_excitation(ds, factor, closed_loop)
+    th = even_spacing(ds[cv.TIME].values, cv.TIME)[1]
+    # ---- pooling hook: periods / experiments (lcmr_xr.identification.pooling).  Rm = -1
+    # (no transient term) plugs in here once the local-model kernel accepts it: steady-state
+    # averaged records (plan.attrs["transient_periods"] > 0) may then be fitted with
+    # degrees (Rn, -1, Rd); the settings validator must let Rm = -1 through for them only.
+    plan = None
+    if window0 or pooling.requested(ds, transient_periods, combine):
+        plan = pooling.plan(ds, window=0 if window0 else s.window,
+                            transient_periods=transient_periods, combine=combine,
+                            closed_loop=s.closed_loop, covariance=s.covariance,
+                            frequency_chunks=frequency_chunks)
+        s = s._replace(window=0) if window0 else s
+    fit = ds if plan is None else plan.dataset
+    if not window0:
+        check_window_fits(s.window, s.degrees, factor * ds.sizes[cv.INPUT], ds.sizes[cv.SLOW_TIME])
+    out = _estimate(fit["r"], fit["u"], fit["y"], s, factor=factor, stacked=stacked,
+                    check_rank=not window0, plan=plan)
+    out = _label(out, fit, factor=factor, th=th)
+    if s.errors == "raise" and s.closed_loop == "indirect" and not _is_lazy(out):
+        bad = np.asarray(out["s_singular"])
+        if bad.any():
+            idx = np.flatnonzero(bad.reshape(-1, bad.shape[-1]).any(axis=0))
+            raise ValueError(
+                f"the estimated lifted sensitivity S is not invertible at {idx.size} slow bin(s) "
+                f"(first: {idx[:5].tolist()}), so P_1 = PS_1 S^-1 cannot be formed there. Check "
+                f"that u was recorded at the plant input in closed loop and that the excitation "
+                f"is strong enough there, or pass errors='ignore' to get NaN and the flag "
+                f"s_singular at those bins."
+            )
+    out.attrs.update(_settings_attrs(ds, s, factor=factor, th=th))
+    if plan is not None:
+        out = pooling.finish(out, plan, closed_loop=s.closed_loop, factor=factor,
+                             y_units=ds["y"].attrs.get("units", "1"),
+                             u_units=ds["u"].attrs.get("units", "1"))
+    return out
 
-    core_in = [[cv.TIME, cv.INPUT], [cv.TIME, cv.INPUT], [cv.SLOW_TIME, cv.OUTPUT]]
-    LP, IN2, LP2 = cv.LIFT_PHASE, cv.INPUT + cv.SECOND, cv.LIFT_PHASE + cv.SECOND
-    FQ, SF = cv.FREQUENCY, cv.SLOW_FREQUENCY
-    specs = [  # (name, core dims, dtype)
+
+def _settings_attrs(ds, s, *, factor, th) -> dict:
+    """The attributes that record the settings of a result of :func:`identify`."""
+    return {
+        "conventions": cv.CONVENTIONS,
+        "method": s.method,
+        "closed_loop": s.closed_loop,
+        "window": s.window,
+        "window_bins": 2 * s.window + 1,
+        "degrees": np.array(s.degrees, dtype=int),
+        "factor": factor,
+        "sampling_period": th,
+        "slow_nyquist": 1.0 / (2 * factor * th),
+        "n_samples": ds.sizes[cv.TIME],
+        "parameters_per_row": parameters_per_row(factor * ds.sizes[cv.INPUT], s.degrees),
+        "covariance": int(s.covariance),
+        "title": f"lifted {s.closed_loop} closed-loop {s.method.upper()} FRF estimate",
+    } if s.window > 0 else {  # window 0: no local model, G = Z R^+ per bin (nr parameters per row)
+        "conventions": cv.CONVENTIONS, "method": "pooled", "closed_loop": s.closed_loop,
+        "window": 0, "window_bins": 1, "degrees": np.array([0, -1, 0]), "factor": factor,
+        "sampling_period": th, "slow_nyquist": 1.0 / (2 * factor * th),
+        "n_samples": ds.sizes[cv.TIME], "parameters_per_row": factor * ds.sizes[cv.INPUT],
+        "covariance": int(s.covariance),
+        "title": f"lifted {s.closed_loop} closed-loop FRF, bin by bin over experiments",
+    }
+
+
+LP, IN2, LP2 = cv.LIFT_PHASE, cv.INPUT2, cv.LIFT_PHASE2
+FQ, SF = cv.FREQUENCY, cv.SLOW_FREQUENCY
+#: Dims of the stacked local model ``G`` (rows: spectra Z, columns: excitation spectra R).
+RESPONSE, EXCITATION = "response", "excitation"
+
+
+def output_specs(closed_loop: str, stacked: bool = False) -> list[tuple[str, list[str], type]]:
+    """``(name, core dims, dtype)`` of every variable :func:`identify` returns.
+
+    The one description of the result's layout: :func:`identify` fills it, and
+    :func:`lcmr_xr.scaleout.sweep` derives its lazy template from it without computing.
+
+    Parameters
+    ----------
+    closed_loop : {"indirect", "direct"}
+        The estimator (``"direct"`` has no ``S`` and its by-products).
+    stacked : bool, default False
+        Include the stacked local model ``G``, ``G_std``, ``noise_variance``.
+
+    Returns
+    -------
+    list of (str, list of str, type)
+        Variable name, its core dims (leading dims such as ``experiment`` come in front),
+        its dtype.
+    """
+    specs = [
         ("P", [FQ, cv.OUTPUT, cv.INPUT], complex),
         ("P_std", [FQ, cv.OUTPUT, cv.INPUT], float),
         ("P_flag", [FQ], bool),
@@ -214,124 +287,184 @@ def identify(experiment: xr.Dataset, *, method: str = "lrm", window: int = 30, d
             ("s_condition", [SF], float),
             ("s_singular", [SF], bool),
         ]
+    if stacked:
+        specs += [
+            ("G", [SF, RESPONSE, EXCITATION], complex),
+            ("G_std", [SF, RESPONSE, EXCITATION], float),
+            ("noise_variance", [SF, RESPONSE], float),
+        ]
+    return specs
 
-    def split(out):
-        """The dict of :func:`identify_arrays` -> the tuple of ``specs``, with lifted dims."""
-        lead = out["G"].shape[:-3]
-        fnu = factor * nu
-        G, G_sd = out["G"], np.sqrt(np.maximum(out["G_var"], 0.0))  # rounding can leave -0-ish
-        pieces = {
-            "P": out["P"],
-            "P_std": np.sqrt(out["P_var"]),  # already clipped at 0
-            "P_flag": out["P_bad"],
-            "condition": out["condition"],
-            "ill_posed": out["ill_posed"],
-        }
-        zy = slice(fnu, None) if closed_loop == "indirect" else slice(0, None)
-        pieces["PS"] = G[..., zy, :].reshape(lead + (m, ny, factor, nu))
-        pieces["PS_std"] = G_sd[..., zy, :].reshape(lead + (m, ny, factor, nu))
-        pieces["transient_y"] = out["T"][..., zy]
-        pieces["noise_variance_y"] = out["noise_variance"][..., zy]
-        if closed_loop == "indirect":
-            shape_s = lead + (m, factor, nu, factor, nu)
-            pieces["S"] = G[..., :fnu, :].reshape(shape_s)
-            pieces["S_std"] = G_sd[..., :fnu, :].reshape(shape_s)
-            pieces["transient_u"] = out["T"][..., :fnu].reshape(lead + (m, factor, nu))
-            pieces["noise_variance_u"] = out["noise_variance"][..., :fnu].reshape(lead + (m, factor, nu))
-            pieces["s_condition"] = out["s_condition"]
-            pieces["s_singular"] = out["s_singular"]
-        return tuple(pieces[name] for name, _, _ in specs)
 
-    gufunc_kwargs = {
-        "output_sizes": {FQ: n // 2 + 1, SF: m, LP: factor, LP2: factor, IN2: nu,
-                         cv.INPUT: nu, cv.OUTPUT: ny},
-        "allow_rechunk": False,
+def output_sizes(*, factor: int, n: int, nu: int, ny: int, closed_loop: str) -> dict:
+    """Size of every core dim of :func:`output_specs`.
+
+    Parameters
+    ----------
+    factor : int
+        Multirate factor ``F`` of the estimate.
+    n : int
+        Fast samples ``N`` of the experiment.
+    nu, ny : int
+        Plant inputs and outputs.
+    closed_loop : {"indirect", "direct"}
+        The estimator (sets the rows of ``G``).
+
+    Returns
+    -------
+    dict of str to int
+    """
+    fnu = factor * nu
+    return {FQ: n // 2 + 1, SF: n // factor, LP: factor, LP2: factor, IN2: nu,
+            cv.INPUT: nu, cv.OUTPUT: ny, RESPONSE: fnu + ny if closed_loop == "indirect" else ny,
+            EXCITATION: fnu}
+
+
+def _split(out: dict, specs, *, factor: int, nu: int, ny: int, closed_loop: str) -> tuple:
+    """The dict of :func:`identify_spectra` -> the tuple of ``specs``, with lifted dims."""
+    G = out["G"]
+    lead_m = G.shape[:-2]
+    fnu = factor * nu
+    G_sd = np.sqrt(np.maximum(out["G_var"], 0.0))  # rounding can leave -0-ish
+    pieces = {
+        "P": out["P"],
+        "P_std": np.sqrt(out["P_var"]),  # already clipped at 0
+        "P_flag": out["P_bad"],
+        "condition": out["condition"],
+        "ill_posed": out["ill_posed"],
+        "G": G,
+        "G_std": G_sd,
+        "noise_variance": out["noise_variance"],
     }
+    zy = slice(fnu, None) if closed_loop == "indirect" else slice(0, None)
+    pieces["PS"] = G[..., zy, :].reshape(lead_m + (ny, factor, nu))
+    pieces["PS_std"] = G_sd[..., zy, :].reshape(lead_m + (ny, factor, nu))
+    pieces["transient_y"] = out["T"][..., zy]
+    pieces["noise_variance_y"] = out["noise_variance"][..., zy]
+    if closed_loop == "indirect":
+        shape_s = lead_m + (factor, nu, factor, nu)
+        pieces["S"] = G[..., :fnu, :].reshape(shape_s)
+        pieces["S_std"] = G_sd[..., :fnu, :].reshape(shape_s)
+        pieces["transient_u"] = out["T"][..., :fnu].reshape(lead_m + (factor, nu))
+        pieces["noise_variance_u"] = out["noise_variance"][..., :fnu].reshape(lead_m + (factor, nu))
+        pieces["s_condition"] = out["s_condition"]
+        pieces["s_singular"] = out["s_singular"]
+    return tuple(pieces[name] for name, _, _ in specs)
+
+
+def _estimate(r: xr.DataArray, u: xr.DataArray, y: xr.DataArray, s, *, factor: int,
+              stacked: bool, check_rank: bool, plan=None) -> xr.Dataset:
+    """The pipeline shared by :func:`identify` and :func:`identify_single_rate` (unlabelled).
+
+    ``r``, ``u`` on (``time``, ``input``) with ``N = M factor`` samples, ``y`` on
+    (``slow_time``, ``output``).  Eager data: the spectra are computed once, the excitation
+    rank is checked on them (``check_rank``) and the local models are fitted from them.
+    ``plan`` (:func:`lcmr_xr.identification.pooling.plan`): window 0 over the experiments'
+    steady-state periods, or the nonparametric noise covariance for the band.
+    """
+    n, nu = r.sizes[cv.TIME], r.sizes[cv.INPUT]
+    ny = y.sizes[cv.OUTPUT]
+    specs = output_specs(s.closed_loop, stacked)
+    core_in = [[cv.TIME, cv.INPUT], [cv.TIME, cv.INPUT], [cv.SLOW_TIME, cv.OUTPUT]]
+    sizes = output_sizes(factor=factor, n=n, nu=nu, ny=ny, closed_loop=s.closed_loop)
+    used = {d for _, dims, _ in specs for d in dims}
+    gufunc_kwargs = {"output_sizes": {d: k for d, k in sizes.items() if d in used},
+                     "allow_rechunk": False}
     output_spec = dict(output_core_dims=[dims for _, dims, _ in specs], dask="parallelized",
                        output_dtypes=[dt for _, _, dt in specs],
                        dask_gufunc_kwargs=gufunc_kwargs, keep_attrs=False)
-    if frequency_chunks is None:
-        def kernel(r, u, y):
-            return split(identify_arrays(r, u, y, factor=factor, half_width=window,
-                                         degrees=degrees, closed_loop=closed_loop,
-                                         covariance=covariance))
+    split = dict(specs=specs, factor=factor, nu=nu, ny=ny, closed_loop=s.closed_loop)
+    lazy = any(v.chunks is not None for v in (r, u, y))
+    noise = plan.noise_covariance if plan is not None else None
+    th = even_spacing(r[cv.TIME].values, cv.TIME)[1]
+    if plan is not None and plan.window0:  # G bin by bin over the experiments' periods
+        def kernel(r_, u_, y_):
+            _guards.check_finite(r_, u_, y_, th=th, factor=factor)
+            return _split(identify_window0_arrays(r_, u_, y_, factor=factor,
+                                                  closed_loop=s.closed_loop,
+                                                  covariance=s.covariance), **split)
 
-        results = xr.apply_ufunc(kernel, ds["r"], ds["u"], ds["y"], input_core_dims=core_in,
+        pooled_dims = [cv.EXPERIMENT, cv.PERIOD]
+        results = xr.apply_ufunc(kernel, r, u, y, input_core_dims=[pooled_dims + c for c in core_in],
+                                 **output_spec)
+    elif s.frequency_chunks is None:
+        def fit(r_, u_, y_, noise_covariance=None):
+            R, Z = experiment_spectra(r_, u_, y_, factor=factor, closed_loop=s.closed_loop)
+            if check_rank and not lazy:  # lazy: the local model's condition numbers flag it
+                _check_excitation_rank(R, "r" if s.closed_loop == "indirect" else "u")
+            return identify_spectra(R, Z, n_fast=n, factor=factor, nu=nu, half_width=s.window,
+                                    degrees=s.degrees, closed_loop=s.closed_loop,
+                                    covariance=s.covariance, noise_covariance=noise_covariance)
+
+        def kernel(r_, u_, y_, *noise_cov):
+            # lazy data were not checked by the validation: name the variable and time range
+            _guards.check_finite(r_, u_, y_, th=th, factor=factor)
+            # data of extreme magnitude are fitted scaled by powers of two (exact), then unscaled
+            return _split(_guards.scaled_call(fit, r_, u_, y_, closed_loop=s.closed_loop,
+                                              noise_covariance=noise_cov[0] if noise_cov else None),
+                          **split)
+
+        extra = [] if noise is None else [noise]
+        extra_core = [] if noise is None else [[SF, "_z", "_z2"]]
+        results = xr.apply_ufunc(kernel, r, u, y, *extra, input_core_dims=core_in + extra_core,
                                  **output_spec)
     else:
-        packed = _fit_frequency_chunked(ds, factor=factor, window=window, degrees=degrees,
-                                        closed_loop=closed_loop, covariance=covariance,
-                                        frequency_chunks=frequency_chunks)
+        packed = _fit_frequency_chunked(r, u, y, s, factor=factor, check_rank=check_rank,
+                                        noise=noise)
         nz_, nr_ = packed.attrs["nz"], packed.attrs["nr"]
 
         def finish(p):
             p = np.ascontiguousarray(p).view(complex)
-            return split(finish_packed(p, nz=nz_, nr=nr_, n_fast=n, factor=factor, nu=nu, ny=ny,
-                                       closed_loop=closed_loop, covariance=covariance))
+            return _split(finish_packed(p, nz=nz_, nr=nr_, n_fast=n, factor=factor, nu=nu, ny=ny,
+                                        closed_loop=s.closed_loop, covariance=s.covariance),
+                          **split)
 
         # the recovery gathers every slow bin (P(k) uses bin k mod M): one chunk along it
         results = xr.apply_ufunc(finish, packed.chunk({SF: -1}), input_core_dims=[[SF, "_packed"]],
                                  **output_spec)
-    out = xr.Dataset({name: da for (name, _, _), da in zip(specs, results)})
-    out = _label(out, ds, factor=factor, th=th, n=n, m=m)
-    if errors == "raise" and closed_loop == "indirect" and not _is_lazy(out):
-        bad = np.asarray(out["s_singular"])
-        if bad.any():
-            idx = np.flatnonzero(bad.reshape(-1, m).any(axis=0))
-            raise ValueError(
-                f"the estimated lifted sensitivity S is not invertible at {idx.size} slow bin(s) "
-                f"(first: {idx[:5].tolist()}), so P_1 = PS_1 S^-1 cannot be formed there. Check "
-                f"that u was recorded at the plant input in closed loop and that the excitation "
-                f"is strong enough there, or pass errors='ignore' to get NaN and the flag "
-                f"s_singular at those bins."
-            )
-    out.attrs.update({
-        "conventions": cv.CONVENTIONS,
-        "method": method,
-        "closed_loop": closed_loop,
-        "window": window,
-        "window_bins": 2 * window + 1,
-        "degrees": np.array(degrees, dtype=int),
-        "factor": factor,
-        "sampling_period": th,
-        "slow_nyquist": 1.0 / (2 * factor * th),
-        "n_samples": n,
-        "parameters_per_row": parameters_per_row(nr, degrees),
-        "covariance": int(bool(covariance)),
-        "title": f"lifted {closed_loop} closed-loop {method.upper()} FRF estimate",
-    })
-    return out
+    return xr.Dataset({name: da for (name, _, _), da in zip(specs, results)})
 
 
-def _fit_frequency_chunked(ds, *, factor, window, degrees, closed_loop, covariance,
-                           frequency_chunks):
+def _fit_frequency_chunked(r, u, y, s, *, factor, check_rank, noise=None):
     """Lazy local-model fit in chunks along ``slow_frequency`` with wrapped halos.
+
+    On eager data the spectra are computed here, once, and the excitation rank is checked
+    on them (``check_rank``).  ``noise`` (..., ``slow_frequency``, ``_z``, ``_z2``),
+    optional: the noise covariance known per bin (periods), haloed like the spectra.
 
     Returns a DataArray (..., ``slow_frequency``, ``_packed``) of :func:`fit_packed` columns.
     """
     import dask.array as da
 
-    chunk = int(frequency_chunks)
-    m = ds.sizes[cv.SLOW_TIME]
-    if chunk < 1:
-        raise ValueError(f"frequency_chunks must be a positive number of slow bins, got {chunk}.")
-    if chunk < window:
-        raise ValueError(
-            f"frequency_chunks={chunk} is smaller than the halo the local window needs "
-            f"(window={window} bins on each side); use frequency_chunks >= {window}."
-        )
-    nu, ny = ds.sizes[cv.INPUT], ds.sizes[cv.OUTPUT]
+    chunk, window, closed_loop = s.frequency_chunks, s.window, s.closed_loop
+    m = y.sizes[cv.SLOW_TIME]
+    nu, ny = r.sizes[cv.INPUT], y.sizes[cv.OUTPUT]
     nr = factor * nu
     nz = nr + ny if closed_loop == "indirect" else ny
     SF = cv.SLOW_FREQUENCY
+    th = even_spacing(r[cv.TIME].values, cv.TIME)[1]
+
+    def spectra(r, u, y):
+        _guards.check_finite(r, u, y, th=th, factor=factor)
+        if _guards.scales(r, u, y) != (1.0, 1.0, 1.0):
+            raise ValueError(
+                f"r, u or y has magnitudes beyond {_guards.SAFE_MAGNITUDE:g} or below "
+                f"{1 / _guards.SAFE_MAGNITUDE:g}, where products of spectra overflow or underflow; "
+                "frequency_chunks does not rescale: drop frequency_chunks (identify then scales "
+                "internally) or express the data in other units."
+            )
+        return experiment_spectra(r, u, y, factor=factor, closed_loop=closed_loop)
+
     R, Z = xr.apply_ufunc(
-        lambda r, u, y: experiment_spectra(r, u, y, factor=factor, closed_loop=closed_loop),
-        ds["r"], ds["u"], ds["y"],
+        spectra,
+        r, u, y,
         input_core_dims=[[cv.TIME, cv.INPUT], [cv.TIME, cv.INPUT], [cv.SLOW_TIME, cv.OUTPUT]],
         output_core_dims=[[SF, "_r"], [SF, "_z"]], dask="parallelized",
         output_dtypes=[complex, complex],
         dask_gufunc_kwargs={"output_sizes": {SF: m, "_r": nr, "_z": nz}},
     )
+    if check_rank and R.chunks is None:
+        _check_excitation_rank(R.values, "r" if closed_loop == "indirect" else "u")
     lead_chunks = {d: "auto" for d in R.dims if d not in (SF, "_r")}
     Rd = R.chunk({**{d: R.chunks[R.get_axis_num(d)] if R.chunks else -1 for d in lead_chunks},
                   SF: chunk, "_r": -1}).data
@@ -344,12 +477,21 @@ def _fit_frequency_chunked(ds, *, factor, window, degrees, closed_loop, covarian
     boundary[ax] = "periodic"
     Rg = da.overlap.overlap(Rd, depth=depth, boundary=boundary)
     Zg = da.overlap.overlap(Zd, depth=depth, boundary=boundary)
-    width = packed_width(nz, nr, covariance)
-    fitted = da.map_blocks(
-        lambda rb, zb: fit_packed(rb, zb, half_width=window, degrees=degrees, circular=False,
-                                  covariance=covariance),
-        Rg, Zg, dtype=complex, chunks=Rg.chunks[:-1] + ((width,),),
-    )
+    width = packed_width(nz, nr, s.covariance)
+    blocks = [Rg, Zg]
+    if noise is not None:  # (..., SF, nz nz) flat, so its blocks line up with R's and Z's
+        flat = noise.transpose(*R.dims[:-1], "_z", "_z2").stack(_zz=("_z", "_z2"))
+        flat = flat.drop_vars(["_zz", "_z", "_z2"], errors="ignore")
+        Nd = flat.chunk({**dict(zip(R.dims[:-1], Rd.chunks[:-1])), "_zz": -1}).data
+        blocks.append(da.overlap.overlap(Nd, depth=depth, boundary=boundary))
+
+    def fit_block(rb, zb, *nb):
+        known = nb[0].reshape(nb[0].shape[:-1] + (nz, nz)) if nb else None
+        return fit_packed(rb, zb, half_width=window, degrees=s.degrees, circular=False,
+                          covariance=s.covariance, noise_covariance=known)
+
+    fitted = da.map_blocks(fit_block, *blocks, dtype=complex,
+                           chunks=Rg.chunks[:-1] + ((width,),))
     trimmed = da.overlap.trim_internal(fitted, {**depth}, boundary=boundary)
     # a float view (pairs of re, im) so dask builds real metadata for the real outputs
     out = xr.DataArray(trimmed.view(float), dims=R.dims[:-1] + ("_packed",),
@@ -362,17 +504,11 @@ def _is_lazy(ds):
     return any(v.chunks is not None for v in ds.data_vars.values())
 
 
-def _check_excitation(ds, factor, closed_loop):
+def _check_excitation_rank(R, name: str) -> None:
     """Refuse an excitation that does not excite every lifted channel (rank-deficient R)."""
-    source = ds["r"] if closed_loop == "indirect" else ds["u"]
-    if source.chunks is not None:
-        return  # checked per block by the local model's condition numbers instead
-    x = np.asarray(source.transpose(..., cv.TIME, cv.INPUT))
-    R = lifted_spectra(x, factor)
     nr = R.shape[-1]
     rank, sv = excitation_rank(R)
     if rank < nr:
-        name = "r" if closed_loop == "indirect" else "u"
         raise ValueError(
             f"the lifted {name} has rank {rank} < F*nu = {nr}: not every lifted channel is "
             f"excited independently (smallest/largest singular value "
@@ -383,20 +519,33 @@ def _check_excitation(ds, factor, closed_loop):
         )
 
 
-def _label(out, ds, *, factor, th, n, m):
+def _label(out, ds, *, factor, th):
+    """Coordinates, ``long_name`` and ``units`` of an (un)computed result of :func:`_estimate`.
+
+    ``ds`` is the experiment the estimate came from, ``th`` its fast sampling period;
+    ``factor`` is that of the estimate (``1`` for the single-rate one, whose "fast" samples
+    are the slow ones).  Only what ``out`` holds is labelled.
+    """
+    m = out.sizes[cv.SLOW_FREQUENCY]
+    n = m * factor  # samples of the estimate's fast grid
+    record = ds.sizes[cv.TIME] * th  # record length N Th = M Tl, s
     u_units = ds["u"].attrs.get("units", "1")
     y_units = ds["y"].attrs.get("units", "1")
     p_units = _ratio_units(y_units, u_units)
     coords = {
-        cv.FREQUENCY: (cv.FREQUENCY, np.arange(n // 2 + 1) / (n * th), cv.frequency_attrs("frequency")),
-        cv.SLOW_FREQUENCY: (cv.SLOW_FREQUENCY, np.arange(m) / (m * factor * th),
+        cv.FREQUENCY: (cv.FREQUENCY, np.arange(n // 2 + 1) / record, cv.frequency_attrs("frequency")),
+        cv.SLOW_FREQUENCY: (cv.SLOW_FREQUENCY, np.arange(m) / record,
                             cv.frequency_attrs("slow-rate DFT frequency")),
         cv.LIFT_PHASE: (cv.LIFT_PHASE, np.arange(factor), cv.label_attrs("lift phase (fast sample within a slow period)")),
-        cv.LIFT_PHASE + cv.SECOND: (cv.LIFT_PHASE + cv.SECOND, np.arange(factor), cv.label_attrs("lift phase of the excitation")),
+        cv.LIFT_PHASE2: (cv.LIFT_PHASE2, np.arange(factor), cv.label_attrs("lift phase of the excitation")),
         cv.INPUT: ds[cv.INPUT].variable,
         cv.OUTPUT: ds[cv.OUTPUT].variable,
-        cv.INPUT + cv.SECOND: (cv.INPUT + cv.SECOND, ds[cv.INPUT].values, cv.label_attrs("excited input")),
+        cv.INPUT2: (cv.INPUT2, ds[cv.INPUT].values, cv.label_attrs("excited input")),
     }
+    if RESPONSE in out.dims:
+        rows, columns = _stacked_labels(ds, factor, out.sizes[RESPONSE])
+        coords[RESPONSE] = (RESPONSE, rows, cv.label_attrs("spectrum fitted: lifted u (phase, input), then y"))
+        coords[EXCITATION] = (EXCITATION, columns, cv.label_attrs("excitation spectrum: lifted (phase, input)"))
     out = out.assign_coords({k: v for k, v in coords.items() if k in out.dims or k in (cv.INPUT, cv.OUTPUT)})
     for name in ds.coords:
         if name not in out.coords and set(ds[name].dims) <= set(out.dims):
@@ -418,11 +567,27 @@ def _label(out, ds, *, factor, th, n, m):
         "ill_posed": ("local model ill-posed", "1"),
         "s_condition": ("condition number of the estimated lifted sensitivity", "1"),
         "s_singular": ("lifted sensitivity not invertible", "1"),
+        "G": ("lifted local model [S; PS] (rows: response, columns: excitation)",
+              f"{_ratio_units(u_units, ru)} (u rows), {_ratio_units(y_units, ru)} (y rows)"),
+        "G_std": ("standard deviation of G",
+                  f"{_ratio_units(u_units, ru)} (u rows), {_ratio_units(y_units, ru)} (y rows)"),
+        "noise_variance": ("residual noise variance of the response spectra",
+                           f"({u_units})2 (u rows), ({y_units})2 (y rows)"),
     }
     for name, (long_name, units) in meta.items():
         if name in out:
             out[name].attrs.update({"long_name": long_name, "units": units})
     return out
+
+
+def _stacked_labels(ds, factor, n_rows):
+    """Labels of the rows (``u:phase:input`` then ``y:output``) and columns of ``G``."""
+    name = "r" if n_rows > ds.sizes[cv.OUTPUT] else "u"  # direct: G maps lifted u to y
+    inputs = [str(i) for i in ds[cv.INPUT].values]
+    lifted = [f"{{}}:{j}:{i}" for j in range(factor) for i in inputs]
+    rows = [s.format("u") for s in lifted] if name == "r" else []
+    rows += [f"y:{o}" for o in ds[cv.OUTPUT].values]
+    return rows, [s.format(name) for s in lifted]
 
 
 def identify_single_rate(experiment: xr.Dataset, *, method: str = "lrm", window: int = 30,
@@ -442,8 +607,9 @@ def identify_single_rate(experiment: xr.Dataset, *, method: str = "lrm", window:
         Local rational or polynomial model.
     window : int, default 30
         Half-width ``n`` of the local window (``2 n + 1`` slow bins).
-    degrees : (int, int, int), optional
-        ``(Rn, Rm, Rd)``; default ``(3, 3, 3)`` (LRM) or ``(3, 3, 0)`` (LPM).
+    degrees : (int, int, int) or str, optional
+        ``(Rn, Rm, Rd)`` or ``"Rn-Rm-Rd"``; default ``(3, 3, 3)`` (LRM) or ``(3, 3, 0)`` (LPM),
+        the rules of :func:`identify`.
     covariance : bool, default True
         Return ``P_std`` from the local-model covariance.
 
@@ -453,38 +619,118 @@ def identify_single_rate(experiment: xr.Dataset, *, method: str = "lrm", window:
         ``P``, ``P_std``, ``P_flag`` on ``frequency`` = slow bins ``m / (M Tl)``,
         ``m = 0..M/2`` (Hz); attributes as :func:`identify`.
     """
+    s = estimator_settings(method=method, window=window, degrees=degrees, covariance=covariance)
     ds = _validate(experiment)
-    degrees = _resolve_degrees(method, degrees)
     factor = int(ds.attrs[cv.FACTOR])
-    m = ds.sizes[cv.SLOW_TIME]
-    nu = ds.sizes[cv.INPUT]
-    window = _check_window(window, degrees, nu, m)
-    th = float(ds[cv.TIME][1] - ds[cv.TIME][0])
-    FQ = cv.FREQUENCY
-
-    def kernel(r, u, y):
-        out = identify_single_rate_arrays(r, u, y, factor=factor, half_width=window,
-                                          degrees=degrees, covariance=covariance)
-        return out["P"], np.sqrt(out["P_var"]), out["P_bad"]
-
-    P, P_std, flag = xr.apply_ufunc(
-        kernel, ds["r"], ds["u"], ds["y"],
-        input_core_dims=[[cv.TIME, cv.INPUT], [cv.TIME, cv.INPUT], [cv.SLOW_TIME, cv.OUTPUT]],
-        output_core_dims=[[FQ, cv.OUTPUT, cv.INPUT], [FQ, cv.OUTPUT, cv.INPUT], [FQ]],
-        dask="parallelized", output_dtypes=[complex, float, bool],
-        dask_gufunc_kwargs={"output_sizes": {FQ: m // 2 + 1}},
-    )
-    p_units = _ratio_units(ds["y"].attrs.get("units", "1"), ds["u"].attrs.get("units", "1"))
-    out = xr.Dataset({"P": P, "P_std": P_std, "P_flag": flag})
-    out = out.assign_coords({FQ: (FQ, np.arange(m // 2 + 1) / (m * factor * th), cv.frequency_attrs())})
-    out["P"].attrs.update(long_name="plant FRF (single-rate estimate)", units=p_units)
-    out["P_std"].attrs.update(long_name="standard deviation of P", units=p_units)
-    out["P_flag"].attrs.update(long_name="P could not be estimated", units="1")
-    out.attrs.update({
-        "conventions": cv.CONVENTIONS, "method": method, "closed_loop": "single-rate indirect",
-        "window": window, "window_bins": 2 * window + 1, "degrees": np.array(degrees, dtype=int),
-        "factor": factor, "sampling_period": th, "slow_nyquist": 1.0 / (2 * factor * th),
-        "n_samples": ds.sizes[cv.TIME],
-        "title": f"single-rate closed-loop {method.upper()} FRF estimate (ignores lifting)",
-    })
+    check_window_fits(s.window, s.degrees, ds.sizes[cv.INPUT], ds.sizes[cv.SLOW_TIME])
+    th = even_spacing(ds[cv.TIME].values, cv.TIME)[1]
+    # the lifted pipeline with F = 1 on the slow samples x(l F) of r and u
+    slow = {cv.TIME: slice(None, None, factor)}
+    out = _estimate(ds["r"].isel(slow), ds["u"].isel(slow), ds["y"], s, factor=1, stacked=False,
+                    check_rank=False)
+    out = _label(out, ds, factor=1, th=th)[["P", "P_std", "P_flag"]]
+    out["P"].attrs["long_name"] = "plant FRF (single-rate estimate)"
+    attrs = _settings_attrs(ds, s, factor=factor, th=th)
+    for key in ("parameters_per_row", "covariance"):  # not recorded for this estimate
+        attrs.pop(key)
+    attrs.update({"closed_loop": "single-rate indirect",
+                  "title": f"single-rate closed-loop {s.method.upper()} FRF estimate (ignores lifting)"})
+    out.attrs.update(attrs)
     return out
+
+
+def result_template(ds: xr.Dataset, s, *, stacked: bool = False) -> xr.Dataset:
+    """Lazy zeros shaped, labelled and chunked like ``identify(ds, ...)``, computing nothing.
+
+    Derived from :func:`output_specs` and :func:`output_sizes`: what
+    :func:`xarray.map_blocks` needs as the template of a blockwise ``identify``
+    (:func:`lcmr_xr.scaleout.sweep`).  Leading dims of ``ds["r"]`` keep their chunks.
+
+    Parameters
+    ----------
+    ds : xarray.Dataset
+        Experiment dataset (may be dask-backed).
+    s : lcmr_xr.settings.EstimatorSettings
+        Validated settings (:func:`lcmr_xr.settings.estimator_settings`).
+    stacked : bool, default False
+        As in :func:`identify`.
+
+    Returns
+    -------
+    xarray.Dataset
+        Dask zeros with the variables, dims, coords and attributes of the result.
+    """
+    import dask.array as dsa
+
+    factor = int(ds.attrs[cv.FACTOR])
+    th = even_spacing(ds[cv.TIME].values, cv.TIME)[1]
+    r = ds["r"]
+    lead = [d for d in r.dims if d not in (cv.TIME, cv.INPUT, cv.PERIOD)]  # periods: averaged
+    lead_shape = tuple(ds.sizes[d] for d in lead)
+    lead_chunks = tuple(r.chunks[r.get_axis_num(d)] if r.chunks else (ds.sizes[d],) for d in lead)
+    sizes = output_sizes(factor=factor, n=ds.sizes[cv.TIME], nu=ds.sizes[cv.INPUT],
+                         ny=ds.sizes[cv.OUTPUT], closed_loop=s.closed_loop)
+    variables = {}
+    for name, dims, dtype in output_specs(s.closed_loop, stacked):
+        shape = tuple(sizes[d] for d in dims)
+        data = dsa.zeros(lead_shape + shape, dtype=dtype, chunks=lead_chunks + tuple((k,) for k in shape))
+        variables[name] = (tuple(lead) + tuple(dims), data)
+    out = _label(xr.Dataset(variables), ds, factor=factor, th=th)
+    out.attrs.update(_settings_attrs(ds, s, factor=factor, th=th))
+    if cv.PERIOD in ds.dims:  # identify averages the periods: its pooling outputs, lazily
+        plan = pooling.plan(ds, window=s.window, transient_periods=None, combine=None,
+                            closed_loop=s.closed_loop, covariance=s.covariance,
+                            frequency_chunks=None)
+        out = pooling.finish(out, plan, closed_loop=s.closed_loop, factor=factor,
+                             y_units=ds["y"].attrs.get("units", "1"),
+                             u_units=ds["u"].attrs.get("units", "1"))
+    return out
+
+
+def stacked_local_model(result: xr.Dataset) -> tuple[xr.DataArray, xr.DataArray]:
+    """The local-model estimate ``G`` and the residual variances of its rows, stacked.
+
+    ``G`` (..., ``slow_frequency``, ``response``, ``excitation``) maps the lifted excitation
+    spectra to the spectra ``[U; Y]`` (``Y`` alone for ``closed_loop="direct"``);
+    ``noise_variance`` (..., ``slow_frequency``, ``response``).  Taken as they are from a
+    result of ``identify(..., stacked=True)``; otherwise (a result of
+    :func:`lcmr_xr.scaleout.sweep`, say) rebuilt from its blocks ``S``, ``PS``,
+    ``noise_variance_u`` and ``noise_variance_y`` -- the inverse of how :func:`identify`
+    cuts them.
+
+    Parameters
+    ----------
+    result : xarray.Dataset
+        A result of :func:`identify` or :func:`lcmr_xr.scaleout.sweep` (extra leading dims
+        such as ``experiment`` or the sweep's settings are kept, in front).
+
+    Returns
+    -------
+    (xarray.DataArray, xarray.DataArray)
+        ``G`` and ``noise_variance``, computed if ``result`` is.
+    """
+    if "G" in result and "noise_variance" in result:
+        return (result["G"].transpose(..., SF, RESPONSE, EXCITATION),
+                result["noise_variance"].transpose(..., SF, RESPONSE))
+    ps = result["PS"].transpose(..., SF, cv.OUTPUT, LP2, IN2)
+    lead = list(ps.dims[:-4])
+    G = ps.data.reshape(ps.shape[:-2] + (-1,))
+    noise = result["noise_variance_y"].transpose(*lead, SF, cv.OUTPUT).data
+    if "S" in result:  # indirect: the rows of the lifted u come first
+        S = result["S"].transpose(*lead, SF, LP, cv.INPUT, LP2, IN2)
+        rows = S.shape[-4] * S.shape[-3]
+        G = _concat([S.data.reshape(S.shape[:-4] + (rows, -1)), G], axis=-2)
+        nu_ = result["noise_variance_u"].transpose(*lead, SF, LP, cv.INPUT).data
+        noise = _concat([nu_.reshape(nu_.shape[:-2] + (rows,)), noise], axis=-1)
+    coords = {d: result[d] for d in lead + [SF] if d in result.coords}
+    return (xr.DataArray(G, dims=lead + [SF, RESPONSE, EXCITATION], coords=coords),
+            xr.DataArray(noise, dims=lead + [SF, RESPONSE], coords=coords))
+
+
+def _concat(arrays, axis):
+    """``numpy.concatenate`` that stays lazy for dask arrays."""
+    if any(hasattr(a, "dask") for a in arrays):
+        import dask.array as dsa
+
+        return dsa.concatenate(arrays, axis=axis)
+    return np.concatenate(arrays, axis=axis)

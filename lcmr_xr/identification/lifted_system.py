@@ -16,14 +16,11 @@ import xarray as xr
 from lcmr_xr import conventions as cv
 from lcmr_xr.kernels import lifting as kl
 
-LP2 = cv.LIFT_PHASE + cv.SECOND
-
-
 def _full_circle(frf: xr.DataArray, n_samples: int | None) -> tuple[xr.DataArray, int]:
     """The FRF on all ``N`` fast bins, completing a one-sided FRF by conjugate symmetry."""
     nf = frf.sizes[cv.FREQUENCY]
     if n_samples is None:
-        n_samples = int(frf.attrs.get("n_samples", nf))
+        n_samples = int(frf.attrs.get(cv.N_SAMPLES, nf))
     if nf == n_samples:
         return frf, n_samples
     if nf == n_samples // 2 + 1:
@@ -86,15 +83,15 @@ def lifted_frf(frf: xr.DataArray, factor: int, *, n_samples: int | None = None) 
     coords.update({
         cv.SLOW_FREQUENCY: (cv.SLOW_FREQUENCY, np.arange(m) * df, cv.frequency_attrs("slow-rate DFT frequency")),
         cv.LIFT_PHASE: (cv.LIFT_PHASE, np.arange(f_), cv.label_attrs("output lift phase")),
-        LP2: (LP2, np.arange(f_), cv.label_attrs("input lift phase")),
+        cv.LIFT_PHASE2: (cv.LIFT_PHASE2, np.arange(f_), cv.label_attrs("input lift phase")),
         cv.OUTPUT: full[cv.OUTPUT] if cv.OUTPUT in full.coords else np.arange(ny),
         cv.INPUT: full[cv.INPUT] if cv.INPUT in full.coords else np.arange(nu),
     })
     return xr.DataArray(
-        values, dims=lead + [cv.SLOW_FREQUENCY, cv.LIFT_PHASE, cv.OUTPUT, LP2, cv.INPUT],
+        values, dims=lead + [cv.SLOW_FREQUENCY, cv.LIFT_PHASE, cv.OUTPUT, cv.LIFT_PHASE2, cv.INPUT],
         coords=coords,
         attrs={"long_name": f"lifted {frf.attrs.get('long_name', 'FRF')}",
-               "units": frf.attrs.get("units", "1"), cv.FACTOR: f_, "n_samples": n},
+               "units": frf.attrs.get("units", "1"), cv.FACTOR: f_, cv.N_SAMPLES: n},
     )
 
 
@@ -116,17 +113,18 @@ def frf_from_first_block_row(first_row: xr.DataArray, factor: int | None = None)
         ``P(k) = sum_j exp(2j pi k j / N) P1_j(k mod M)`` on ``frequency`` = ``k / (N Th)``,
         ``k = 0..N/2``, dims (..., ``frequency``, ``output``, ``input``).
     """
-    in_dim = cv.INPUT if cv.INPUT in first_row.dims else cv.INPUT + cv.SECOND
-    f_ = int(factor) if factor is not None else first_row.sizes[LP2]
-    if first_row.sizes[LP2] != f_:
-        raise ValueError(f"lift_phase2 has {first_row.sizes[LP2]} entries but factor is {f_}.")
-    arr = first_row.transpose(..., cv.SLOW_FREQUENCY, cv.OUTPUT, LP2, in_dim)
+    in_dim = cv.INPUT if cv.INPUT in first_row.dims else cv.INPUT2
+    n_phases = first_row.sizes[cv.LIFT_PHASE2]
+    f_ = int(factor) if factor is not None else n_phases
+    if n_phases != f_:
+        raise ValueError(f"lift_phase2 has {n_phases} entries but factor is {f_}.")
+    arr = first_row.transpose(..., cv.SLOW_FREQUENCY, cv.OUTPUT, cv.LIFT_PHASE2, in_dim)
     m, ny, _, nu = arr.shape[-4:]
     n = m * f_
     values = kl.frf_from_first_block_row(arr.values.reshape(arr.shape[:-2] + (f_ * nu,)), f_)
     values = values[..., : n // 2 + 1, :, :]
     df = float(first_row[cv.SLOW_FREQUENCY][1] - first_row[cv.SLOW_FREQUENCY][0])
-    lead = [d for d in arr.dims if d not in (cv.SLOW_FREQUENCY, cv.OUTPUT, LP2, in_dim)]
+    lead = [d for d in arr.dims if d not in (cv.SLOW_FREQUENCY, cv.OUTPUT, cv.LIFT_PHASE2, in_dim)]
     coords = {d: arr[d] for d in lead if d in arr.coords}
     coords[cv.FREQUENCY] = (cv.FREQUENCY, np.arange(n // 2 + 1) * df, cv.frequency_attrs())
     if cv.OUTPUT in arr.coords:

@@ -2,14 +2,29 @@
 
 Readers never see a half-written file, a failed write leaves neither a partial file nor
 the temporary one, and an existing file is replaced only once the new one is complete.
+
+A process killed mid-write (SIGKILL, power loss) cannot remove its temporary file.  The
+temporary is named ``.NAME.HOST-PID.XXXXXXXX.tmp`` (hidden, next to ``NAME``, tagged with
+a hash of the host name and the writing process id), and the next write of the same
+``NAME`` removes the temporaries of ``NAME`` written on this host by a process that no
+longer runs.  Temporaries from other hosts (a shared file system) or without a tag (older
+versions) are removed once they are an hour old.  Temporaries of a live writer are never
+touched.
 """
 
 from __future__ import annotations
 
 import os
+import re
+import socket
 import tempfile
+import time
+import zlib
 from pathlib import Path
 from typing import Callable
+
+#: Untagged temporaries (no process id in the name) count as stale after this many seconds.
+UNTAGGED_STALE_SECONDS = 3600.0
 
 
 def target_directory(path: Path) -> Path:
@@ -21,6 +36,91 @@ def target_directory(path: Path) -> Path:
             f"(os.makedirs)."
         )
     return directory
+
+
+def check_writable_target(path) -> Path:
+    """Refuse, naming ``path``, a target that is a directory or lies in an unwritable one.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        File about to be written.
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``.
+    """
+    path = Path(path)
+    if path.is_dir():
+        raise IsADirectoryError(
+            f"cannot write {path}: it is a directory; give a file name, e.g. {path / 'result.nc'}."
+        )
+    directory = target_directory(path)
+    if not os.access(directory, os.W_OK | os.X_OK):
+        raise PermissionError(
+            f"cannot write {path}: directory {directory} is not writable; choose another place "
+            "or change its permissions."
+        )
+    return path
+
+
+def _host_tag() -> str:
+    return f"{zlib.crc32(socket.gethostname().encode()):08x}"
+
+
+def temporary_prefix(path) -> str:
+    """``.NAME.HOST-PID.``: how this process's temporaries of ``path`` begin."""
+    return f".{Path(path).name}.{_host_tag()}-{os.getpid()}."
+
+
+def _process_alive(pid: int) -> bool:
+    if pid == os.getpid():
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # alive, owned by someone else
+        return True
+    return True
+
+
+def stale_temporaries(path) -> list[Path]:
+    """Temporaries of ``path`` left by writers that died (see the module notes).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        Target file.
+
+    Returns
+    -------
+    list of pathlib.Path
+        Stale temporary files next to ``path``.
+    """
+    path = Path(path)
+    directory = path.parent if str(path.parent) else Path(".")
+    tagged = re.compile(rf"^\.{re.escape(path.name)}\.([0-9a-f]{{8}})-(\d+)\.[A-Za-z0-9_]+\.tmp$")
+    untagged = re.compile(rf"^\.{re.escape(path.name)}\.[A-Za-z0-9_]+\.tmp$")
+    stale = []
+    try:
+        entries = list(os.scandir(directory))
+    except OSError:
+        return []
+    now, host = time.time(), _host_tag()
+    for entry in entries:
+        match = tagged.match(entry.name)
+        if match and match.group(1) == host:
+            if not _process_alive(int(match.group(2))):
+                stale.append(Path(entry.path))
+        elif match or untagged.match(entry.name):
+            try:
+                if now - entry.stat().st_mtime > UNTAGGED_STALE_SECONDS:
+                    stale.append(Path(entry.path))
+            except OSError:
+                pass
+    return stale
 
 
 def atomic_write(path, write: Callable[[str], None]) -> Path:
@@ -38,10 +138,19 @@ def atomic_write(path, write: Callable[[str], None]) -> Path:
     pathlib.Path
         ``path``.
     """
-    path = Path(path)
+    path = check_writable_target(path)
     directory = target_directory(path)
+    for old in stale_temporaries(path):
+        try:
+            old.unlink()
+        except OSError:  # another writer cleaned it first, or it is not ours to delete
+            pass
     # same directory as the target: os.replace is atomic only within one file system
-    fd, tmp = tempfile.mkstemp(dir=directory, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        fd, tmp = tempfile.mkstemp(dir=directory, prefix=temporary_prefix(path), suffix=".tmp")
+    except OSError as err:
+        raise type(err)(err.errno, f"cannot write {path}: {err.strerror} in directory "
+                                   f"{directory}; choose another place") from err
     os.close(fd)
     try:
         write(tmp)

@@ -17,6 +17,8 @@ import xarray as xr
 
 from lcmr_xr.conventions import CONVENTIONS, FREQUENCY, INPUT, OUTPUT
 from lcmr_xr.io._atomic import atomic_write
+from lcmr_xr.io.matfile import is_mat_path, open_mat_experiment, save_mat
+from lcmr_xr.io._guards import check_not_own_source
 from lcmr_xr.experiment.dataset import validate_experiment
 
 __all__ = ["open_dataset", "open_experiment", "open_frf", "save"]
@@ -122,7 +124,7 @@ def _map_attrs(ds: xr.Dataset, func) -> xr.Dataset:
 
 
 def save(ds: xr.Dataset, path) -> Path:
-    """Write a dataset to NetCDF-4 atomically, complex values included.
+    """Write a dataset to NetCDF-4 (or a MATLAB ``.mat`` file) atomically, complex values included.
 
     Parameters
     ----------
@@ -130,7 +132,11 @@ def save(ds: xr.Dataset, path) -> Path:
         Any dataset (experiment, FRF, spectra).  Attribute values that NetCDF cannot hold
         (bool, tuple, list, None) are converted and restored by :func:`open_dataset`.
     path : str or os.PathLike
-        Target file; its directory must exist.  An existing file is replaced.
+        Target file; its directory must exist.  An existing file is replaced.  A path
+        ending in ``.mat`` writes an FRF or experiment dataset for MATLAB instead
+        (:func:`lcmr_xr.io.matfile.save_mat`: ``P`` as ``ny x nu x nf``, frequency in Hz,
+        ``Ts``, channel names, so that ``frd`` takes it in one line).  The file a lazy
+        (dask-backed) ``ds`` was opened from and still reads is refused.
 
     Returns
     -------
@@ -141,8 +147,11 @@ def save(ds: xr.Dataset, path) -> Path:
     -----
     The data are written to a temporary file in the same directory, flushed to disk, and
     moved over ``path`` with :func:`os.replace` (atomic on POSIX), so a failure mid-write
-    never leaves a half-written file and never destroys an existing one.  Complex arrays
-    use the netCDF4 ``auto_complex`` compound type and read back bit for bit.
+    never leaves a half-written file and never destroys an existing one.  The temporary is
+    the hidden ``.NAME.HOST-PID.XXXXXXXX.tmp`` next to ``path``; when a process is killed
+    mid-write it stays behind, and the next ``save`` to the same ``path`` removes it (the
+    temporaries of writers that no longer run).  Complex arrays use the netCDF4
+    ``auto_complex`` compound type and read back bit for bit.
 
     Examples
     --------
@@ -158,6 +167,9 @@ def save(ds: xr.Dataset, path) -> Path:
             f"save writes an xarray.Dataset, got {type(ds).__name__}; for a DataArray use "
             "x.to_dataset(name='...')."
         )
+    check_not_own_source(ds, path)
+    if is_mat_path(path):
+        return save_mat(ds, path)
     flat = _map_attrs(ds, _flatten_attrs)
     return atomic_write(path, lambda tmp: flat.to_netcdf(tmp, engine=_ENGINE, auto_complex=True))
 
@@ -194,6 +206,11 @@ def open_dataset(path, chunks=None) -> xr.Dataset:
     [1.0, 2.0]
     """
     path = Path(path)
+    if path.is_dir():
+        raise IsADirectoryError(
+            f"{path} is a directory, not a NetCDF file; for an archive directory use "
+            "lcmr_xr.scaleout.open_archive (or lcmr-xr sweep)."
+        )
     if not path.is_file():
         raise FileNotFoundError(f"no such file: {path}; check the path.")
     try:
@@ -228,20 +245,28 @@ def _check_conventions(ds: xr.Dataset, path, kind: str) -> None:
     if conv != CONVENTIONS:
         raise ValueError(
             f"{path} is not an lcmr_xr {kind} file: its 'conventions' attribute is {conv!r}, "
-            f"expected {CONVENTIONS!r}. Convert it with lcmr_xr.experiment.experiment() or "
-            "open it with lcmr_xr.io.open_dataset."
+            f"expected {CONVENTIONS!r}. Build an experiment from its arrays "
+            "with lcmr_xr.experiment(r, u, y, factor=F, sampling_period=Th) (read them with "
+            "lcmr_xr.open_dataset), or open it as it is with lcmr_xr.open_dataset."
         )
 
 
-def open_experiment(path, chunks=None) -> xr.Dataset:
-    """Open and validate an experiment file (``lcmr-xr-1``).
+def open_experiment(path, chunks=None, **mat_options) -> xr.Dataset:
+    """Open and validate an experiment file (``lcmr-xr-1``), NetCDF or MATLAB ``.mat``.
 
     Parameters
     ----------
     path : str or os.PathLike
-        NetCDF file written by :func:`save` from an experiment dataset.
+        NetCDF file written by :func:`save` from an experiment dataset, or a MATLAB
+        ``.mat`` file (v5, v7, v7.3; rows or columns, ``(1, 1)`` scalars).
     chunks : dict, optional
-        Dask chunks (default: load into memory).
+        Dask chunks (default: load into memory); NetCDF only.
+    **mat_options
+        For a ``.mat`` file only: ``r``, ``u``, ``y`` (variable names, default ``"r"``,
+        ``"u"``, ``"y"``), ``factor`` and ``sampling_period`` (numbers or names of
+        ``(1, 1)`` variables, default ``"F"`` and ``"Ts"``), ``inputs``, ``outputs``,
+        ``input_units``, ``output_units``; see
+        :func:`lcmr_xr.io.matfile.open_mat_experiment`.  Refused for NetCDF files.
 
     Returns
     -------
@@ -265,6 +290,15 @@ def open_experiment(path, chunks=None) -> xr.Dataset:
     ...     open_experiment(p).attrs["factor"]
     2
     """
+    if is_mat_path(path):
+        if chunks is not None:
+            raise ValueError(f"chunks applies to NetCDF files; {path} is a MATLAB file, read whole.")
+        return open_mat_experiment(path, **mat_options)
+    if mat_options:
+        raise TypeError(
+            f"{sorted(mat_options)} apply to MATLAB .mat files only; {path} is read as NetCDF, "
+            "whose variables and attributes are fixed by the conventions."
+        )
     ds = open_dataset(path, chunks=chunks)
     _check_conventions(ds, path, "experiment")
     try:
@@ -304,6 +338,12 @@ def open_frf(path, chunks=None) -> xr.Dataset:
     ...     open_frf(save(frf, os.path.join(d, "f.nc"))).sizes["frequency"]
     3
     """
+    if is_mat_path(path):
+        raise ValueError(
+            f"{path} is a MATLAB file: FRFs are written to .mat for MATLAB's frd "
+            "(scipy.io.loadmat reads it); open_frf reads the NetCDF file that lcmr_xr.save "
+            "writes to a path ending in .nc."
+        )
     ds = open_dataset(path, chunks=chunks)
     _check_conventions(ds, path, "FRF")
     if "P" not in ds.data_vars:

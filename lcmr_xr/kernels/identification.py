@@ -15,12 +15,16 @@ from lcmr_xr.kernels.closed_loop import (
 )
 from lcmr_xr.kernels.lifting import frf_from_first_block_row, lift
 from lcmr_xr.kernels.local_models import local_model
+from lcmr_xr.kernels.pooling import (mean_and_covariance, pooled_least_squares,
+                                     rescale_covariance, window_mean)
+from lcmr_xr.settings import CLOSED_LOOP
 
 #: The lifted excitation counts as rank deficient when its smallest singular value
 #: (over all bins) is below this fraction of its largest.
 EXCITATION_RANK_TOL = 1e-9
 
-CLOSED_LOOP_METHODS = ("indirect", "direct")
+#: The closed-loop variants (the table is :data:`lcmr_xr.settings.CLOSED_LOOP`).
+CLOSED_LOOP_METHODS = tuple(CLOSED_LOOP)
 
 
 def lifted_spectra(x: np.ndarray, factor: int) -> np.ndarray:
@@ -120,13 +124,19 @@ def packed_width(nz: int, nr: int, covariance: bool) -> int:
 
 
 def fit_packed(R, Z, *, half_width: int, degrees=(3, 3, 3), circular: bool = True,
-               covariance: bool = True) -> np.ndarray:
+               covariance: bool = True, noise_covariance=None) -> np.ndarray:
     """Local model per bin, packed into one complex array ``(..., M, K)``.
 
     One array (rather than a tuple) so that a frequency-chunked dask computation can run
     the fit with ``map_overlap``-style halos: columns are ``vec(G)`` (``nz nr``), ``T``
     (``nz``), the noise variances (``nz``), the condition number, the ill-posed flag and,
     with ``covariance``, ``vec(G_cov)``.  :func:`finish_packed` unpacks it.
+
+    ``noise_covariance`` (..., M, nz, nz), optional: a noise covariance known per bin
+    (e.g. from the spread over periods, :func:`lcmr_xr.kernels.pooling.mean_and_covariance`).
+    ``G_cov`` is then built from its mean over the local window (the local model assumes
+    the noise constant over the window, as its residual estimate does) instead of the
+    residual estimate; the residual noise variances are still returned.
     """
     fit = local_model(R, Z, half_width=half_width, degrees=tuple(degrees), circular=circular,
                       covariance="full" if covariance else None)
@@ -134,7 +144,12 @@ def fit_packed(R, Z, *, half_width: int, degrees=(3, 3, 3), circular: bool = Tru
     parts = [fit.G.reshape(lead_m + (-1,)), fit.T, fit.noise_variance,
              fit.condition[..., None], fit.ill_posed[..., None]]
     if covariance:
-        parts.append(fit.G_cov.reshape(lead_m + (-1,)))
+        G_cov = fit.G_cov
+        if noise_covariance is not None:
+            known = window_mean(np.asarray(noise_covariance), half_width, axis=-3,
+                                circular=circular)
+            G_cov = rescale_covariance(G_cov, fit.noise_covariance, known)
+        parts.append(G_cov.reshape(lead_m + (-1,)))
     return np.concatenate([np.asarray(p, dtype=complex) for p in parts], axis=-1)
 
 
@@ -164,7 +179,8 @@ def finish_packed(packed, *, nz: int, nr: int, n_fast: int, factor: int, nu: int
 
 
 def identify_arrays(r, u, y, *, factor: int, half_width: int, degrees=(3, 3, 3),
-                    closed_loop: str = "indirect", covariance: bool = True) -> dict:
+                    closed_loop: str = "indirect", covariance: bool = True,
+                    noise_covariance=None) -> dict:
     """Fast FRF of a plant in multirate closed loop from ``r``, ``u`` (fast) and ``y`` (slow).
 
     Parameters
@@ -185,6 +201,10 @@ def identify_arrays(r, u, y, *, factor: int, half_width: int, degrees=(3, 3, 3),
         ``y`` (biased under feedback; kept for comparison).
     covariance : bool, default True
         Propagate the local-model covariance to ``P`` (costs ``(nz nr)^2`` per bin).
+    noise_covariance : ndarray, shape (..., M, nz, nz), optional
+        Noise covariance of the spectra ``Z`` known per slow bin (periodic data: the
+        spread over periods); used for the covariance instead of the residual estimate
+        (see :func:`fit_packed`).
 
     Returns
     -------
@@ -195,10 +215,78 @@ def identify_arrays(r, u, y, *, factor: int, half_width: int, degrees=(3, 3, 3),
         ``condition``, ``ill_posed``, ``s_condition``, ``s_singular`` (..., M).
     """
     R, Z = experiment_spectra(r, u, y, factor=factor, closed_loop=closed_loop)
-    packed = fit_packed(R, Z, half_width=half_width, degrees=degrees, covariance=covariance)
-    return finish_packed(packed, nz=Z.shape[-1], nr=R.shape[-1], n_fast=np.shape(r)[-2],
-                         factor=factor, nu=np.shape(r)[-1], ny=np.shape(y)[-1],
+    return identify_spectra(R, Z, n_fast=np.shape(r)[-2], factor=factor, nu=np.shape(r)[-1],
+                            half_width=half_width, degrees=degrees, closed_loop=closed_loop,
+                            covariance=covariance, noise_covariance=noise_covariance)
+
+
+def identify_spectra(R, Z, *, n_fast: int, factor: int, nu: int, half_width: int,
+                     degrees=(3, 3, 3), closed_loop: str = "indirect",
+                     covariance: bool = True, noise_covariance=None) -> dict:
+    """:func:`identify_arrays` from the spectra of :func:`experiment_spectra` (computed once).
+
+    ``R`` (..., M, nr) and ``Z`` (..., M, nz); ``n_fast`` is ``N``, ``nu`` the number of
+    plant inputs; ``noise_covariance`` as in :func:`identify_arrays`.  Returns the dict of
+    :func:`identify_arrays`.
+    """
+    nz, nr = Z.shape[-1], R.shape[-1]
+    ny = nz - nr if closed_loop == "indirect" else nz
+    packed = fit_packed(R, Z, half_width=half_width, degrees=degrees, covariance=covariance,
+                        noise_covariance=noise_covariance)
+    return finish_packed(packed, nz=nz, nr=nr, n_fast=n_fast, factor=factor, nu=nu, ny=ny,
                          closed_loop=closed_loop, covariance=covariance)
+
+
+def identify_window0_arrays(r, u, y, *, factor: int, closed_loop: str = "indirect",
+                            covariance: bool = True) -> dict:
+    """Fast FRF from pooled periodic experiments, ``G(k) = Z(k) R(k)^+`` at every slow bin.
+
+    No local model and no transient term: the data must be steady-state periodic (drop
+    the transient periods first).  The periods of each experiment are averaged; the noise
+    covariance of each experiment's average comes from the spread over its periods
+    (:func:`lcmr_xr.kernels.pooling.mean_and_covariance`), or, with one period, from the
+    residuals over the experiments.
+
+    Parameters
+    ----------
+    r, u : ndarray, shape (..., E, P, N, nu)
+        ``E`` experiments of ``P`` steady-state periods; ``r`` must repeat over periods.
+    y : ndarray, shape (..., E, P, M, ny)
+        Slow outputs.
+    factor : int
+        ``F``.
+    closed_loop : {"indirect", "direct"}, default "indirect"
+        As :func:`identify_arrays`.
+    covariance : bool, default True
+        Propagate the noise covariance to ``P``.
+
+    Returns
+    -------
+    dict of ndarray
+        As :func:`identify_arrays`; ``T`` is 0 (no transient term) and ``noise_variance``
+        the noise variance used (mean over experiments).
+    """
+    R, Z = experiment_spectra(r, u, y, factor=factor, closed_loop=closed_loop)  # (..., E, P, M, c)
+    n_periods = R.shape[-3]
+    R = R.mean(axis=-3)  # identical periods: the mean is R itself (to rounding)
+    Z, C = mean_and_covariance(Z, 1)
+    fit = pooled_least_squares(R, Z, C if n_periods > 1 else None, covariance=covariance)
+    nz, nr = fit.G.shape[-2:]
+    out = recover_frf(fit.G, fit.G_cov, n_fast=np.shape(r)[-2], factor=factor,
+                      nu=np.shape(r)[-1], ny=np.shape(y)[-1], closed_loop=closed_loop,
+                      ill_posed=fit.ill_posed)
+    # s_singular means "S estimated but not invertible": where the experiments do not
+    # determine G at all, ill_posed says so (and P_bad carries both)
+    out["s_singular"] = out["s_singular"] & ~fit.ill_posed
+    rows = np.arange(nz)
+    if covariance:
+        G_var = np.real(np.diagonal(fit.G_cov, axis1=-2, axis2=-1)).reshape(fit.G.shape)
+    else:
+        G_var = np.full(fit.G.shape, np.nan)
+    out.update({"G": fit.G, "G_var": G_var, "T": np.zeros(fit.G.shape[:-1], complex),
+                "noise_variance": np.real(fit.noise_covariance[..., rows, rows]),
+                "condition": fit.condition, "ill_posed": fit.ill_posed})
+    return out
 
 
 def identify_single_rate_arrays(r, u, y, *, factor: int, half_width: int,
@@ -208,30 +296,17 @@ def identify_single_rate_arrays(r, u, y, *, factor: int, half_width: int,
     ``r`` and ``u`` are downsampled to the slow rate (``x(l F)``) and the ordinary
     closed-loop local model ``[S; PS] = LRM(R_l -> [U_l; Y_l])``, ``P = PS S^-1`` is
     formed.  It reaches only the slow Nyquist frequency, and the fast dynamics alias
-    onto it: this is what the lifted method avoids.
+    onto it: this is what the lifted method avoids.  It is the lifted estimate with
+    ``F = 1`` on the slow samples: ``identify_arrays(r[..., ::F, :], u[..., ::F, :], y,
+    factor=1)``.
 
     Returns
     -------
     dict of ndarray
-        ``P`` (..., M//2+1, ny, nu) at slow bins ``m = 0..M/2``, ``P_var``, ``P_bad``.
+        As :func:`identify_arrays` with ``F = 1``: ``P`` (..., M//2+1, ny, nu) at slow bins
+        ``m = 0..M/2``, ``P_var``, ``P_bad``, and the local-model arrays on the slow bins.
     """
     f_ = int(factor)
-    r_l = np.asarray(r, dtype=float)[..., ::f_, :]
-    u_l = np.asarray(u, dtype=float)[..., ::f_, :]
-    y = np.asarray(y, dtype=float)
-    m, ny = y.shape[-2:]
-    nu = r_l.shape[-1]
-    R = np.fft.fft(r_l, axis=-2)
-    Z = np.concatenate([np.fft.fft(u_l, axis=-2), np.fft.fft(y, axis=-2)], axis=-1)
-    fit = local_model(R, Z, half_width=half_width, degrees=tuple(degrees), circular=True,
-                      covariance="full" if covariance else None)
-    ind = indirect_first_row(fit.G, nu, fit.G_cov if covariance else None)
-    half = m // 2 + 1
-    P = ind.first_row[..., :half, :, :]
-    if ind.first_row_cov is not None:
-        var = np.real(np.diagonal(ind.first_row_cov, axis1=-2, axis2=-1))
-        P_var = var.reshape(var.shape[:-1] + (ny, nu))[..., :half, :, :]
-    else:
-        P_var = np.full(P.shape, np.nan)
-    bad = (fit.ill_posed | ind.singular)[..., :half]
-    return {"P": P, "P_var": P_var, "P_bad": bad}
+    return identify_arrays(np.asarray(r)[..., ::f_, :], np.asarray(u)[..., ::f_, :], y,
+                           factor=1, half_width=half_width, degrees=degrees,
+                           closed_loop="indirect", covariance=covariance)

@@ -1,8 +1,4 @@
-"""Bode plot of an identified fast-rate FRF, with its confidence band and the slow Nyquist line.
-
-The private helpers here (magnitudes without ``log(0)``, band edges, axes-grid checks)
-are shared with :mod:`lcmr_xr.plot.lifted`.
-"""
+"""Bode plot of an identified fast-rate FRF, with its confidence band and the slow Nyquist line."""
 
 from __future__ import annotations
 
@@ -13,21 +9,26 @@ from numbers import Real
 import numpy as np
 import xarray as xr
 
+from lcmr_xr import conventions as cv
 from lcmr_xr.conventions import FACTOR, FREQUENCY, INPUT, OUTPUT
-from lcmr_xr.plot._labels import (
-    P_NAME,
-    SAMPLING_PERIOD,
-    SLOW_NYQUIST,
-    STD_SUFFIX,
+from lcmr_xr.plot._shared import (
+    confidence_radius,
+    draw_band,
+    frequency_selection,
+    magnitude,
     magnitude_label,
     phase_label,
+    prepare_axes,
     quantity_label,
+    require_dims,
+    ticks_for_short_log_span,
 )
 
 _P_DIMS = (FREQUENCY, OUTPUT, INPUT)
-# Below this fraction of the smallest plotted magnitude a band edge that reaches zero is
-# drawn (a log axis cannot show zero): 20 dB under the lowest point of the panel.
-_BAND_FLOOR_RATIO = 0.1
+# Wrapped phase axis: ticks every 90 degrees over (-180, 180]; the axis runs to +-225 deg
+# so an estimate drawn next to a truth at +-180 deg stays in view.
+_PHASE_TICKS = (-180, -90, 0, 90, 180)
+_PHASE_LIMIT = 225.0
 
 
 @dataclass
@@ -64,10 +65,11 @@ def bode(
     db=True,
     hz=True,
     phase=True,
-    unwrap=True,
+    unwrap=False,
     label=None,
     color=None,
     xlim=None,
+    title=None,
 ):
     """Bode plot of the fast-rate FRF ``P`` for every output/input pair.
 
@@ -76,7 +78,9 @@ def bode(
     an optional exact FRF as a dashed line and the slow Nyquist frequency as a
     vertical dashed line.  The DC bin is skipped (a log axis cannot show 0 Hz), and
     bins where the estimate is zero or not finite (for example not excited) are left
-    as gaps instead of producing ``log(0)``.
+    as gaps instead of producing ``log(0)``.  The magnitude is labelled in output units
+    per input unit (``m/unit`` for a ``P`` in metres per unit command), the phase is
+    wrapped to (-180, 180] by default, and the legend lists only what is in view.
 
     Parameters
     ----------
@@ -97,9 +101,11 @@ def bode(
     band : float or None, optional
         Confidence level (0 < band < 1) of the band on the magnitude, from the
         circular complex Gaussian error model: ``|P_hat - P| <= sqrt(-ln(1 - band)) * P_std``
-        (1.731 ``P_std`` for the default 0.95).  Where the lower edge reaches zero it
-        is drawn 20 dB below the smallest magnitude of the panel.  None (or False)
-        draws no band; no band is drawn either when ``frf`` has no ``P_std``.
+        (1.731 ``P_std`` for the default 0.95).  The band is clipped 20 dB below the
+        smallest magnitude of the estimate in the panel: where the lower edge reaches
+        zero (or falls below that floor) the band fills down to it and the edge line
+        stops.  None (or False) draws no band; no band is drawn either when ``frf`` has
+        no ``P_std``.
     nyquist : bool or float, optional
         True (default) draws the slow Nyquist frequency from the attrs (``slow_nyquist``,
         else ``1 / (2 factor sampling_period)``) and draws nothing when neither is
@@ -113,7 +119,11 @@ def bode(
     phase : bool, optional
         Draw the phase rows, in degrees (default True).
     unwrap : bool, optional
-        Unwrap the phase along frequency, across gaps (default True).
+        Default False: the phase is wrapped to (-180, 180] deg, with ticks every 90 deg
+        and the line broken where it wraps; with a truth, an estimate bin is moved by a
+        turn where that puts it next to the truth within +-225 deg (so an estimate at
+        -179 deg is drawn at 181 deg beside a truth at 179 deg).  True unwraps it along frequency, across
+        gaps, and moves the truth by whole turns onto the estimate's branch.
     label : str, optional
         Legend label of the estimate (default None: not in the legend).
     color : color, optional
@@ -121,7 +131,10 @@ def bode(
         axes' cycle).
     xlim : tuple of float, optional
         ``(f_lo, f_hi)`` in Hz (whatever ``hz``): only bins in this range are drawn and
-        the axes are zoomed to it.  Default None: all bins above DC.
+        the axes are zoomed to it (a span under a decade gets linear ticks with
+        engineering labels, e.g. ``40k``).  Default None: all bins above DC.
+    title : str, optional
+        Figure title (``Figure.suptitle``); default None leaves the title alone.
 
     Returns
     -------
@@ -158,12 +171,12 @@ def bode(
     >>> plt.close(result.figure)
     """
     estimate, std, attrs = _frf_parts(frf)
-    band_factor = _band_factor(band)  # validated even when there is no P_std to draw
+    band_factor = confidence_radius(band)  # validated even when there is no P_std to draw
     if std is None:
         band_factor = None
     nyquist_hz = _slow_nyquist(attrs, nyquist)
     frequency = np.asarray(estimate[FREQUENCY].values, dtype=float)
-    keep = _frequency_selection(frequency, xlim)
+    keep = frequency_selection(frequency, xlim)
     f_plot = frequency[keep]
     to_axis = 1.0 if hz else 2.0 * np.pi
     x = f_plot * to_axis
@@ -173,7 +186,7 @@ def bode(
     rows_per_output = 2 if phase else 1
     shape = (rows_per_output * len(outputs), len(inputs))
     truth_values = None if truth is None else _truth_at(truth, estimate, f_plot)
-    figure, axes = _prepare_axes(ax, shape, sharex=True)
+    figure, axes = prepare_axes(ax, shape, sharex=True)
 
     values = estimate.values[keep]
     sigma = None if band_factor is None else std.values[keep]
@@ -184,28 +197,39 @@ def bode(
             phase_ax = axes[rows_per_output * o + 1, i] if phase else None
             pair = {"estimate": [], "truth": [], "band": [], "nyquist": []}
             first = o == 0 and i == 0
-            mag = _magnitude(values[:, o, i], db)
+            mag = magnitude(values[:, o, i], db)
             pair["estimate"] += mag_ax.plot(x, mag, color=color, label=label)
             # One color for every artist of this estimate: the first line takes the next
             # color of the first axes' cycle, so an overlay on reused axes gets a new one.
             color = pair["estimate"][0].get_color()
             if sigma is not None:
-                pair["band"] += _draw_band(
+                pair["band"] += draw_band(
                     mag_ax, x, values[:, o, i], sigma[:, o, i], band_factor, db, color,
                     f"{band:.0%} confidence" if first else None,
                 )
             if truth_values is not None:
                 pair["truth"] += mag_ax.plot(
-                    x, _magnitude(truth_values[:, o, i], db), color="k", linestyle="--",
+                    x, magnitude(truth_values[:, o, i], db), color="k", linestyle="--",
                     linewidth=1.0, label="truth" if first else None,
                 )
             if phase:
                 est_phase = _phase_deg(values[:, o, i], unwrap)
-                pair["estimate"] += phase_ax.plot(x, est_phase, color=color)
+                true_phase = None
                 if truth_values is not None:
-                    true_phase = _align_phase(_phase_deg(truth_values[:, o, i], unwrap), est_phase)
+                    true_phase = _phase_deg(truth_values[:, o, i], unwrap)
+                    if unwrap:
+                        true_phase = _align_phase(true_phase, est_phase)
+                    else:
+                        # +179 and -179 deg agree: where a turn puts the estimate next to the
+                        # truth and still inside the axis (|phase| <= 225), draw it there
+                        shifted = est_phase - 360.0 * np.round((est_phase - true_phase) / 360.0)
+                        closer = np.isfinite(shifted) & (np.abs(shifted) <= _PHASE_LIMIT)
+                        est_phase = np.where(closer, shifted, est_phase)
+                pair["estimate"] += phase_ax.plot(*_phase_line(x, est_phase, unwrap), color=color)
+                if true_phase is not None:
                     pair["truth"] += phase_ax.plot(
-                        x, true_phase, color="k", linestyle="--", linewidth=1.0
+                        *_phase_line(x, true_phase, unwrap), color="k", linestyle="--",
+                        linewidth=1.0,
                     )
             if nyquist_hz is not None:
                 for k, target in enumerate(a for a in (mag_ax, phase_ax) if a is not None):
@@ -219,8 +243,14 @@ def bode(
             lines[(out_label, in_label)] = pair
 
     _style_bode_axes(axes, estimate, db, hz, phase, rows_per_output, xlim, to_axis)
+    if phase and not unwrap:
+        for a in axes[1::rows_per_output].flat:
+            a.set_yticks(_PHASE_TICKS)
+            a.set_ylim(-_PHASE_LIMIT, _PHASE_LIMIT)
     if label is not None or truth is not None or sigma is not None or nyquist_hz is not None:
         _deduplicated_legend(axes[0, 0])
+    if title is not None:
+        figure.suptitle(str(title))
     return BodePlot(figure=figure, axes=axes, lines=lines)
 
 
@@ -230,13 +260,13 @@ def bode(
 def _frf_parts(frf):
     """``(P, P_std or None, attrs)`` with P transposed to (frequency, output, input)."""
     if isinstance(frf, xr.Dataset):
-        if P_NAME not in frf.data_vars:
+        if cv.P not in frf.data_vars:
             raise ValueError(
-                f"The dataset has no variable {P_NAME!r} (it has {sorted(frf.data_vars)}); "
+                f"The dataset has no variable {cv.P!r} (it has {sorted(frf.data_vars)}); "
                 "pass the FRF dataset returned by lcmr_xr.identify, or the complex DataArray P."
             )
-        estimate = frf[P_NAME]
-        std = frf.get(P_NAME + STD_SUFFIX)
+        estimate = frf[cv.P]
+        std = frf.get(cv.P + cv.STD_SUFFIX)
         attrs = {**estimate.attrs, **frf.attrs}
     elif isinstance(frf, xr.DataArray):
         estimate, std, attrs = frf, None, dict(frf.attrs)
@@ -245,58 +275,10 @@ def _frf_parts(frf):
             f"bode needs an xarray Dataset (FRF dataset) or DataArray (P), got "
             f"{type(frf).__name__}; build one with lcmr_xr.identify or xarray.DataArray."
         )
-    estimate = _require_dims(estimate, _P_DIMS, estimate.name or P_NAME)
+    estimate = require_dims(estimate, _P_DIMS, estimate.name or cv.P)
     if std is not None:
-        std = _require_dims(std, _P_DIMS, P_NAME + STD_SUFFIX)
+        std = require_dims(std, _P_DIMS, cv.P + cv.STD_SUFFIX)
     return estimate, std, attrs
-
-
-def _require_dims(da: xr.DataArray, dims: tuple, name: str) -> xr.DataArray:
-    """Transpose ``da`` to ``dims`` (frequency first); refuse extra, missing or non-Hz dims."""
-    extra = [d for d in da.dims if d not in dims]
-    if extra:
-        sizes = ", ".join(f"{d}={da.sizes[d]}" for d in extra)
-        first = extra[0]
-        raise ValueError(
-            f"{name} has dims {da.dims}, with extra dim(s) ({sizes}) besides {dims}: plots "
-            f"show one case at a time. Select one first, e.g. frf.isel({first}=0) or "
-            f"frf.sel({first}=...)."
-        )
-    missing = [d for d in dims if d not in da.dims]
-    if missing:
-        raise ValueError(
-            f"{name} has dims {da.dims} but needs {dims}; missing {tuple(missing)}. For a "
-            f"single channel add them, e.g. da.expand_dims({missing[0]}=['{missing[0]}'])."
-        )
-    for d in dims:
-        if d not in da.coords:
-            raise ValueError(
-                f"{name} has no coordinate for dim {d!r}; assign one, e.g. "
-                f"da.assign_coords({d}=...) (frequencies in Hz, channel labels as strings)."
-            )
-    # Frequency axes are drawn and labelled in Hz (or converted from Hz to rad/s): a
-    # coordinate in other units would be silently mislabelled.
-    frequency_dim = dims[0]
-    units = da[frequency_dim].attrs.get("units", "Hz")
-    if units != "Hz":
-        raise ValueError(
-            f"{name}: coordinate {frequency_dim!r} has units {units!r}, but plots need Hz; "
-            f"convert it, e.g. da.assign_coords({frequency_dim}=da.{frequency_dim} / (2 * np.pi)) "
-            "for rad/s, and set its attrs units='Hz'."
-        )
-    return da.transpose(*dims)
-
-
-def _band_factor(band) -> float | None:
-    """Radius of the (band) confidence disk in units of P_std: sqrt(-ln(1 - band))."""
-    if band is None or band is False:
-        return None
-    if isinstance(band, bool) or not isinstance(band, Real) or not 0.0 < float(band) < 1.0:
-        raise ValueError(
-            f"band must be a confidence level strictly between 0 and 1 (e.g. 0.95), or None "
-            f"for no band; got {band!r}."
-        )
-    return math.sqrt(-math.log1p(-float(band)))
 
 
 def _slow_nyquist(attrs: dict, nyquist) -> float | None:
@@ -304,10 +286,10 @@ def _slow_nyquist(attrs: dict, nyquist) -> float | None:
     if nyquist is False or nyquist is None:
         return None
     if nyquist is True:
-        if SLOW_NYQUIST in attrs:
-            return float(attrs[SLOW_NYQUIST])
-        if FACTOR in attrs and SAMPLING_PERIOD in attrs:
-            return 1.0 / (2.0 * float(attrs[FACTOR]) * float(attrs[SAMPLING_PERIOD]))
+        if cv.SLOW_NYQUIST in attrs:
+            return float(attrs[cv.SLOW_NYQUIST])
+        if FACTOR in attrs and cv.SAMPLING_PERIOD in attrs:
+            return 1.0 / (2.0 * float(attrs[FACTOR]) * float(attrs[cv.SAMPLING_PERIOD]))
         return None
     if isinstance(nyquist, Real) and math.isfinite(nyquist) and nyquist > 0:
         return float(nyquist)
@@ -317,41 +299,14 @@ def _slow_nyquist(attrs: dict, nyquist) -> float | None:
     )
 
 
-def _frequency_selection(frequency: np.ndarray, xlim) -> np.ndarray:
-    """Boolean mask of the bins to draw: above DC and, if given, inside ``xlim`` (Hz)."""
-    keep = frequency > 0
-    if xlim is not None:
-        lo, hi = _check_xlim(xlim)
-        keep &= (frequency >= lo) & (frequency <= hi)
-    if not keep.any():
-        raise ValueError(
-            f"No frequency bin above 0 Hz{'' if xlim is None else f' inside xlim={xlim}'} "
-            f"(bins span {frequency.min():g}..{frequency.max():g} Hz); widen xlim or check "
-            "the frequency coordinate."
-        )
-    return keep
-
-
-def _check_xlim(xlim) -> tuple[float, float]:
-    try:
-        lo, hi = (float(v) for v in xlim)
-    except (TypeError, ValueError):
-        raise ValueError(f"xlim must be a pair (f_lo, f_hi) in Hz, got {xlim!r}.") from None
-    if not (math.isfinite(lo) and math.isfinite(hi) and 0 < lo < hi):
-        raise ValueError(
-            f"xlim must satisfy 0 < f_lo < f_hi (Hz, log axis), got {xlim!r}; e.g. xlim=(1, 500)."
-        )
-    return lo, hi
-
-
 def _truth_at(truth, estimate: xr.DataArray, f_plot: np.ndarray) -> np.ndarray:
     """Exact FRF at ``f_plot`` as an array (n_f, n_outputs, n_inputs)."""
     if isinstance(truth, xr.Dataset):
-        if P_NAME not in truth.data_vars:
+        if cv.P not in truth.data_vars:
             raise ValueError(
-                f"truth is a Dataset without variable {P_NAME!r}; pass the exact FRF DataArray."
+                f"truth is a Dataset without variable {cv.P!r}; pass the exact FRF DataArray."
             )
-        truth = truth[P_NAME]
+        truth = truth[cv.P]
     if not isinstance(truth, xr.DataArray):
         raise TypeError(
             f"truth must be an xarray DataArray like P (dims frequency, output, input), got "
@@ -390,51 +345,7 @@ def _truth_at(truth, estimate: xr.DataArray, f_plot: np.ndarray) -> np.ndarray:
     return out
 
 
-def _prepare_axes(ax, shape: tuple[int, int], *, sharex: bool):
-    """``(figure, axes)`` with axes an object ndarray of ``shape``; new figure when ax is None."""
-    if ax is None:
-        import matplotlib.pyplot as plt  # lazy: importing lcmr_xr.plot must not pick a backend
-
-        rows, cols = shape
-        figure, axes = plt.subplots(
-            rows, cols, squeeze=False, sharex=sharex,
-            figsize=(3.2 + 2.8 * cols, 1.2 + 2.0 * rows), layout="constrained",
-        )
-        return figure, axes
-    from matplotlib.axes import Axes
-
-    axes = np.asarray(ax, dtype=object)
-    if axes.ndim == 0:
-        axes = axes.reshape(1)
-    # plt.subplots squeezes single rows/columns: accept any array whose non-unit
-    # dimensions match the grid.
-    squeezed = tuple(n for n in axes.shape if n != 1)
-    if squeezed != tuple(n for n in shape if n != 1):
-        raise ValueError(
-            f"ax has shape {axes.shape} but this plot needs a grid of shape {shape} "
-            f"(rows, columns); create one with plt.subplots({shape[0]}, {shape[1]}, "
-            "squeeze=False) or pass ax=None."
-        )
-    axes = axes.reshape(shape)
-    for a in axes.flat:
-        if not isinstance(a, Axes):
-            raise TypeError(
-                f"ax must hold matplotlib Axes, found {type(a).__name__}; pass the array "
-                "returned by plt.subplots or a previous plot's result.axes."
-            )
-    return axes[0, 0].figure, axes
-
-
 # ----------------------------------------------------------------------------- numerics
-
-
-def _magnitude(values: np.ndarray, db: bool) -> np.ndarray:
-    """``20 log10 |x|`` (db) or ``|x|``; NaN where x is zero or not finite, without warnings."""
-    mag = np.abs(values)
-    ok = np.isfinite(mag) & (mag > 0)
-    out = np.full(mag.shape, np.nan)
-    out[ok] = 20.0 * np.log10(mag[ok]) if db else mag[ok]
-    return out
 
 
 def _phase_deg(values: np.ndarray, unwrap: bool) -> np.ndarray:
@@ -446,8 +357,28 @@ def _phase_deg(values: np.ndarray, unwrap: bool) -> np.ndarray:
     ok = np.isfinite(values) & (values != 0)
     out = np.full(values.shape, np.nan)
     angle = np.angle(values[ok])
-    out[ok] = np.degrees(np.unwrap(angle) if unwrap else angle)
+    if unwrap:
+        out[ok] = np.degrees(np.unwrap(angle))
+    else:
+        degrees = np.degrees(angle)
+        out[ok] = np.where(degrees <= -180.0, degrees + 360.0, degrees)  # (-180, 180]
     return out
+
+
+def _phase_line(x: np.ndarray, phase: np.ndarray, unwrap: bool):
+    """``(x, phase)`` to draw; a wrapped phase gets a NaN point between bins where it wraps.
+
+    Without the break, a jump from +179 to -179 deg would be drawn as a vertical line
+    across the whole axis.  Only the breaks are added: the bins keep their values.
+    """
+    if unwrap:
+        return x, phase
+    finite = np.flatnonzero(np.isfinite(phase))
+    jumps = finite[1:][np.abs(np.diff(phase[finite])) > 180.0]
+    if jumps.size == 0:
+        return x, phase
+    # a break just before each bin that follows a wrap (between it and its finite predecessor)
+    return np.insert(x, jumps, np.nan), np.insert(phase, jumps, np.nan)
 
 
 def _align_phase(phase: np.ndarray, reference: np.ndarray) -> np.ndarray:
@@ -464,34 +395,6 @@ def _align_phase(phase: np.ndarray, reference: np.ndarray) -> np.ndarray:
     return phase + 360.0 * np.round(offset / 360.0)
 
 
-def _band_edges(values: np.ndarray, sigma: np.ndarray, factor: float):
-    """Magnitude edges ``|x| +- factor sigma`` (linear); a lower edge <= 0 goes to a floor.
-
-    The floor is ``_BAND_FLOOR_RATIO`` times the smallest positive magnitude or lower
-    edge of the curve, so the band visibly reaches "zero" without stretching the axis.
-    """
-    mag = np.abs(values)
-    radius = factor * np.asarray(sigma, dtype=float)
-    valid = np.isfinite(mag) & (mag > 0) & np.isfinite(radius)
-    upper = np.where(valid, mag + np.where(valid, radius, 0.0), np.nan)
-    lower = np.where(valid, mag - np.where(valid, radius, 0.0), np.nan)
-    positive = valid & (lower > 0)
-    floor = _BAND_FLOOR_RATIO * np.min(
-        np.concatenate([mag[valid], lower[positive]]), initial=np.inf
-    )
-    lower = np.where(valid & ~positive, floor, lower)
-    return upper, lower
-
-
-def _draw_band(axis, x, values, sigma, factor, db, color, label):
-    """Upper and lower edge lines plus the fill between them; returns the artists."""
-    upper, lower = _band_edges(values, sigma, factor)
-    upper, lower = _magnitude(upper, db), _magnitude(lower, db)
-    edges = axis.plot(x, upper, x, lower, color=color, linewidth=0.5, alpha=0.5)
-    fill = axis.fill_between(x, lower, upper, color=color, alpha=0.2, linewidth=0, label=label)
-    return edges + [fill]
-
-
 # ----------------------------------------------------------------------------- styling
 
 
@@ -499,7 +402,7 @@ def _style_bode_axes(axes, estimate, db, hz, phase, rows_per_output, xlim, to_ax
     freq_label = quantity_label(
         estimate[FREQUENCY].attrs, FREQUENCY, units=None if hz else "rad/s"
     )
-    name = str(estimate.name or P_NAME)
+    name = str(estimate.name or cv.P)
     rows, cols = axes.shape
     for r in range(rows):
         for c in range(cols):
@@ -519,11 +422,34 @@ def _style_bode_axes(axes, estimate, db, hz, phase, rows_per_output, xlim, to_ax
             a.grid(True, which="both", alpha=0.3)
             if xlim is not None:
                 a.set_xlim(xlim[0] * to_axis, xlim[1] * to_axis)
+            ticks_for_short_log_span(a)
 
 
 def _deduplicated_legend(axis) -> None:
-    """Legend of ``axis`` with one entry per label (overlays repeat band/Nyquist labels)."""
+    """Legend of ``axis``: one entry per label, only for artists with data in view.
+
+    Overlays repeat the band and Nyquist labels; a zoom can leave the Nyquist line or the
+    truth outside the axes, and a legend entry for what is not drawn misleads.
+    """
     handles, labels = axis.get_legend_handles_labels()
-    unique = dict(zip(labels, handles))
+    lo, hi = sorted(axis.get_xlim())
+    unique = {}
+    for handle, text in zip(handles, labels):
+        if text not in unique and _in_view(handle, lo, hi):
+            unique[text] = handle
+    legend = axis.get_legend()
     if unique:
         axis.legend(unique.values(), unique.keys(), fontsize="small")
+    elif legend is not None:
+        legend.remove()
+
+
+def _in_view(artist, lo: float, hi: float) -> bool:
+    """True when ``artist`` has a finite point with x in ``[lo, hi]`` (data coordinates)."""
+    if hasattr(artist, "get_xydata"):  # Line2D; axvline's y is in axes coordinates
+        xy = np.asarray(artist.get_xydata(), dtype=float)
+    else:  # the band's PolyCollection
+        paths = artist.get_paths()
+        xy = np.concatenate([p.vertices for p in paths]) if paths else np.empty((0, 2))
+    ok = np.isfinite(xy).all(axis=1) & (xy[:, 0] >= lo) & (xy[:, 0] <= hi)
+    return bool(ok.any())

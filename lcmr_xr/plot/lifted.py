@@ -12,35 +12,28 @@ from dataclasses import dataclass
 import numpy as np
 import xarray as xr
 
+from lcmr_xr import conventions as cv
 from lcmr_xr.conventions import INPUT, LIFT_PHASE, OUTPUT, SLOW_FREQUENCY
-from lcmr_xr.plot._labels import (
-    INPUT2,
-    LIFT_PHASE2,
-    NOISE_VARIANCE_U,
-    NOISE_VARIANCE_Y,
-    PS_NAME,
-    S_NAME,
-    STD_SUFFIX,
+from lcmr_xr.plot._shared import (
+    check_xlim,
+    confidence_radius,
+    draw_band,
     entry_title,
+    frequency_selection,
     lifted_channel_label,
     long_name_and_units,
+    magnitude,
     magnitude_label,
+    prepare_axes,
     quantity_label,
-)
-from lcmr_xr.plot.bode import (
-    _band_factor,
-    _check_xlim,
-    _draw_band,
-    _frequency_selection,
-    _magnitude,
-    _prepare_axes,
-    _require_dims,
+    require_dims,
+    ticks_for_short_log_span,
 )
 
 # Row dims of each lifted estimate; the columns are always (lift_phase2, input2),
 # flattened phase-major like the lifted channels of lcmr_xr.kernels.lifting.
-_ROW_DIMS = {S_NAME: (LIFT_PHASE, INPUT), PS_NAME: (OUTPUT,)}
-_COLUMN_DIMS = (LIFT_PHASE2, INPUT2)
+_ROW_DIMS = {cv.LIFTED_S: (LIFT_PHASE, INPUT), cv.LIFTED_PS: (OUTPUT,)}
+_COLUMN_DIMS = (cv.LIFT_PHASE2, cv.INPUT2)
 
 
 @dataclass
@@ -159,20 +152,20 @@ def lifted(frf, *, ax=None, which="S", db=True, band=0.95, color=None, xlim=None
             "plot a dataset from lcmr_xr.identify, or choose which='S' or 'PS'."
         )
     dims = (SLOW_FREQUENCY,) + _ROW_DIMS[which] + _COLUMN_DIMS
-    estimate = _require_dims(frf[which], dims, which)
-    std_name = which + STD_SUFFIX
-    std = _require_dims(frf[std_name], dims, std_name) if std_name in frf.data_vars else None
-    band_factor = _band_factor(band)  # validated even when there is no *_std to draw
+    estimate = require_dims(frf[which], dims, which)
+    std_name = which + cv.STD_SUFFIX
+    std = require_dims(frf[std_name], dims, std_name) if std_name in frf.data_vars else None
+    band_factor = confidence_radius(band)  # validated even when there is no *_std to draw
     if std is None:
         band_factor = None
 
     frequency = np.asarray(estimate[SLOW_FREQUENCY].values, dtype=float)
-    keep = _frequency_selection(frequency, xlim)
+    keep = frequency_selection(frequency, xlim)
     x = frequency[keep]
     row_labels = _channel_labels(estimate, _ROW_DIMS[which])
     column_labels = _channel_labels(estimate, _COLUMN_DIMS)
     shape = (len(row_labels), len(column_labels))
-    figure, axes = _prepare_axes(ax, shape, sharex=True)
+    figure, axes = prepare_axes(ax, shape, sharex=True)
 
     # (slow_frequency, rows, columns): the row and column dims flatten phase-major.
     values = estimate.values[keep].reshape((x.size,) + shape)
@@ -181,12 +174,12 @@ def lifted(frf, *, ax=None, which="S", db=True, band=0.95, color=None, xlim=None
     for r, row in enumerate(row_labels):
         for c, column in enumerate(column_labels):
             a = axes[r, c]
-            entry = {"estimate": a.plot(x, _magnitude(values[:, r, c], db), color=color)}
+            entry = {"estimate": a.plot(x, magnitude(values[:, r, c], db), color=color)}
             color = entry["estimate"][0].get_color()
             entry["band"] = (
                 []
                 if sigma is None
-                else _draw_band(a, x, values[:, r, c], sigma[:, r, c], band_factor, db, color, None)
+                else draw_band(a, x, values[:, r, c], sigma[:, r, c], band_factor, db, color, None)
             )
             a.set_title(entry_title(which, row, column), fontsize="small")
             lines[(row, column)] = entry
@@ -246,7 +239,7 @@ def noise(frf, *, ax=None, xlim=None):
     >>> import matplotlib.pyplot as plt
     >>> plt.close(result.figure)
     """
-    panels = ((NOISE_VARIANCE_Y, (OUTPUT,)), (NOISE_VARIANCE_U, (LIFT_PHASE, INPUT)))
+    panels = ((cv.NOISE_VARIANCE_Y, (OUTPUT,)), (cv.NOISE_VARIANCE_U, (LIFT_PHASE, INPUT)))
     for name, _ in panels:
         _require_dataset(frf, name)
         if name not in frf.data_vars:
@@ -255,15 +248,15 @@ def noise(frf, *, ax=None, xlim=None):
                 "plot the FRF dataset returned by lcmr_xr.identify."
             )
     variables = [
-        _require_dims(frf[name], (SLOW_FREQUENCY,) + rows, name) for name, rows in panels
+        require_dims(frf[name], (SLOW_FREQUENCY,) + rows, name) for name, rows in panels
     ]
     if xlim is not None:
-        _check_xlim(xlim)
+        check_xlim(xlim)
     selections = [
-        _frequency_selection(np.asarray(v[SLOW_FREQUENCY].values, dtype=float), xlim)
+        frequency_selection(np.asarray(v[SLOW_FREQUENCY].values, dtype=float), xlim)
         for v in variables
     ]
-    figure, axes = _prepare_axes(ax, (2, 1), sharex=True)
+    figure, axes = prepare_axes(ax, (2, 1), sharex=True)
 
     lines = {}
     for a, (name, rows), variable, keep in zip(axes[:, 0], panels, variables, selections):
@@ -272,7 +265,7 @@ def noise(frf, *, ax=None, xlim=None):
         values = variable.values[keep].reshape(x.size, len(labels))
         for k, row in enumerate(labels):
             # A variance is not a magnitude of an amplitude: plotted as is, log axis.
-            lines[(name, row)] = a.plot(x, _magnitude(values[:, k], db=False), label=row)
+            lines[(name, row)] = a.plot(x, magnitude(values[:, k], db=False), label=row)
         a.legend(fontsize="small")
     # The long_names are long ("residual noise variance of ..."): they go in the
     # titles, the y labels only carry the units.
@@ -324,3 +317,4 @@ def _style_slow_axes(axes, x_label: str, y_labels: list, *, log_y: bool, xlim) -
             a.grid(True, which="both", alpha=0.3)
             if xlim is not None:
                 a.set_xlim(*xlim)
+            ticks_for_short_log_span(a)

@@ -36,12 +36,13 @@ import xarray as xr
 
 from lcmr_xr import conventions as cv
 from lcmr_xr.scaleout import consolidated as con
+from lcmr_xr.transforms._coords import even_spacing
 
 __all__ = ["save_archive", "open_archive", "append_to_archive", "consolidate_archive", "archive_files"]
 
 SUFFIX = ".nc"
 #: Dataset attribute that keeps the order of the experiments across save/open; dropped on open.
-ORDER_ATTR = "lcmr_archive_index"
+ORDER_ATTR = cv.ARCHIVE_ORDER_ATTR
 _UNSAFE = re.compile(r"[^A-Za-z0-9._-]+")
 
 
@@ -84,7 +85,8 @@ def _split(experiments) -> list[tuple[object, xr.Dataset]]:
 
 def _shape(ds: xr.Dataset) -> dict:
     """What must agree between the experiments of one archive (besides the data)."""
-    th = float(ds[cv.TIME][1] - ds[cv.TIME][0]) if ds.sizes.get(cv.TIME, 0) > 1 else float("nan")
+    n = ds.sizes.get(cv.TIME, 0)
+    th = even_spacing(ds[cv.TIME].values, cv.TIME)[1] if n > 1 else float("nan")
     return {
         "N": int(ds.sizes[cv.TIME]),
         "factor": int(np.asarray(ds.attrs.get(cv.FACTOR, -1)).item()),
@@ -126,6 +128,12 @@ def archive_files(directory) -> list[Path]:
     []
     """
     directory = Path(directory)
+    if directory.is_file():
+        raise NotADirectoryError(
+            f"archive {directory} is a file, not a directory; an archive is a directory of "
+            f"experiment files: give that directory (e.g. {directory.parent}), or open a single "
+            "experiment file with lcmr_xr.open_experiment."
+        )
     if not directory.is_dir():
         raise FileNotFoundError(f"archive directory {directory} does not exist; check the path "
                                 "or write one with lcmr_xr.scaleout.save_archive.")
@@ -133,12 +141,12 @@ def archive_files(directory) -> list[Path]:
     for path in sorted(directory.glob(f"*{SUFFIX}")):
         if path.name.startswith("."):  # temporary files of an interrupted atomic write
             continue
-        index = _order_index(path)
+        index = _order_index(path, directory)
         keyed.append((0 if index is not None else 1, int(index) if index is not None else 0, path.name, path))
     return [k[-1] for k in sorted(keyed)]
 
 
-def _order_index(path: Path):
+def _order_index(path: Path, directory: Path):
     """The ``lcmr_archive_index`` attribute of a file (None without it), read with h5py.
 
     h5py reads one attribute without the ~260 HDF5 lookups of a netCDF/xarray open.
@@ -149,8 +157,10 @@ def _order_index(path: Path):
         with h5py.File(path, "r") as f:
             index = f.attrs.get(ORDER_ATTR)
     except OSError as err:
-        raise ValueError(f"{path} is not a NetCDF-4 file ({err}); move it out of the archive "
-                         "directory.") from err
+        raise ValueError(
+            f"{path} in archive {directory} is not a readable NetCDF file (truncated, corrupt, "
+            f"or another format: {err}); move it out of the archive directory."
+        ) from err
     return None if index is None else int(np.asarray(index).item())
 
 
@@ -529,8 +539,11 @@ def open_archive(path, chunks=None) -> xr.Dataset:
     FileNotFoundError
         The path does not exist, or the directory holds no ``*.nc`` file.
     ValueError
-        A file is not an experiment file, or the experiments differ in length, factor,
-        sample time or channel labels (the message lists them and says what to do).
+        ``path`` is a file but not a consolidated archive (not NetCDF-4, or without the
+        file attribute ``lcmr_archive = "consolidated-1"``), a file of the directory is not
+        a readable experiment file (the message names it), or the experiments differ in
+        length, factor, sample time or channel labels (the message lists them and says
+        what to do).
 
     Notes
     -----
@@ -557,6 +570,7 @@ def open_archive(path, chunks=None) -> xr.Dataset:
 
     path = Path(path)
     if path.is_file():
+        _check_consolidated(path)
         per_chunk = (chunks or {}).get(cv.EXPERIMENT, EXPERIMENTS_PER_CHUNK)
         try:
             ds = con.open_consolidated(path, per_chunk)
@@ -569,6 +583,29 @@ def open_archive(path, chunks=None) -> xr.Dataset:
         except ValueError as err:
             raise ValueError(f"archive {path}: {err}") from err
     return _open_directory(path, chunks)
+
+
+#: What an archive is, for the messages that refuse something else.
+ARCHIVE_KINDS = ("an archive is one NetCDF file written by lcmr_xr.scaleout.save_archive (file "
+                 f"attribute {con.KIND_ATTR}={con.KIND!r}) or a directory of experiment .nc files")
+
+
+def _check_consolidated(path: Path) -> None:
+    """Refuse a file that is not a consolidated archive: name it, say why and what an archive is."""
+    if con.is_consolidated(path):
+        return
+    import h5py
+
+    try:
+        with h5py.File(path, "r"):
+            reason = f"a NetCDF-4 file without the archive attribute {con.KIND_ATTR}={con.KIND!r}"
+    except OSError:
+        reason = "not a NetCDF-4 file"
+    raise ValueError(
+        f"archive {path} is a file but not a consolidated archive ({reason}); {ARCHIVE_KINDS}. "
+        "Open a single experiment file with lcmr_xr.open_experiment, or turn a directory into "
+        "an archive file with lcmr-xr archive consolidate."
+    )
 
 
 def _open_directory(directory: Path, chunks) -> xr.Dataset:

@@ -3,7 +3,10 @@
     lcmr-xr archive consolidate ARCHIVE_DIR -o ARCHIVE.nc [--overwrite]
 
 The directory is left as it was; the new file is written atomically (temporary file, then
-rename) and opens in a fraction of a second however many experiments it holds.
+rename) and opens in a fraction of a second however many experiments it holds.  The output
+is checked before anything is read: it may not lie inside the directory, and an existing
+file is replaced only with ``--overwrite``.  Progress (experiments copied) is shown on
+stderr, as plain lines when stderr is not a terminal.
 """
 
 from __future__ import annotations
@@ -11,6 +14,9 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+
+from lcmr_xr._cli_support import (NETCDF_SUFFIXES, HelpFormatter, _is_terminal, add_overwrite,
+                                  check_outputs, error_line)
 
 
 def add_archive_parser(subparsers) -> argparse.ArgumentParser:
@@ -37,16 +43,18 @@ def add_archive_parser(subparsers) -> argparse.ArgumentParser:
     """
     arc = subparsers.add_parser(
         "archive", help="manage experiment archives (consolidate a directory into one file)",
-        description="Manage experiment archives.")
+        formatter_class=HelpFormatter, description="Manage experiment archives.")
     actions = arc.add_subparsers(dest="action", required=True)
     con = actions.add_parser(
         "consolidate", help="copy a directory of per-experiment files into one archive file",
+        formatter_class=HelpFormatter,
         description="Copy every experiment file of an archive directory, in archive order, into "
                     "one consolidated NetCDF archive (experiment dim, metadata as coordinates). "
                     "The directory is not changed.")
     con.add_argument("directory", type=Path, help="archive directory (one experiment .nc per file)")
-    con.add_argument("-o", "--output", type=Path, required=True, help="archive file to write")
-    con.add_argument("--overwrite", action="store_true", help="replace OUTPUT if it exists")
+    con.add_argument("-o", "--output", type=Path, required=True,
+                     help="archive file to write (.nc; not inside the directory)")
+    add_overwrite(con)
     arc.set_defaults(func=run_archive)
     return arc
 
@@ -74,18 +82,32 @@ def run_archive(args) -> int:
     """
     from lcmr_xr.scaleout.archive import consolidate_archive
 
+    terminal = _is_terminal(sys.stderr)
+    shown = [0]
+
     def progress(done, total):
-        print(f"\rconsolidated {done}/{total} experiments", end="\n" if done == total else "",
-              file=sys.stderr, flush=True)
+        if terminal:
+            print(f"\rconsolidated {done}/{total} experiments", end="\n" if done == total else "",
+                  file=sys.stderr, flush=True)
+        elif done == total or 10 * done >= (shown[0] + 1) * total:  # a plain line per 10 %
+            shown[0] = 10 * done // max(total, 1)
+            print(f"consolidated {done}/{total} experiments", file=sys.stderr, flush=True)
 
     try:
+        check_outputs({"-o": (args.output, NETCDF_SUFFIXES)}, inputs=[args.directory],
+                      overwrite=args.overwrite)
         if args.directory.is_file():
-            raise ValueError(f"{args.directory} is a file, not an archive directory; it is "
-                             "consolidated already (open it with open_archive).")
+            from lcmr_xr.scaleout.consolidated import is_consolidated
+
+            if is_consolidated(args.directory):
+                raise ValueError(f"{args.directory} is a consolidated archive file already (open it "
+                                 "with open_archive); consolidate takes an archive directory.")
+            raise ValueError(f"{args.directory} is a file, not an archive directory; consolidate "
+                             "takes a directory of experiment .nc files.")
         path = consolidate_archive(args.directory, args.output, overwrite=args.overwrite,
                                    progress=progress)
     except (ValueError, TypeError, FileNotFoundError, FileExistsError, OSError) as exc:
-        print(f"lcmr-xr archive: error: {exc}", file=sys.stderr)
+        print(error_line("archive", exc), file=sys.stderr)
         return 2
     print(f"wrote {path}")
     return 0

@@ -37,12 +37,12 @@ from lcmr_xr import conventions as cv
 __all__ = ["METADATA", "KIND", "is_consolidated"]
 
 #: Value of the file attribute ``lcmr_archive`` that marks a consolidated archive.
-KIND = "consolidated-1"
-KIND_ATTR = "lcmr_archive"
-COUNT_ATTR = "lcmr_archive_count"
+KIND = cv.ARCHIVE_KIND
+KIND_ATTR = cv.ARCHIVE_KIND_ATTR
+COUNT_ATTR = cv.ARCHIVE_COUNT_ATTR
 #: Experiment attributes that become coordinates along ``experiment`` (with every scalar
 #: coordinate of the experiments): what users select experiments by.
-METADATA = ("seed", "case", "date", "drive_id")
+METADATA = cv.ARCHIVE_METADATA
 _SIGNALS = {"r": (cv.TIME, cv.INPUT), "u": (cv.TIME, cv.INPUT), "y": (cv.SLOW_TIME, cv.OUTPUT)}
 #: Experiments written per netCDF4 call when a whole archive is written (bounds memory).
 BATCH = 64

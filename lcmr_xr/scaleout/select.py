@@ -144,16 +144,11 @@ def _nanmedian(x: np.ndarray) -> np.ndarray:
 # ------------------------------------------------------------------ labelled layer
 def _spectra(experiments: xr.Dataset, factor: int, closed_loop: str):
     """Lifted excitation ``R`` (..., M, nr) and measured ``Z`` (..., M, nz), as numpy."""
-    from lcmr_xr.kernels.identification import lifted_spectra
+    from lcmr_xr.kernels.identification import experiment_spectra
 
-    r = np.asarray(experiments["r"].transpose(..., cv.TIME, cv.INPUT).values, float)
-    u = np.asarray(experiments["u"].transpose(..., cv.TIME, cv.INPUT).values, float)
-    y = np.asarray(experiments["y"].transpose(..., cv.SLOW_TIME, cv.OUTPUT).values, float)
-    U = lifted_spectra(u, factor)
-    Y = np.fft.fft(y, axis=-2)
-    if closed_loop == "indirect":
-        return lifted_spectra(r, factor), np.concatenate([U, Y], axis=-1)
-    return U, Y
+    r, u = (experiments[v].transpose(..., cv.TIME, cv.INPUT).values for v in ("r", "u"))
+    y = experiments["y"].transpose(..., cv.SLOW_TIME, cv.OUTPUT).values
+    return experiment_spectra(r, u, y, factor=factor, closed_loop=closed_loop)
 
 
 def _settings_first(da: xr.DataArray, core: list[str]) -> xr.DataArray:
@@ -162,25 +157,13 @@ def _settings_first(da: xr.DataArray, core: list[str]) -> xr.DataArray:
     return da.transpose(*lead, *rest, *core)
 
 
-def _lifted_estimates(result: xr.Dataset, closed_loop: str) -> np.ndarray:
-    """``G`` (settings..., [experiment], M, nz, nr) from ``S`` and ``PS`` of a sweep."""
-    lp, in2, lp2 = cv.LIFT_PHASE, cv.INPUT + cv.SECOND, cv.LIFT_PHASE + cv.SECOND
-    ps = _settings_first(result["PS"], [cv.SLOW_FREQUENCY, cv.OUTPUT, lp2, in2]).values
-    ps = ps.reshape(ps.shape[:-2] + (-1,))
-    if closed_loop != "indirect":
-        return ps
-    s = _settings_first(result["S"], [cv.SLOW_FREQUENCY, lp, cv.INPUT, lp2, in2]).values
-    s = s.reshape(s.shape[:-4] + (s.shape[-4] * s.shape[-3], s.shape[-2] * s.shape[-1]))
-    return np.concatenate([s, ps], axis=-2)
+def _local_model(result: xr.Dataset) -> tuple[np.ndarray, np.ndarray]:
+    """``G`` (settings..., [experiment], M, nz, nr) and its noise rows (..., M, nz), as numpy."""
+    from lcmr_xr.identification.identify import EXCITATION, RESPONSE, stacked_local_model
 
-
-def _noise_rows(result: xr.Dataset, closed_loop: str) -> np.ndarray:
-    vy = _settings_first(result["noise_variance_y"], [cv.SLOW_FREQUENCY, cv.OUTPUT]).values
-    if closed_loop != "indirect":
-        return vy
-    vu = _settings_first(result["noise_variance_u"], [cv.SLOW_FREQUENCY, cv.LIFT_PHASE, cv.INPUT]).values
-    vu = vu.reshape(vu.shape[:-2] + (-1,))
-    return np.concatenate([vu, vy], axis=-1)
+    G, noise = stacked_local_model(result)
+    return (_settings_first(G, [cv.SLOW_FREQUENCY, RESPONSE, EXCITATION]).values,
+            _settings_first(noise, [cv.SLOW_FREQUENCY, RESPONSE]).values)
 
 
 def _check_inputs(result, experiments):
@@ -198,7 +181,7 @@ def _check_inputs(result, experiments):
         raise ValueError(f"experiments has leading dims {lead}; only 'experiment' is supported. "
                          "Select one value of the other dims first, e.g. experiments.isel(case=0).")
     extra = [d for d in result["PS"].dims if d not in SETTING_DIMS and d not in
-             (cv.EXPERIMENT, cv.SLOW_FREQUENCY, cv.OUTPUT, cv.LIFT_PHASE + cv.SECOND, cv.INPUT + cv.SECOND)]
+             (cv.EXPERIMENT, cv.SLOW_FREQUENCY, cv.OUTPUT, cv.LIFT_PHASE2, cv.INPUT2)]
     if extra:
         raise ValueError(f"sweep_result has dims {extra} that experiments does not explain; "
                          "select them away first.")
@@ -281,19 +264,23 @@ def select_settings(sweep_result: xr.Dataset, experiments: xr.Dataset, *,
         )
     closed_loop = "indirect" if "S" in sweep_result else "direct"
     factor = int(np.asarray(experiments.attrs[cv.FACTOR]).item())
-    wanted = ["PS", "noise_variance_y"] + (["S", "noise_variance_u"] if closed_loop == "indirect" else [])
+    if "G" in sweep_result and "noise_variance" in sweep_result:  # identify(..., stacked=True)
+        wanted = ["G", "noise_variance"]
+    else:
+        wanted = ["PS", "noise_variance_y"] + (["S", "noise_variance_u"] if closed_loop == "indirect" else [])
     result = sweep_result[wanted].compute()
     R, Z = _spectra(experiments, factor, closed_loop)
+    G, noise = _local_model(result)
 
     settings_shape = tuple(result.sizes[d] for d in SETTING_DIMS)
     if criterion == "cross":
-        score = cross_prediction_scores(_lifted_estimates(result, closed_loop), R, Z)
+        score = cross_prediction_scores(G, R, Z)
     else:
         ppr = sweep_result["parameters_per_row"].transpose("method", "degrees").values[:, :, None]
         bins = 2 * sweep_result["window"].values[None, None, :] + 1
         if lead:
             ppr, bins = ppr[..., None], bins[..., None]
-        score = fpe_scores(_noise_rows(result, closed_loop), Z, R, ppr, bins)
+        score = fpe_scores(noise, Z, R, ppr, bins)
     dims = list(SETTING_DIMS) + lead
     score_da = xr.DataArray(
         score.reshape(settings_shape + score.shape[len(settings_shape):]), dims=dims,

@@ -31,7 +31,7 @@ _MANIFEST = "manifest.json"
 
 def parts_directory(output: Path) -> Path:
     """Where the part files of ``output`` are kept until the sweep completes."""
-    return output.with_name(f".{output.name}.parts")
+    return output.with_name(f".{output.name}{cv.ARCHIVE_PARTS_SUFFIX}")
 
 
 def _pieces(lazy: xr.Dataset, chunks: tuple[int, ...]):
@@ -78,15 +78,24 @@ def _check_parts(parts: Path, manifest: dict) -> None:
 
 
 class _Progress:
-    """A text progress bar in experiments per second (``progress=True``) or a callback."""
+    """Progress in experiments per second (``progress=True``) or a callback.
+
+    On a terminal one bar is redrawn at most once a second; otherwise (logs, pipes, CI)
+    a plain line is written every 10 % (as :func:`lcmr_xr._cli_support.progress` does),
+    so nothing relies on carriage returns.
+    """
 
     def __init__(self, progress, total: int, done: int, out=None):
+        from lcmr_xr._cli_support import _is_terminal
+
         self.callback = progress if callable(progress) else None
         self.show = progress is True
         self.total, self.done, self.start_done = total, done, done
         self.t0 = time.perf_counter()
         self.last = -np.inf
         self.out = out or sys.stderr
+        self.terminal = _is_terminal(self.out)
+        self.next_percent = 0
         if self.show and done:
             print(f"resuming: {done} of {total} experiment-settings already on disk", file=self.out)
 
@@ -100,17 +109,24 @@ class _Progress:
             self.callback(self.done, self.total, self.rate())
         if not self.show:
             return
+        frac = self.done / self.total if self.total else 1.0
+        final = self.done >= self.total
         now = time.perf_counter()
-        if now - self.last < 1.0 and self.done < self.total:
+        if self.terminal and now - self.last < 1.0 and not final:
+            return
+        if not self.terminal and int(100 * frac) < self.next_percent and not final:
             return
         self.last = now
+        self.next_percent = (int(100 * frac) // 10 + 1) * 10
         rate = self.rate()
         left = (self.total - self.done) / rate if rate > 0 else float("inf")
-        frac = self.done / self.total if self.total else 1.0
-        bar = "#" * int(round(40 * frac))
-        print(f"\r[{bar:<40}] | {100 * frac:3.0f}% Completed | {self.done}/{self.total} "
-              f"experiment-settings | {rate:.2f} experiments/s | {left:.0f} s left",
-              end="\n" if self.done >= self.total else "", file=self.out, flush=True)
+        text = (f"{100 * frac:3.0f}% Completed | {self.done}/{self.total} experiment-settings | "
+                f"{rate:.2f} experiments/s | {left:.0f} s left")
+        if self.terminal:
+            bar = "#" * int(round(40 * frac))
+            print(f"\r[{bar:<40}] | {text}", end="\n" if final else "", file=self.out, flush=True)
+        else:
+            print(text, file=self.out, flush=True)
 
 
 def _read_strings(path: Path, name: str) -> np.ndarray:
@@ -202,7 +218,8 @@ def sweep_to_disk(experiments: xr.Dataset, output, *, window=(30,), degrees=None
     FileExistsError
         ``output`` exists and ``overwrite`` is False.
     ValueError
-        Invalid settings (before anything runs), no ``experiment`` dim, or parts of a
+        Invalid settings (before anything runs), no ``experiment`` dim, an ``output`` that
+        is the archive ``experiments`` were opened from or lies inside it, or parts of a
         different sweep in the parts directory.
 
     Notes
@@ -226,30 +243,37 @@ def sweep_to_disk(experiments: xr.Dataset, output, *, window=(30,), degrees=None
     import dask
 
     from lcmr_xr.io import open_dataset, save
-    from lcmr_xr.io._atomic import target_directory
+    from lcmr_xr.io._guards import check_outputs, same_or_inside
     from lcmr_xr.scaleout import sweep as sweep_lazily
-    from lcmr_xr.scaleout.sweep import (ERROR_VAR, SETTING_DIMS, _chunked, _effective_degrees,
-                                        _identify_block, parse_degrees)
+    from lcmr_xr.settings import degrees_label
+    from lcmr_xr.scaleout.sweep import (ERROR_VAR, SETTING_DIMS, _chunked, _identify_block,
+                                        sweep_settings)
 
     if scheduler not in ("threads", "processes", "synchronous"):
         raise ValueError(f"scheduler must be 'threads', 'processes' or 'synchronous', got "
                          f"{scheduler!r}; for a cluster pass client=distributed.Client(...).")
     output = Path(output)
-    target_directory(output)
-    if output.exists() and not overwrite:
-        raise FileExistsError(f"{output} exists; pass overwrite=True (--overwrite) to replace it, "
-                              "or choose another output file.")
     if not isinstance(experiments, xr.Dataset) or cv.EXPERIMENT not in experiments.dims:
         raise ValueError("sweep_to_disk needs experiments with an 'experiment' dim (e.g. from "
                          "open_archive); for one experiment use sweep(...).compute().")
+    source = experiments.encoding.get("source")
+    # never write over the archive or inside it: the result, and the parts next to it
+    check_outputs({"output": (output, None)}, inputs=[source] if source else [],
+                  overwrite=overwrite, overwrite_hint="pass overwrite=True (--overwrite) to replace it")
+    if source and same_or_inside(parts_directory(output), source):
+        raise ValueError(f"refusing to keep the parts of {output} in {parts_directory(output)}: it is "
+                         f"inside the archive {source}; choose another output path.")
     lazy = sweep_lazily(experiments, window=window, degrees=degrees, method=method,
                     closed_loop=closed_loop, covariance=covariance,
                     experiments_per_task=experiments_per_task)
+    # the settings as identify takes them (LPM defaults, checked), keyed as the lazy result's coords
+    checked = {(m, degrees_label(d), w): st for (m, d, w), st in
+               sweep_settings(window=window, degrees=degrees, method=method, closed_loop=closed_loop,
+                              covariance=covariance, experiments=experiments).items()}
     ds = _chunked(experiments, experiments_per_task)
     chunks = ds["r"].chunks[ds["r"].get_axis_num(cv.EXPERIMENT)]
     parts = parts_directory(output)
     _check_parts(parts, _manifest(lazy, chunks, closed_loop, covariance))
-    source = experiments.encoding.get("source")
     pieces = _pieces(lazy, chunks)
     todo = [p for p in pieces if not (parts / p[0]).is_file()]
     total = len(pieces) and sum(b - a for _, _, (a, b) in pieces)
@@ -257,10 +281,10 @@ def sweep_to_disk(experiments: xr.Dataset, output, *, window=(30,), degrees=None
 
     tasks = []
     for _, (im, idg, iw), (a, b) in todo:
-        m = str(lazy["method"].values[im])
-        deg = _effective_degrees(m, parse_degrees(str(lazy["degrees"].values[idg])))
-        settings = dict(method=m, window=int(lazy["window"].values[iw]), degrees=deg,
-                        closed_loop=closed_loop, covariance=covariance, source=source)
+        st = checked[str(lazy["method"].values[im]), str(lazy["degrees"].values[idg]),
+                     int(lazy["window"].values[iw])]
+        settings = dict(method=st.method, window=st.window, degrees=st.degrees,
+                        closed_loop=st.closed_loop, covariance=st.covariance, source=source)
         block = ds.isel({cv.EXPERIMENT: slice(a, b)})
         tasks.append(dask.delayed(_identify_block, pure=True)(block, **settings))
     finished = (_run_client(tasks, client) if client is not None

@@ -6,10 +6,15 @@ in-memory block.  Why blocks and not ``identify`` on the dask dataset directly: 
 validates its input, and on dask data that validation computes a pass over the data, once
 per setting.  Per block, the validation runs inside the task on data already in memory, so
 building the sweep reads nothing and computing it reads every experiment once per setting.
+A task holds several experiments (:data:`EXPERIMENTS_PER_TASK`, so a sweep of 10 000
+experiments is not 10 000 tiny tasks per setting) and identifies them one at a time (its
+memory is that of one ``identify``); an experiment that cannot be identified becomes a
+flagged result with the reason in ``experiment_error``, not a failed sweep.
 
-The output structure (and every settings error: a window too small for the degrees, a
-window wider than the spectrum) is found before anything is computed by running
-``identify`` on a small synthetic probe with the same shape as one experiment.
+Every setting is checked by :func:`lcmr_xr.settings.estimator_settings` (the rules of
+``identify``) and against the experiment's size before anything is computed, and the
+output structure is derived from the layout of :func:`lcmr_xr.identify`'s result
+(:func:`lcmr_xr.identification.identify.result_template`): no data are read to build it.
 """
 
 from __future__ import annotations
@@ -22,65 +27,25 @@ import numpy as np
 import xarray as xr
 
 from lcmr_xr import conventions as cv
+from lcmr_xr.settings import (
+    CLOSED_LOOP,
+    METHODS,
+    as_bool,
+    as_choice,
+    as_integer,
+    check_window_fits,
+    degrees_label,
+    estimator_settings,
+    parse_degrees,
+)
 
-__all__ = ["sweep", "parse_degrees", "degrees_label", "SETTING_DIMS"]
+__all__ = ["sweep", "sweep_settings", "parse_degrees", "degrees_label", "SETTING_DIMS"]
 
 #: Dims a sweep adds, outermost first.
 SETTING_DIMS = ("method", "degrees", "window")
-_CORE_DIMS = (cv.TIME, cv.SLOW_TIME, cv.INPUT, cv.OUTPUT)
+# ``period`` (repeated periods, averaged by identify) belongs to one experiment's record
+_CORE_DIMS = (cv.TIME, cv.SLOW_TIME, cv.INPUT, cv.OUTPUT, cv.PERIOD)
 _PER_SETTING_ATTRS = ("method", "window", "window_bins", "degrees", "parameters_per_row", "title")
-
-
-def parse_degrees(value) -> tuple[int, int, int]:
-    """``(Rn, Rm, Rd)`` from a label ``"Rn-Rm-Rd"`` or a sequence of three integers.
-
-    Parameters
-    ----------
-    value : str or sequence of int
-        ``"3-3-3"``, ``"3,3,3"`` or ``(3, 3, 3)``.
-
-    Returns
-    -------
-    tuple of int
-
-    Examples
-    --------
-    >>> parse_degrees("3-2-1"), parse_degrees((2, 2, 0))
-    ((3, 2, 1), (2, 2, 0))
-    """
-    parts = value.replace(",", "-").split("-") if isinstance(value, str) else value
-    try:
-        out = tuple(int(p) for p in parts)
-    except (TypeError, ValueError):
-        out = ()
-    if len(out) != 3 or min(out) < 0:
-        raise ValueError(
-            f"degrees {value!r} is not three non-negative integers Rn-Rm-Rd (numerator, "
-            "transient, denominator); write e.g. '3-3-3' or (3, 3, 3)."
-        )
-    return out
-
-
-def degrees_label(degrees) -> str:
-    """The ``"Rn-Rm-Rd"`` label of a degrees triple (the ``degrees`` coordinate of a sweep).
-
-    Parameters
-    ----------
-    degrees : tuple of int or str
-        ``(Rn, Rm, Rd)`` or a label such as ``"3-3-3"`` (anything :func:`parse_degrees`
-        accepts).
-
-    Returns
-    -------
-    str
-        ``"Rn-Rm-Rd"``.
-
-    Examples
-    --------
-    >>> degrees_label((3, 3, 0))
-    '3-3-0'
-    """
-    return "-".join(str(d) for d in parse_degrees(degrees))
 
 
 def _as_list(value, what: str) -> list:
@@ -94,9 +59,9 @@ def _as_list(value, what: str) -> list:
     return items
 
 
-def _degrees_list(degrees) -> list[tuple[int, int, int]]:
-    if degrees is None:
-        return [(3, 3, 3)]
+def _degrees_list(degrees, methods) -> list[tuple[int, int, int]]:
+    if degrees is None:  # the methods' defaults (settings.METHODS), each once
+        return list(dict.fromkeys(METHODS[m].default_degrees for m in methods))
     if isinstance(degrees, str):
         return [parse_degrees(degrees)]
     items = _as_list(degrees, "degrees")
@@ -114,11 +79,6 @@ def _unique(items, what):
     return seen
 
 
-def _effective_degrees(method: str, degrees):
-    """The LPM is the LRM with denominator degree 0: its ``Rd`` is ignored (set to 0)."""
-    return (degrees[0], degrees[1], 0) if method == "lpm" else tuple(degrees)
-
-
 def _leading_dims(ds: xr.Dataset) -> list[str]:
     return [d for d in ds["r"].dims if d not in _CORE_DIMS]
 
@@ -130,7 +90,7 @@ def _leading_dims(ds: xr.Dataset) -> list[str]:
 #: its experiments one at a time.
 EXPERIMENTS_PER_TASK = 8
 #: Output variable of a sweep: why an experiment failed ("" when it did not).
-ERROR_VAR = "experiment_error"
+ERROR_VAR = cv.EXPERIMENT_ERROR
 ERROR_ATTRS = {"units": "1", "long_name": "why the experiment could not be identified ('' if it was)"}
 
 
@@ -153,38 +113,7 @@ def _chunked(ds: xr.Dataset, per_task: int | None = None) -> xr.Dataset:
     return ds.chunk(chunks)
 
 
-def _probe(ds: xr.Dataset, lead: list[str]) -> xr.Dataset:
-    """One synthetic experiment with the shape, coords and attrs of ``ds`` (random data).
-
-    Random signals excite every lifted channel, so ``identify`` on the probe fails only for
-    reasons of the settings, and gives the exact output structure without touching the data.
-    """
-    one = ds.isel({d: 0 for d in lead}, drop=True)
-    one = one.drop_vars([c for c in one.coords if c not in one.dims and not set(one[c].dims) <= set(_CORE_DIMS)])
-    rng = np.random.default_rng(0)
-    data = {name: (one[name].dims, rng.standard_normal(one[name].shape), one[name].attrs)
-            for name in ("r", "u", "y")}
-    return xr.Dataset(data, coords=one.coords, attrs=ds.attrs)
-
-
-def _template(frf: xr.Dataset, ds: xr.Dataset, lead: list[str]) -> xr.Dataset:
-    """Lazy zeros shaped like the result of ``identify`` on all of ``ds`` (for map_blocks)."""
-    lead_chunks = tuple(ds["r"].chunks[ds["r"].get_axis_num(d)] for d in lead)
-    lead_shape = tuple(ds.sizes[d] for d in lead)
-    variables = {}
-    for name, var in frf.data_vars.items():
-        data = dsa.zeros(lead_shape + var.shape, dtype=var.dtype,
-                         chunks=lead_chunks + tuple((s,) for s in var.shape))
-        variables[name] = (tuple(lead) + var.dims, data, var.attrs)
-    out = xr.Dataset(variables, coords=frf.coords, attrs=frf.attrs)
-    # identify copies the experiment's coords that fit the output dims; so does the template
-    for name in ds.coords:
-        if name not in out.coords and set(ds[name].dims) <= set(out.dims):
-            out = out.assign_coords({name: ds[name]})
-    return out
-
-
-def _identify_block(block: xr.Dataset, source: str | None = None, **settings) -> xr.Dataset:
+def _identify_block(block: xr.Dataset, source: str | None = None, drop=(), **settings) -> xr.Dataset:
     """``identify`` one block, one experiment at a time; a bad experiment becomes a flagged result.
 
     One at a time: the temporaries of ``identify`` (moment table, covariance) then exist
@@ -192,17 +121,29 @@ def _identify_block(block: xr.Dataset, source: str | None = None, **settings) ->
     with the experiments per task.  An experiment whose data ``identify`` refuses (NaN,
     an excitation that does not excite every lifted channel) gets NaN estimates, every
     flag set, and ``experiment_error`` naming its archive (file) and the reason.
+    ``drop``: coordinates left out of the block's result (see :func:`_new_indexes`).
     """
     lead = _leading_dims(block)
     if not lead:
-        return _identify_or_flag(block, source, settings)
+        return _identify_or_flag(block, source, settings).drop_vars(list(drop))
     dim = lead[0]
     parts = [_identify_or_flag(block.isel({dim: slice(i, i + 1)}), source, settings)
              for i in range(block.sizes[dim])]
     if len(parts) == 1:
-        return parts[0]
+        return parts[0].drop_vars(list(drop))
     return xr.concat(parts, dim, data_vars="all", coords="minimal", compat="override",
-                     join="exact", combine_attrs="override")
+                     join="exact", combine_attrs="override").drop_vars(list(drop))
+
+
+def _new_indexes(template: xr.Dataset, ds: xr.Dataset) -> list:
+    """Index coordinates of the result that the experiments do not have (``frequency``, ...).
+
+    Why they are left out of the blocks and put back on the whole result: ``map_blocks``
+    tokenizes (pickles) every new index once per block, which for a sweep of 10 000
+    experiments (625 blocks x 5 indexes x 3 settings) was 4 of its 5 s of graph building.
+    The values are the template's; ``identify`` in the blocks computes the same ones.
+    """
+    return [name for name in template.xindexes if name not in ds.xindexes]
 
 
 def _identify_or_flag(one: xr.Dataset, source, settings) -> xr.Dataset:
@@ -238,13 +179,14 @@ def _where(one: xr.Dataset, source) -> str:
 
 
 def _failed_result(one: xr.Dataset, settings) -> xr.Dataset:
-    """The result structure of ``identify`` for ``one``, every estimate NaN, every flag set."""
-    from lcmr_xr.identification import identify
+    """The result structure of ``identify`` for ``one``, every estimate NaN, every flag set.
 
-    rng = np.random.default_rng(0)
-    probe = one.copy(data={name: (rng.standard_normal(one[name].shape) if name in ("r", "u", "y")
-                                  else one[name].values) for name in one.data_vars})
-    res = identify(probe, errors="ignore", **settings)
+    Derived from :func:`~lcmr_xr.identification.identify.result_template` (the layout of
+    ``identify``'s result), so no estimate is computed for an experiment that failed.
+    """
+    from lcmr_xr.identification.identify import result_template
+
+    res = result_template(one, estimator_settings(**settings, errors="ignore")).compute()
     filled = {}
     for name, var in res.data_vars.items():
         if var.dtype.kind == "b":
@@ -261,15 +203,72 @@ def _with_error(template: xr.Dataset, ds: xr.Dataset, lead: list[str]) -> xr.Dat
     return template.assign({ERROR_VAR: (tuple(lead), data, ERROR_ATTRS)})
 
 
-def _check_settings(windows, degrees_list, methods, closed_loop):
-    if closed_loop not in ("indirect", "direct"):
-        raise ValueError(f"closed_loop must be 'indirect' or 'direct', got {closed_loop!r}.")
-    for m in methods:
-        if m not in ("lrm", "lpm"):
-            raise ValueError(f"method {m!r} is unknown; use 'lrm' and/or 'lpm'.")
-    for w in windows:
-        if isinstance(w, (bool, np.bool_)) or int(w) != w:
-            raise ValueError(f"window {w!r} is not an integer half-width; use e.g. window=[10, 20, 30].")
+def sweep_settings(*, window=(30,), degrees=None, method=("lrm",), closed_loop="indirect",
+                   covariance=True, experiments: xr.Dataset | None = None) -> dict:
+    """Check every (method, degrees, window) of a sweep by the rules of ``identify``.
+
+    All invalid combinations are reported at once, before anything is computed.  Without
+    ``experiments`` only what does not depend on the data is checked (the command line
+    does that before it opens the archive); with it, also that each window fits the
+    number of local parameters and the length of the spectrum.
+
+    Parameters
+    ----------
+    window, degrees, method, closed_loop, covariance
+        As in :func:`sweep`.
+    experiments : xarray.Dataset, optional
+        The experiments (only sizes and the ``factor`` attribute are read).
+
+    Returns
+    -------
+    dict
+        ``{(method, degrees, window): EstimatorSettings}`` in sweep order, ``degrees`` as
+        the requested triple.
+
+    Raises
+    ------
+    TypeError, ValueError
+        A malformed list or value, or (``ValueError``) the list of invalid combinations.
+
+    Examples
+    --------
+    >>> list(sweep_settings(window=[20, 30], degrees=["3-3-0"], method=["lrm", "lpm"]))[:2]
+    [('lrm', (3, 3, 0), 20), ('lrm', (3, 3, 0), 30)]
+    """
+    windows = _unique([as_integer(w, "window", minimum=1, example=30)
+                       for w in _as_list(window, "window")], "window")
+    methods = _unique([as_choice(m, "method", METHODS) for m in _as_list(method, "method")], "method")
+    degrees_list = _unique(_degrees_list(degrees, methods), "degrees")
+    closed_loop = as_choice(closed_loop, "closed_loop", CLOSED_LOOP)
+    covariance = as_bool(covariance, "covariance")
+    fits = None
+    if experiments is not None:
+        factor = int(np.asarray(experiments.attrs[cv.FACTOR]).item())
+        fits = (factor * experiments.sizes[cv.INPUT], experiments.sizes[cv.SLOW_TIME])
+    checked, problems = {}, []
+    for m, deg, w in itertools.product(methods, degrees_list, windows):
+        try:
+            s = estimator_settings(method=m, window=w, degrees=deg, closed_loop=closed_loop,
+                                   covariance=covariance, errors="ignore")
+            if fits is not None:
+                check_window_fits(s.window, s.degrees, *fits)
+            checked[m, deg, w] = s
+        except ValueError as err:
+            problems.append(f"method={m}, degrees={degrees_label(deg)}, window={w}: {err}")
+    if problems:
+        hint = ""
+        if len(methods) > 1 and any(not METHODS[m].has_denominator and d[2] != 0
+                                    for m in methods for d in degrees_list):
+            hint = ("\nEvery degrees entry is combined with every method, and the LPM has Rd = 0: "
+                    "give degrees with Rd = 0 (e.g. '3-3-0'), or sweep method='lrm' alone with "
+                    "both '3-3-3' and '3-3-0' (the LRM with Rd = 0 is the LPM).")
+        where = "for these experiments " if experiments is not None else ""
+        raise ValueError(
+            f"{len(problems)} of {len(checked) + len(problems)} sweep settings are invalid "
+            f"{where}(nothing was computed); remove them from the sweep:\n  - "
+            + "\n  - ".join(problems) + hint
+        )
+    return checked
 
 
 def sweep(experiments: xr.Dataset, *, window=(30,), degrees=None, method=("lrm",),
@@ -287,10 +286,13 @@ def sweep(experiments: xr.Dataset, *, window=(30,), degrees=None, method=("lrm",
     window : int or sequence of int, default (30,)
         Local window half-widths ``n`` (``2 n + 1`` slow bins each).
     degrees : str, (int, int, int) or sequence of them, optional
-        Local model degrees ``(Rn, Rm, Rd)``, as triples or labels ``"Rn-Rm-Rd"``; default
-        ``"3-3-3"``.  For ``method="lpm"`` the denominator degree is 0 whatever ``Rd`` says
-        (the LPM is the LRM without denominator), so ``degrees="3-3-3"`` with LPM fits
-        ``(3, 3, 0)``; the coordinate ``denominator_degree`` (method, degrees) records it.
+        Local model degrees ``(Rn, Rm, Rd)``, as triples or labels ``"Rn-Rm-Rd"`` (the
+        rules of :func:`lcmr_xr.settings.parse_degrees`); default: each method's default
+        degrees (``"3-3-3"`` for LRM, ``"3-3-0"`` for LPM).  Every degrees entry is combined
+        with every method, and the LPM has no denominator: with ``method="lpm"`` every
+        entry needs ``Rd = 0`` (e.g. ``["2-2-0", "3-3-0"]``), or it is refused.  To compare
+        LRM and LPM on other degrees, sweep ``method="lrm"`` with both ``"3-3-3"`` and
+        ``"3-3-0"``: the LRM with ``Rd = 0`` is the LPM.
     method : str or sequence of str, default ("lrm",)
         ``"lrm"`` and/or ``"lpm"``.
     closed_loop : {"indirect", "direct"}, default "indirect"
@@ -324,8 +326,10 @@ def sweep(experiments: xr.Dataset, *, window=(30,), degrees=None, method=("lrm",
     ------
     ValueError
         Before anything is computed, listing every invalid combination: a window too small
-        for the number of local parameters, a window wider than the spectrum, unknown
-        methods or malformed degrees.  Data errors are not raised: see ``experiment_error``.
+        for the number of local parameters, a window wider than the spectrum, ``Rd != 0``
+        with the LPM; or unknown methods, malformed degrees, non-integer windows (see
+        :func:`sweep_settings`) or a bad ``experiments_per_task``.  Data errors are not
+        raised: see ``experiment_error``.
 
     Examples
     --------
@@ -339,45 +343,27 @@ def sweep(experiments: xr.Dataset, *, window=(30,), degrees=None, method=("lrm",
     True
     """
     from lcmr_xr.experiment import validate_experiment
-    from lcmr_xr.identification import identify
+    from lcmr_xr.identification.identify import result_template
     from lcmr_xr.kernels.local_models import parameters_per_row
 
     if not isinstance(experiments, xr.Dataset):
         raise TypeError(f"sweep expects an experiment Dataset, got {type(experiments).__name__}; "
                         "open an archive with lcmr_xr.scaleout.open_archive.")
-    windows = _unique([int(w) if not isinstance(w, (bool, np.bool_)) and int(w) == w else w
-                       for w in _as_list(window, "window")], "window")
-    degrees_list = _unique(_degrees_list(degrees), "degrees")
-    methods = _unique([str(m) for m in _as_list(method, "method")], "method")
-    _check_settings(windows, degrees_list, methods, closed_loop)
-
     ds = experiments
     lead = _leading_dims(ds)
     # metadata only: bad values become flagged experiments in the tasks, not a failed sweep
     validate_experiment(ds, check_values=False)
-    if experiments_per_task is not None and (int(experiments_per_task) != experiments_per_task
+    if experiments_per_task is not None and (isinstance(experiments_per_task, bool)
+                                             or int(experiments_per_task) != experiments_per_task
                                              or experiments_per_task < 1):
         raise ValueError(f"experiments_per_task must be a positive integer, got {experiments_per_task!r}.")
+    checked = sweep_settings(window=window, degrees=degrees, method=method,
+                             closed_loop=closed_loop, covariance=covariance, experiments=ds)
+    methods = list(dict.fromkeys(m for m, _, _ in checked))
+    degrees_list = list(dict.fromkeys(d for _, d, _ in checked))
+    windows = list(dict.fromkeys(w for _, _, w in checked))
     source = experiments.encoding.get("source")
     ds = _chunked(ds, experiments_per_task)
-    probe = _probe(ds, lead)
-
-    # Build every setting's probe result first: all invalid settings are reported at once.
-    probes, problems = {}, []
-    for m, deg, w in itertools.product(methods, degrees_list, windows):
-        eff = _effective_degrees(m, deg)
-        try:
-            probes[m, deg, w] = identify(probe, method=m, window=w, degrees=eff,
-                                         closed_loop=closed_loop, covariance=covariance,
-                                         errors="ignore")
-        except ValueError as err:
-            problems.append(f"method={m}, degrees={degrees_label(deg)}, window={w}: {err}")
-    if problems:
-        raise ValueError(
-            f"{len(problems)} of {len(probes) + len(problems)} sweep settings are invalid for "
-            f"these experiments (nothing was computed); remove them from the sweep:\n  - "
-            + "\n  - ".join(problems)
-        )
 
     nested = []
     for m in methods:
@@ -385,11 +371,15 @@ def sweep(experiments: xr.Dataset, *, window=(30,), degrees=None, method=("lrm",
         for deg in degrees_list:
             per_window = []
             for w in windows:
-                frf = probes[m, deg, w]
-                settings = dict(method=m, window=w, degrees=_effective_degrees(m, deg),
-                                closed_loop=closed_loop, covariance=covariance)
-                res = xr.map_blocks(_identify_block, ds, kwargs={**settings, "source": source},
-                                    template=_with_error(_template(frf, ds, lead), ds, lead))
+                s = checked[m, deg, w]
+                settings = dict(method=m, window=s.window, degrees=s.degrees,
+                                closed_loop=s.closed_loop, covariance=s.covariance)
+                template = _with_error(result_template(ds, s), ds, lead)
+                drop = _new_indexes(template, ds)
+                res = xr.map_blocks(_identify_block, ds,
+                                    kwargs={**settings, "source": source, "drop": drop},
+                                    template=template.drop_vars(drop))
+                res = res.assign_coords({name: template[name].variable for name in drop})
                 res = res.expand_dims({"method": [m], "degrees": [degrees_label(deg)], "window": [w]})
                 per_window.append(res)
             per_degree.append(per_window)
@@ -399,9 +389,9 @@ def sweep(experiments: xr.Dataset, *, window=(30,), degrees=None, method=("lrm",
     for key in _PER_SETTING_ATTRS:
         out.attrs.pop(key, None)
     nr_factor = int(ds.attrs[cv.FACTOR]) * ds.sizes[cv.INPUT]
-    ppr = np.array([[parameters_per_row(nr_factor, _effective_degrees(m, d)) for d in degrees_list]
-                    for m in methods])
-    rd = np.array([[_effective_degrees(m, d)[2] for d in degrees_list] for m in methods])
+    used = [[checked[m, d, windows[0]].degrees for d in degrees_list] for m in methods]
+    ppr = np.array([[parameters_per_row(nr_factor, d) for d in row] for row in used])
+    rd = np.array([[d[2] for d in row] for row in used])
     out = out.assign_coords({
         "method": ("method", methods, {"units": "1", "long_name": "local model (lrm: rational, lpm: polynomial)"}),
         "degrees": ("degrees", [degrees_label(d) for d in degrees_list],

@@ -1,6 +1,6 @@
 """Labelled simulation of a multirate closed loop, returning an experiment dataset.
 
-The numerics live in :mod:`lcmr_xr.kernels.ltisim`; this module maps the named dims of the
+The numerics live in :mod:`lcmr_xr.kernels.lti`; this module maps the named dims of the
 data contract onto its axes with :func:`xarray.apply_ufunc` and builds the dataset with
 :func:`lcmr_xr.experiment.experiment`.
 """
@@ -12,9 +12,9 @@ from collections.abc import Sequence
 import numpy as np
 import xarray as xr
 
-from lcmr_xr.conventions import INPUT, OUTPUT, SLOW_TIME, TIME
+from lcmr_xr.conventions import INPUT, OUTPUT, PERIOD, SLOW_TIME, TIME
 from lcmr_xr.experiment import experiment
-from lcmr_xr.kernels.ltisim import StateSpace, multirate_closed_loop, simulate_multirate
+from lcmr_xr.kernels.lti import StateSpace, multirate_closed_loop, simulate_multirate
 
 __all__ = ["simulate_closed_loop"]
 
@@ -34,6 +34,43 @@ def _check_signal(da, name: str):
             f"{name} must have dims {tuple(_CORE_DIMS[name])}, missing {missing} (has {da.dims}); "
             f"rename its dims, e.g. {name}.rename({{'old': {missing[0]!r}}})."
         )
+
+
+def _check_periods(periods, given: dict) -> int | None:
+    """``periods`` as an int (or None), and the ``period`` dims of the signals checked.
+
+    The excitation is ONE period, repeated; the disturbances are not periodic, so they
+    need their own ``period`` dim: period ``p`` holds their samples ``p N .. (p+1) N - 1``.
+    """
+    if periods is None:
+        for name, da in given.items():
+            if PERIOD in da.dims:
+                raise ValueError(
+                    f"{name} has a {PERIOD!r} dim but periods is not given; pass "
+                    f"periods={da.sizes[PERIOD]} to simulate that many periods of r."
+                )
+        return None
+    if isinstance(periods, (bool, np.bool_)) or not isinstance(periods, (int, np.integer)) \
+            or periods < 1:
+        raise ValueError(f"periods must be a positive integer (number of periods), got {periods!r}.")
+    periods = int(periods)
+    if PERIOD in given["r"].dims:
+        raise ValueError(
+            f"r has a {PERIOD!r} dim, but with periods={periods} r is ONE period of the "
+            f"excitation (it repeats); pass r.isel({PERIOD}=0) or a periodic signal."
+        )
+    for name, da in given.items():
+        if name == "r":
+            continue
+        if da.sizes.get(PERIOD) != periods:
+            raise ValueError(
+                f"{name} must have a {PERIOD!r} dim of size {periods} (it is not periodic: "
+                f"period p holds its samples p N .. (p+1) N - 1 of one continuous record), got "
+                f"dims {dict(da.sizes)}. Reshape a record x of {periods} N samples, e.g. "
+                f"xr.DataArray(x.reshape({periods}, N, -1), dims=({PERIOD!r}, "
+                f"{_CORE_DIMS[name][0]!r}, {_CORE_DIMS[name][1]!r}))."
+            )
+    return periods
 
 
 def _output_labels(outputs, given: dict, ny: int) -> list[str]:
@@ -68,10 +105,11 @@ def simulate_closed_loop(
     output_units: str | None = None,
     fast_output: bool = False,
     attrs: dict | None = None,
+    periods: int | None = None,
 ) -> xr.Dataset:
     """Simulate a multirate closed-loop experiment from rest and return its dataset.
 
-    The loop is that of :func:`lcmr_xr.kernels.ltisim.multirate_closed_loop`: slow
+    The loop is that of :func:`lcmr_xr.kernels.lti.multirate_closed_loop`: slow
     controller on ``e = reference - y_l``, zero-order hold, fast filter, ``u_h = r + Fi v_h``
     recorded, plant input ``u_h + d_u``, output ``P(u_h + d_u) + d_y``, measured
     ``y_l(l) = y(lF)``.
@@ -105,6 +143,13 @@ def simulate_closed_loop(
         experiment does not measure (e.g. for stroke checks); default False.
     attrs : dict, optional
         Extra dataset attributes (the simulation settings).
+    periods : int, optional
+        Simulate ``periods`` repetitions of the excitation ``r`` (one period of ``N``
+        samples) in ONE run from rest: the loop and the disturbances run on across the
+        periods.  ``r``, ``u``, ``y`` then get a ``period`` dim (coordinate ``0..P-1``)
+        and ``time``/``slow_time`` count within a period.  ``d_u``, ``d_y`` and
+        ``reference`` must then carry a ``period`` dim of size ``periods`` (period ``p``
+        holds their samples ``p N .. (p+1) N - 1``).  Default: no ``period`` dim.
 
     Returns
     -------
@@ -120,7 +165,7 @@ def simulate_closed_loop(
     Examples
     --------
     >>> import numpy as np, xarray as xr
-    >>> from lcmr_xr.kernels.ltisim import static_gain, tf_q_inverse
+    >>> from lcmr_xr.kernels.lti import static_gain, tf_q_inverse
     >>> P = tf_q_inverse([0.0, 0.5], [1.0, -0.9], dt=0.5)
     >>> r = xr.DataArray(np.ones((8, 1)), dims=("time", "input"))
     >>> ds = simulate_closed_loop(P, static_gain(0.2, dt=1.0), None, 2, r)
@@ -143,26 +188,36 @@ def simulate_closed_loop(
                 f"the time coordinate of r is spaced by {spacing[0]} s but the plant is sampled "
                 f"at Th = {th} s; resample r or discretise the plant at the spacing of r."
             )
+    periods = _check_periods(periods, given)
     labels = _output_labels(outputs, given, ny)
     if output_units is None:
         output_units = next((str(da.attrs["units"]) for k, da in given.items()
                              if k in ("d_y", "reference") and "units" in da.attrs), "1")
     names = list(given)
+    # with periods, every signal but r carries (period, time): one continuous record
+    lead_core = [] if periods is None else [PERIOD]
+    core_in = [_CORE_DIMS[k] if k == "r" else lead_core + _CORE_DIMS[k] for k in names]
 
     def kernel(*arrays):
         kw = dict(zip(names, arrays))
+        if periods is not None:  # one record of P N samples: the loop runs on across periods
+            kw = {k: _flatten_periods(v, periods, tile=(k == "r")) for k, v in kw.items()}
         res = simulate_multirate(loop, kw["r"], kw.get("d_u"), kw.get("d_y"), kw.get("reference"))
-        return res.u, res.y
+        if periods is None:
+            return res.u, res.y
+        return _split_periods(res.u, periods), _split_periods(res.y, periods)
 
     u, y_fast = xr.apply_ufunc(
         kernel, *given.values(),
-        input_core_dims=[_CORE_DIMS[k] for k in names],
-        output_core_dims=[[TIME, INPUT], [TIME, OUTPUT]],
+        input_core_dims=core_in,
+        output_core_dims=[lead_core + [TIME, INPUT], lead_core + [TIME, OUTPUT]],
         dask="parallelized",
         output_dtypes=[float, float],
-        dask_gufunc_kwargs={"output_sizes": {OUTPUT: ny}},
+        dask_gufunc_kwargs={"output_sizes": {OUTPUT: ny, **({PERIOD: periods} if periods else {})}},
         keep_attrs=False,
     )
+    if periods is not None:  # the excitation is the same in every period
+        r = r.broadcast_like(u.isel({INPUT: 0}, drop=True)).transpose(*u.dims)
     y_fast = y_fast.assign_coords({OUTPUT: labels})
     # y_l(l) = y(lF): the slow samples are every F-th fast sample.
     y = y_fast.isel({TIME: slice(None, None, F)}).rename({TIME: SLOW_TIME})
@@ -177,3 +232,17 @@ def simulate_closed_loop(
         ds["y_fast"] = y_fast.assign_coords({TIME: ds[TIME], OUTPUT: ds[OUTPUT]}).assign_attrs(
             units=output_units, long_name="fast-rate plant output (not measured)")
     return ds
+
+
+def _flatten_periods(x: np.ndarray, periods: int, tile: bool) -> np.ndarray:
+    """(..., P, L, c) -> (..., P L, c); ``tile``: (..., L, c) repeated P times."""
+    x = np.asarray(x)
+    if tile:
+        reps = (1,) * (x.ndim - 2) + (periods, 1)
+        return np.tile(x, reps)
+    return x.reshape(x.shape[:-3] + (x.shape[-3] * x.shape[-2], x.shape[-1]))
+
+
+def _split_periods(x: np.ndarray, periods: int) -> np.ndarray:
+    """(..., P L, c) -> (..., P, L, c): period ``p`` holds samples ``p L .. (p+1) L - 1``."""
+    return x.reshape(x.shape[:-2] + (periods, x.shape[-2] // periods, x.shape[-1]))

@@ -1,0 +1,110 @@
+"""What ``identify`` does to its data before the kernels see them, so no dependency fails.
+
+- Lazy data chunked along the core dims (``time``, ``slow_time``, channels) are rechunked
+  to one chunk there: one experiment is small, and the kernels need whole records.
+- Lazy data are checked for NaN/inf per block, at compute time, and the message names the
+  variable and the time range (the eager path checks in ``validate_experiment``).
+- Data whose magnitude is far outside the range where squares stay finite (about 1e-150
+  to 1e150; e.g. data in units scaled by 1e300) are scaled by exact powers of two before
+  the fit and the results scaled back, so the estimate does not depend on the units.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from lcmr_xr import conventions as cv
+
+#: Variables whose largest magnitude lies outside [1 / SAFE_MAGNITUDE, SAFE_MAGNITUDE] are
+#: scaled.  Products of two spectra (covariances, noise variances) must stay finite and
+#: normal; 1e50 leaves margin for products of three and for sums over a window.
+SAFE_MAGNITUDE = 1e50
+
+
+def rechunk_core(ds):
+    """One chunk along the core dims of the lazy variables ``r``, ``u``, ``y``."""
+    core = {cv.TIME: -1, cv.INPUT: -1, cv.SLOW_TIME: -1, cv.OUTPUT: -1}
+    out = {}
+    for name in ("r", "u", "y"):
+        var = ds[name]
+        if var.chunks is None:
+            continue
+        wanted = {d: -1 for d in core if d in var.dims}
+        if any(len(var.chunks[var.get_axis_num(d)]) > 1 for d in wanted):
+            out[name] = var.chunk(wanted)
+    return ds.assign(out) if out else ds
+
+
+def check_finite(r, u, y, *, th: float, factor: int) -> None:
+    """Refuse NaN/inf in a block, naming the variable and its time range."""
+    for name, x, step, dim in (("r", r, th, cv.TIME), ("u", u, th, cv.TIME),
+                               ("y", y, th * factor, cv.SLOW_TIME)):
+        x = np.asarray(x)
+        bad = ~np.isfinite(x)
+        if not bad.any():
+            continue
+        other = tuple(i for i in range(x.ndim) if i != x.ndim - 2)
+        idx = np.flatnonzero(bad.any(axis=other))
+        where = " (in at least one experiment)" if x.ndim > 2 else ""
+        raise ValueError(
+            f"{name} contains NaN or inf at {idx.size} of its {x.shape[-2]} {dim} samples"
+            f"{where}, from {dim} = {idx[0] * step:.6g} s to {idx[-1] * step:.6g} s (indices "
+            f"{idx[0]}..{idx[-1]}); remove or interpolate the bad samples before identification "
+            "(lazy data are checked when computed)."
+        )
+
+
+def _power_of_two_scale(x) -> float:
+    """1.0, or the power of two that brings the largest magnitude of ``x`` near 1."""
+    peak = float(np.max(np.abs(x))) if np.size(x) else 0.0
+    if peak == 0.0 or not np.isfinite(peak) or 1 / SAFE_MAGNITUDE <= peak <= SAFE_MAGNITUDE:
+        return 1.0
+    return float(2.0 ** -np.round(np.log2(peak)))
+
+
+def scales(r, u, y) -> tuple[float, float, float]:
+    """Exact power-of-two scales of ``r``, ``u``, ``y`` (1.0 for data of ordinary magnitude)."""
+    return _power_of_two_scale(r), _power_of_two_scale(u), _power_of_two_scale(y)
+
+
+def scaled_call(kernel, r, u, y, *, closed_loop: str = "indirect", noise_covariance=None) -> dict:
+    """``kernel(r, u, y, noise_covariance=...)`` (a dict of results) on scaled data, scaled back.
+
+    Scaling by powers of two is exact, and every result is homogeneous in the data:
+    ``G`` rows ``[U; Y]`` (``Y`` for ``closed_loop="direct"``) over columns ``R``,
+    ``P = Y / U``; variances as squares; condition numbers and flags do not change.  A
+    known noise covariance of the rows of ``Z`` (``(..., M, nz, nz)``, from repeated
+    periods) is scaled with its rows and columns.
+    """
+    sr, su, sy = scales(r, u, y)
+    if sr == su == sy == 1.0:
+        return kernel(r, u, y, noise_covariance=noise_covariance)
+    nz = np.shape(y)[-1] + (np.shape(u)[-1] * (np.shape(u)[-2] // np.shape(y)[-2])
+                            if closed_loop == "indirect" else 0)
+    z_scale = np.full(nz, sy)
+    if closed_loop == "indirect":
+        z_scale[: nz - np.shape(y)[-1]] = su
+    if noise_covariance is not None:
+        with np.errstate(over="ignore"):
+            noise_covariance = noise_covariance * z_scale[:, None] * z_scale[None, :]
+    out = dict(kernel(np.asarray(r) * sr, np.asarray(u) * su, np.asarray(y) * sy,
+                      noise_covariance=noise_covariance))
+    p = su / sy  # divide the scaled P by sy / su
+    # squares as two products: the square of a scale alone may overflow where the result
+    # does not; a variance beyond the double range becomes inf (it is that large)
+    with np.errstate(over="ignore"):
+        out["P"] = out["P"] * p
+        if "P_var" in out:
+            out["P_var"] = out["P_var"] * p * p
+        if "G" in out:
+            src = sr if closed_loop == "indirect" else su
+            nz = out["G"].shape[-2]
+            rows = np.full(nz, 1.0 / sy)
+            if closed_loop == "indirect":
+                rows[: nz - np.shape(y)[-1]] = 1.0 / su
+            factor = rows[:, None] * src
+            out["G"] = out["G"] * factor
+            out["G_var"] = out["G_var"] * factor * factor
+            out["T"] = out["T"] * rows
+            out["noise_variance"] = out["noise_variance"] * rows * rows
+    return out

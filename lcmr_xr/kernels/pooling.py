@@ -1,0 +1,269 @@
+"""Pooling repeated periods and several experiments, on plain arrays (no labels).
+
+Periodic excitation (Pintelon and Schoukens, *System Identification: A Frequency Domain
+Approach*, 2nd ed., Wiley/IEEE 2012, sections 2.4 and 7.2; the robust LPM of Pintelon,
+Vandersteen, De Locht, Rolain and Schoukens, "Experimental characterization of operational
+amplifiers: a system identification approach", IEEE TIM 53(3), 2004, and Pintelon,
+Barbe, Vandersteen and Van Moer, "Improved (non-)parametric identification of dynamic
+systems excited by periodic signals", MSSP 25(7), 2011).  With ``P`` steady-state periods
+of one periodic excitation, the spectra ``Z[p](k)`` of the periods differ only by the
+noise, so per bin
+
+    Z_mean(k)  = 1/P sum_p Z[p](k)
+    C_Z(k)     = 1/(P (P - 1)) sum_p (Z[p](k) - Z_mean(k)) (Z[p](k) - Z_mean(k))^H
+
+``C_Z`` is the sample covariance of the periods divided by ``P``: an unbiased,
+model-free estimate of the covariance of the noise on ``Z_mean`` with ``P - 1`` degrees
+of freedom (complex).  It stays unbiased when the periods have unequal noise levels
+(independent records), which is why records of several experiments with the same
+excitation can be pooled with it too.
+
+Window 0 (the classical multi-experiment design, Pintelon and Schoukens 2012, section
+2.7; Dobrowiecki, Schoukens and Guillaume, IEEE TIM 55(6), 2006).  ``E >= nr``
+steady-state experiments with different excitations give, at every bin, the
+over-determined (or square) system ``A G^T = B`` with ``A[e] = R_e(k)^T`` (E x nr) and
+``B[e] = Z_e(k)^T`` (E x nz), solved per bin by the pseudo-inverse ``W = A^+``:
+``G^T = W B``.  With noise ``V_e`` of covariance ``C_e`` on ``Z_e`` (independent over
+experiments), ``Cov(G_ip, G_jq) = sum_e C_e,ij W_pe conj(W_qe)``.
+
+Everything is batched over bins (and leading dims): no Python loop over frequency.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from lcmr_xr.kernels.local_models import CONDITION_LIMIT
+
+__all__ = ["PooledFit", "mean_and_covariance", "pooled_least_squares", "rescale_covariance",
+           "window_mean"]
+
+
+def mean_and_covariance(Z: np.ndarray, n_pool_axes: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """Mean of repeated records and the covariance of that mean, per bin.
+
+    Parameters
+    ----------
+    Z : ndarray, complex, shape (..., K1, ..., M, nz)
+        Spectra of repeated records (periods, or periods x experiments with the same
+        excitation): the ``n_pool_axes`` axes just before ``(M, nz)`` are pooled.
+    n_pool_axes : int, default 1
+        How many axes to pool (``K = K1 K2 ...`` records in all).
+
+    Returns
+    -------
+    mean : ndarray, shape (..., M, nz)
+        ``1/K sum Z``.
+    cov : ndarray, shape (..., M, nz, nz)
+        ``1/(K (K-1)) sum (Z - mean)(Z - mean)^H``: the sample covariance of the records
+        divided by ``K`` (covariance of the mean; ``K - 1`` complex degrees of freedom).
+        NaN when ``K < 2``.
+
+    Examples
+    --------
+    >>> Z = np.array([[[1.0 + 0j]], [[3.0 + 0j]]])   # K = 2 records, M = 1, nz = 1
+    >>> mean, cov = mean_and_covariance(Z)
+    >>> complex(mean[0, 0]), float(cov[0, 0, 0].real)
+    ((2+0j), 1.0)
+    """
+    Z = np.asarray(Z)
+    lead = Z.shape[: Z.ndim - 2 - n_pool_axes]
+    k = int(np.prod(Z.shape[len(lead): -2], dtype=int))
+    Zk = Z.reshape(lead + (k,) + Z.shape[-2:])
+    mean = Zk.mean(axis=-3)
+    if k < 2:
+        return mean, np.full(mean.shape + mean.shape[-1:], np.nan + 0j)
+    dev = Zk - mean[..., None, :, :]
+    # sum over records of dev dev^H per bin: (..., M, nz, K) @ (..., M, K, nz)
+    dev_b = np.moveaxis(dev, -3, -1)  # (..., M, nz, K)
+    cov = dev_b @ np.conj(np.swapaxes(dev_b, -1, -2)) / (k * (k - 1))
+    return mean, cov
+
+
+def window_mean(x: np.ndarray, half_width: int, *, axis: int = -3, circular: bool = True) -> np.ndarray:
+    """Mean over the ``2 n + 1``-bin window centred on every bin, in ``O(1)`` per bin.
+
+    Noise spectra span many decades, so a running sum over all bins would lose the small
+    values to the rounding of the large ones.  Instead the bins are cut into blocks of one
+    window, and every window is the suffix sum of one block plus the prefix sum of the
+    next: each term sums only nearby bins (rounding relative to the local magnitude) and
+    the cost does not grow with the window.  ``circular``: bins wrap around (as the
+    local models' windows); otherwise the ``n`` bins at each end lack a full window and
+    are NaN.
+
+    Parameters
+    ----------
+    x : ndarray
+        Values per bin along ``axis``.
+    half_width : int
+        ``n``; ``0`` returns a copy of ``x``.
+    axis : int, default -3
+        The bin axis.
+    circular : bool, default True
+        Wrap the window around the ends.
+
+    Returns
+    -------
+    ndarray
+        Same shape as ``x``.
+
+    Examples
+    --------
+    >>> window_mean(np.array([1.0, 2.0, 3.0, 4.0]), 1, axis=0)
+    array([2.33333333, 2.        , 3.        , 2.66666667])
+    """
+    x = np.moveaxis(np.asarray(x), axis, 0)
+    n = int(half_width)
+    m = x.shape[0]
+    if n == 0:
+        return np.moveaxis(x.copy(), 0, axis)
+    w = 2 * n + 1
+    if w > m:
+        raise ValueError(f"a window of {w} bins is wider than the {m} bins.")
+    padded = x[np.arange(-n, m + n) % m] if circular else x
+    length = padded.shape[0]
+    n_blocks = -(-length // w) + 1  # one spare block: the last window may read a prefix of it
+    blocks = np.zeros((n_blocks * w,) + x.shape[1:], dtype=np.result_type(x.dtype, float))
+    blocks[:length] = padded
+    blocks = blocks.reshape((n_blocks, w) + x.shape[1:])
+    prefix = np.cumsum(blocks, axis=1)  # prefix[b, o] = sum of the first o + 1 of block b
+    suffix = np.cumsum(blocks[:, ::-1], axis=1)[:, ::-1]  # suffix[b, o] = from o to the end
+    start = np.arange(length - w + 1)
+    b, o = start // w, start % w
+    sums = suffix[b, o] + np.where((o > 0).reshape((-1,) + (1,) * (x.ndim - 1)),
+                                   prefix[b + 1, np.maximum(o - 1, 0)], 0.0)
+    out = sums / w
+    if not circular:
+        nan = np.full((n,) + x.shape[1:], np.nan, dtype=out.dtype)
+        out = np.concatenate([nan, out, nan])
+    return np.moveaxis(out, 0, axis)
+
+
+def rescale_covariance(G_cov: np.ndarray, noise_used: np.ndarray, noise_new: np.ndarray) -> np.ndarray:
+    """Swap the noise covariance in a local-model ``G_cov`` for another estimate.
+
+    The local model's first-order covariance has the form
+    ``Cov(G_ip, G_jq) = s_ij X_ij[p, q]`` with the noise covariance ``s`` it estimated
+    from its residuals (``LocalModelFit.noise_covariance``) and a data-dependent factor
+    ``X_ij`` (:func:`lcmr_xr.kernels.local_models.local_model`, Notes).  Replacing ``s``
+    by another estimate of the same quantity (e.g. the nonparametric one from periods)
+    is the element-wise rescaling ``G_cov * s_new_ij / s_used_ij``.  Where ``s_used_ij``
+    is exactly 0 the factor is unknown: NaN.
+
+    Parameters
+    ----------
+    G_cov : ndarray, shape (..., M, nz nr, nz nr)
+        Covariance of ``vec(G)`` (row-major, index ``i nr + p``).
+    noise_used, noise_new : ndarray, shape (..., M, nz, nz)
+        The noise covariance behind ``G_cov``, and its replacement.
+
+    Returns
+    -------
+    ndarray, shape (..., M, nz nr, nz nr)
+    """
+    nz = noise_used.shape[-1]
+    nr = G_cov.shape[-1] // nz
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = np.where(noise_used != 0, noise_new / noise_used, np.nan)
+    C = G_cov.reshape(G_cov.shape[:-2] + (nz, nr, nz, nr))
+    out = C * ratio[..., :, None, :, None]
+    return out.reshape(G_cov.shape)
+
+
+class PooledFit(NamedTuple):
+    """Result of :func:`pooled_least_squares` (leading dims ``...``, ``M`` bins)."""
+
+    G: np.ndarray  #: (..., M, nz, nr) complex, NaN where ill-posed
+    G_cov: np.ndarray | None  #: (..., M, nz nr, nz nr) or None
+    noise_covariance: np.ndarray  #: (..., M, nz, nz) the noise covariance used (mean over experiments)
+    condition: np.ndarray  #: (..., M) condition number of the stacked excitation
+    ill_posed: np.ndarray  #: (..., M) bool
+
+
+def pooled_least_squares(R: np.ndarray, Z: np.ndarray, noise_covariance: np.ndarray | None = None,
+                         *, covariance: bool = True,
+                         condition_limit: float = CONDITION_LIMIT) -> PooledFit:
+    """``G(k) = Z(k) R(k)^+`` over experiments at every bin: no local model, no transient.
+
+    Parameters
+    ----------
+    R : ndarray, complex, shape (..., E, M, nr)
+        Steady-state excitation spectra of ``E`` experiments.
+    Z : ndarray, complex, shape (..., E, M, nz)
+        Their (period-averaged) output spectra.
+    noise_covariance : ndarray, shape (..., E, M, nz, nz), optional
+        Covariance of the noise on each ``Z_e`` (e.g. from :func:`mean_and_covariance`
+        over periods).  Default: the residual covariance of the fit, pooled over the
+        experiments, ``sum_e res_e res_e^H / (E - nr)`` (needs ``E > nr`` and assumes the
+        same noise covariance in every experiment).
+    covariance : bool, default True
+        Return ``G_cov``.
+    condition_limit : float, default ``CONDITION_LIMIT``
+        Bins where the stacked excitation ``A = [R_e(k)^T]`` has a larger condition number
+        (or is zero) are NaN and flagged ``ill_posed``.
+
+    Returns
+    -------
+    PooledFit
+
+    Raises
+    ------
+    ValueError
+        Fewer experiments than excitation channels, or no noise estimate when one is
+        needed.
+
+    Examples
+    --------
+    >>> rng = np.random.default_rng(0)
+    >>> R = np.exp(2j * np.pi * rng.random((2, 8, 2)))   # E = 2 experiments, 8 bins, nr = 2
+    >>> G = np.array([[1.0, 2.0j]])                       # nz = 1
+    >>> fit = pooled_least_squares(R, R @ G.T, covariance=False)
+    >>> bool(np.allclose(fit.G, G))
+    True
+    """
+    R = np.asarray(R)
+    Z = np.asarray(Z)
+    e, m, nr = R.shape[-3:]
+    nz = Z.shape[-1]
+    if e < nr:
+        raise ValueError(
+            f"{e} experiment(s) cannot determine G bin by bin from {nr} excitation channels: "
+            f"window=0 needs at least as many experiments (with different excitations) as "
+            f"lifted excitation channels, E >= {nr}."
+        )
+    if noise_covariance is None and covariance and e == nr:
+        raise ValueError(
+            f"with E = {e} = nr experiments the fit is exact, so its residuals carry no noise "
+            "information: give the noise covariance (at least 2 steady-state periods per "
+            "experiment), more experiments, or covariance=False."
+        )
+    lead = np.broadcast_shapes(R.shape[:-3], Z.shape[:-3])
+    A = np.moveaxis(np.broadcast_to(R, lead + R.shape[-3:]), -3, -2)  # (..., M, E, nr)
+    B = np.moveaxis(np.broadcast_to(Z, lead + Z.shape[-3:]), -3, -2)  # (..., M, E, nz)
+    with np.errstate(all="ignore"):
+        u, s, vh = np.linalg.svd(A, full_matrices=False)  # batched over bins
+        cond = np.where(s[..., -1] > 0, s[..., 0] / s[..., -1], np.inf)
+        ill = ~(cond <= condition_limit)
+        s_inv = np.where(ill[..., None], 0.0, 1.0 / np.where(s > 0, s, 1.0))
+        # W = A^+ = V diag(1/s) U^H  (..., M, nr, E)
+        W = np.conj(np.swapaxes(vh, -1, -2)) @ (s_inv[..., :, None] * np.conj(np.swapaxes(u, -1, -2)))
+        Gt = W @ B  # (..., M, nr, nz)
+        G = np.swapaxes(Gt, -1, -2)
+        G = np.where(ill[..., None, None], np.nan, G)
+        if noise_covariance is None:
+            res = B - A @ Gt  # (..., M, E, nz)
+            dof = e - nr
+            s_res = (np.conj(np.swapaxes(res, -1, -2)) @ res).conj() / dof if dof > 0 else \
+                np.full(lead + (m, nz, nz), np.nan + 0j)  # s_ij = sum_e res_i conj(res_j)
+            per_exp = np.broadcast_to(s_res[..., :, None, :, :], lead + (m, e, nz, nz))
+        else:
+            per_exp = np.moveaxis(np.broadcast_to(noise_covariance, lead + (e, m, nz, nz)), -4, -3)
+        G_cov = None
+        if covariance:
+            # Cov(G_ip, G_jq) = sum_e C_e,ij W_pe conj(W_qe)
+            G_cov = np.einsum("...eij,...pe,...qe->...ipjq", per_exp, W, np.conj(W))
+            G_cov = G_cov.reshape(lead + (m, nz * nr, nz * nr))
+            G_cov = np.where(ill[..., None, None], np.nan, G_cov)
+    return PooledFit(G, G_cov, per_exp.mean(axis=-3), cond, ill)

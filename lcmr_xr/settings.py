@@ -1,0 +1,317 @@
+"""Estimator settings: the one table of choices and the one validator of them.
+
+Every entry point (:func:`lcmr_xr.identify`, :func:`lcmr_xr.identify_single_rate`,
+:func:`lcmr_xr.scaleout.sweep`, ``lcmr-xr identify`` and ``lcmr-xr sweep``) passes its
+settings through :func:`estimator_settings` before it touches the data, so a bad value gets
+the same message everywhere, also on lazy (dask) input where nothing would otherwise run
+until compute time.  Adding a local-model method means one row in :data:`METHODS` (and, if
+it is not a degrees choice of the local model, one kernel call).
+
+A leaf module (it imports only numpy) like :mod:`lcmr_xr.conventions`, so the kernels may
+read the closed-loop variants from here too.
+"""
+
+from __future__ import annotations
+
+import numbers
+import re
+from typing import NamedTuple
+
+import numpy as np
+
+__all__ = [
+    "METHODS", "CLOSED_LOOP", "ERRORS", "EstimatorSettings", "estimator_settings",
+    "parse_degrees", "degrees_label", "degrees_arguments", "as_integer", "as_bool", "as_choice",
+    "check_window_fits",
+]
+
+
+class Method(NamedTuple):
+    """One local-model method: what it is, its default degrees, whether ``Rd`` is free."""
+
+    description: str
+    default_degrees: tuple[int, int, int]
+    has_denominator: bool
+
+
+#: Local-model methods.  The kernel is one: the LPM is the LRM with denominator degree 0.
+METHODS = {
+    "lrm": Method("local rational model", (3, 3, 3), True),
+    "lpm": Method("local polynomial model (denominator degree Rd = 0)", (3, 3, 0), False),
+}
+
+#: Closed-loop variants of the estimator (``closed_loop=``).
+CLOSED_LOOP = {
+    "indirect": "[S; PS_1] from the lifted excitation r, then P_1 = PS_1 S^-1 (unbiased under feedback)",
+    "direct": "local model from the lifted measured input u to y (biased under feedback)",
+}
+
+#: What to do with a non-invertible estimated S (``errors=``).
+ERRORS = {
+    "raise": "raise a ValueError naming the bins",
+    "ignore": "return NaN with the flag s_singular there",
+}
+
+#: The degrees syntax of the command lines and sweep labels: ``Rn-Rm-Rd``.
+DEGREES_SYNTAX = "Rn-Rm-Rd"
+
+
+class EstimatorSettings(NamedTuple):
+    """Validated settings of a local-model FRF estimate (see :func:`estimator_settings`)."""
+
+    method: str
+    degrees: tuple[int, int, int]
+    window: int
+    closed_loop: str
+    covariance: bool
+    errors: str
+    frequency_chunks: int | None
+
+
+def _either(choices) -> str:
+    names = [repr(c) for c in choices]
+    return names[0] if len(names) == 1 else ", ".join(names[:-1]) + " or " + names[-1]
+
+
+def as_choice(value, name: str, choices) -> str:
+    """``value`` if it is one of the str ``choices``; else a message listing them.
+
+    Examples
+    --------
+    >>> as_choice("lpm", "method", METHODS)
+    'lpm'
+    """
+    if not isinstance(value, str) or value not in choices:
+        kind = "" if isinstance(value, str) else f" (a {type(value).__name__})"
+        raise ValueError(f"{name} must be {_either(choices)}, got {value!r}{kind}.")
+    return value
+
+
+def as_bool(value, name: str) -> bool:
+    """``value`` as a bool; only ``True``/``False`` (also numpy's) are accepted.
+
+    Why strict: ``bool("no")`` is ``True``, so a string would silently mean the opposite.
+
+    Examples
+    --------
+    >>> as_bool(np.True_, "covariance")
+    True
+    """
+    if isinstance(value, (bool, np.bool_)):
+        return bool(value)
+    raise TypeError(f"{name} must be True or False, got {value!r} ({type(value).__name__}); "
+                    f"pass {name}=True or {name}=False.")
+
+
+def as_integer(value, name: str, *, minimum: int | None = None, example=None) -> int:
+    """``value`` as an int: ints, numpy ints and integral floats (``30.0``) are accepted.
+
+    A fractional number (``30.5``), a bool or a non-number is refused: never rounded.
+
+    Examples
+    --------
+    >>> as_integer(np.int64(30), "window"), as_integer(30.0, "window")
+    (30, 30)
+    """
+    example = value if example is None else example
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
+        raise TypeError(f"{name} must be an integer, got {value!r} ({type(value).__name__}); "
+                        f"pass e.g. {name}={example}.")
+    if isinstance(value, numbers.Integral):
+        out = int(value)
+    else:
+        if not np.isfinite(value) or float(value) != int(value):
+            raise ValueError(f"{name} must be an integer, got {value!r}; it is not rounded: pass "
+                             f"{name}={int(np.floor(value)) if np.isfinite(value) else example} "
+                             f"or another whole number.")
+        out = int(value)
+    if minimum is not None and out < minimum:
+        raise ValueError(f"{name} must be >= {minimum}, got {out}.")
+    return out
+
+
+def parse_degrees(value, method: str | None = None) -> tuple[int, int, int]:
+    """``(Rn, Rm, Rd)`` from ``"Rn-Rm-Rd"`` (or ``"Rn,Rm,Rd"``, ``"Rn Rm Rd"``) or integers.
+
+    Parameters
+    ----------
+    value : str or sequence of int
+        Numerator, transient and denominator degrees of the local model.  With
+        ``method="lpm"`` the pair ``(Rn, Rm)`` is accepted (``Rd = 0``), and ``Rd`` other than
+        0 is refused: the local polynomial model has no denominator.
+    method : {"lrm", "lpm"}, optional
+        Apply that method's rule for ``Rd``; ``None``: any three non-negative integers.
+
+    Returns
+    -------
+    tuple of int
+
+    Raises
+    ------
+    ValueError
+        Not two or three non-negative integers, or ``Rd != 0`` with ``method="lpm"``.
+
+    Examples
+    --------
+    >>> parse_degrees("3-2-1"), parse_degrees((2, 2, 0)), parse_degrees("3,3", "lpm")
+    ((3, 2, 1), (2, 2, 0), (3, 3, 0))
+    """
+    if isinstance(value, str):
+        parts = [p for p in re.split(r"[-,\s]+", value.strip()) if p]
+    elif isinstance(value, (numbers.Number, np.generic)) or not hasattr(value, "__iter__"):
+        parts = None
+    else:
+        parts = list(value)
+    out = None
+    if parts is not None:
+        try:
+            out = tuple(as_integer(int(p) if isinstance(p, str) else p, "degree", minimum=0)
+                        for p in parts)
+        except (TypeError, ValueError):
+            out = None
+    lpm_pair = method is not None and not METHODS[method].has_denominator and out is not None \
+        and len(out) == 2
+    if lpm_pair:
+        out = out + (0,)
+    if out is None or len(out) != 3:
+        pair = " (or the pair Rn-Rm for method='lpm')" if method != "lrm" else ""
+        raise ValueError(
+            f"degrees {value!r} is not three non-negative integers {DEGREES_SYNTAX} (numerator, "
+            f"transient, denominator){pair}; write e.g. '3-3-3' or (3, 3, 3)."
+        )
+    if method is not None and not METHODS[method].has_denominator and out[2] != 0:
+        raise ValueError(
+            f"method={method!r} is the {METHODS[method].description}; got degrees={out}. "
+            f"Pass degrees=({out[0]}, {out[1]}, 0) (label '{out[0]}-{out[1]}-0'), or "
+            f"method='lrm' for a denominator of degree {out[2]}."
+        )
+    return out
+
+
+def degrees_label(degrees) -> str:
+    """The ``"Rn-Rm-Rd"`` label of a degrees triple (the ``degrees`` coordinate of a sweep).
+
+    Parameters
+    ----------
+    degrees : tuple of int or str
+        ``(Rn, Rm, Rd)`` or a label such as ``"3-3-3"`` (anything :func:`parse_degrees`
+        accepts).
+
+    Returns
+    -------
+    str
+        ``"Rn-Rm-Rd"``.
+
+    Examples
+    --------
+    >>> degrees_label((3, 3, 0))
+    '3-3-0'
+    """
+    return "-".join(str(d) for d in parse_degrees(degrees))
+
+
+def estimator_settings(*, method="lrm", window=30, degrees=None, closed_loop="indirect",
+                       covariance=True, errors="raise", frequency_chunks=None) -> EstimatorSettings:
+    """Check and normalise every setting of a local-model estimate, before any data is read.
+
+    Parameters
+    ----------
+    method, window, degrees, closed_loop, covariance, errors, frequency_chunks
+        As in :func:`lcmr_xr.identify`.  ``degrees=None`` is the method's default
+        (:data:`METHODS`).
+
+    Returns
+    -------
+    EstimatorSettings
+        Plain ints, bools and strs; ``degrees`` a triple.
+
+    Raises
+    ------
+    TypeError
+        A value of the wrong type (``covariance="no"``, ``window="30"``).
+    ValueError
+        A value out of range or not among the choices (``window=30.5``, ``method="arx"``,
+        ``degrees=(3, 3, 3)`` with ``method="lpm"``, ``frequency_chunks < window``).
+
+    Examples
+    --------
+    >>> estimator_settings(method="lpm", window=20.0).degrees
+    (3, 3, 0)
+    """
+    method = as_choice(method, "method", METHODS)
+    degrees = METHODS[method].default_degrees if degrees is None else parse_degrees(degrees, method)
+    window = as_integer(window, "window", minimum=1, example=30)
+    closed_loop = as_choice(closed_loop, "closed_loop", CLOSED_LOOP)
+    covariance = as_bool(covariance, "covariance")
+    errors = as_choice(errors, "errors", ERRORS)
+    if frequency_chunks is not None:
+        frequency_chunks = as_integer(frequency_chunks, "frequency_chunks", minimum=1, example=64)
+        if frequency_chunks < window:
+            raise ValueError(
+                f"frequency_chunks={frequency_chunks} is smaller than the halo the local window "
+                f"needs (window={window} bins on each side); use frequency_chunks >= {window}."
+            )
+    return EstimatorSettings(method, degrees, window, closed_loop, covariance, errors,
+                             frequency_chunks)
+
+
+def check_window_fits(window: int, degrees, n_excitation: int, n_bins: int) -> None:
+    """Refuse a window with too few bins for the local model, or wider than the spectrum.
+
+    Parameters
+    ----------
+    window : int
+        Half-width ``n`` (``2 n + 1`` bins).
+    degrees : (int, int, int)
+        ``(Rn, Rm, Rd)``.
+    n_excitation : int
+        Excitation channels of the local model (``F nu`` lifted, ``nu`` single-rate).
+    n_bins : int
+        Slow DFT bins ``M`` of the spectrum.
+
+    Examples
+    --------
+    >>> check_window_fits(30, (3, 3, 3), 4, 1800)  # the paper's HDD settings
+    """
+    from lcmr_xr.kernels.local_models import parameters_per_row
+
+    p = parameters_per_row(n_excitation, degrees)
+    n_min = (p + 1) // 2
+    if 2 * n_min + 1 > n_bins:  # no window fits: a shorter window cannot help, only more data
+        raise ValueError(
+            f"the experiment is too short for the local model: it has M = {n_bins} slow samples "
+            f"(slow DFT bins), but degrees {tuple(degrees)} with {n_excitation} excitation "
+            f"channels need {p} parameters per row, i.e. window >= {n_min} and 2n+1 = "
+            f"{2 * n_min + 1} bins. Record at least {2 * n_min + 1} slow samples (N >= "
+            f"{2 * n_min + 1} x factor fast samples), or lower the degrees."
+        )
+    if 2 * window + 1 <= p:  # at least one degree of freedom is left for the noise estimate
+        raise ValueError(
+            f"too few bins for the local model: window={window} gives 2n+1 = {2 * window + 1} bins "
+            f"per row but degrees {tuple(degrees)} with {n_excitation} excitation channels need "
+            f"{p} parameters per row and at least one more bin for the noise estimate. "
+            f"Use window >= {(p + 1) // 2} (or lower degrees)."
+        )
+    if 2 * window + 1 > n_bins:
+        raise ValueError(
+            f"the local window (2n+1 = {2 * window + 1} bins for window={window}) is wider than the "
+            f"spectrum ({n_bins} slow bins). Use window <= {(n_bins - 1) // 2} or a longer experiment."
+        )
+
+
+def degrees_arguments(tokens) -> list[str]:
+    """The degrees settings of a command line's ``--degrees`` tokens (syntax ``RN-RM-RD``).
+
+    Each token is one setting ``RN-RM-RD`` (or ``RN,RM,RD``); bare integers ``RN RM RD``
+    are read as one setting too (the older ``lcmr-xr identify`` spelling).  The settings
+    are parsed with the method's rule by :func:`estimator_settings` (or the sweep).
+
+    Examples
+    --------
+    >>> degrees_arguments(["3-3-3", "2,2,0"]), degrees_arguments(["2", "2", "2"])
+    (['3-3-3', '2,2,0'], ['2-2-2'])
+    """
+    tokens = [str(t).strip() for t in tokens]
+    if tokens and all(t.isdigit() for t in tokens):
+        return ["-".join(tokens)]
+    return tokens

@@ -1,0 +1,669 @@
+"""The catalogue of bad inputs (issue 15): every one gets a clear answer, none loses data.
+
+One parametrised case per bad input, across the Python API, the command line and files.
+Each case runs in a working directory holding real files (an experiment, an FRF, an
+archive, foreign and broken NetCDF files) and asserts
+
+- the exception type and the key words of its message (API), or exit status 2 and one
+  line ``lcmr-xr CMD: error: ...`` with the key words (CLI; argparse's own refusals exit 2
+  with its ``error:`` line), or, for inputs that must be *accepted* (a MATLAB (1, 1)
+  factor, data scaled by 1e300, dask data chunked along time), the right result;
+- that no file of the working directory changed: names, sizes and modification times
+  are the same before and after (nothing written, nothing overwritten, no temporaries).
+
+The settings-type cases (``window=30.5``, ``covariance="no"``, ...) are answered by the
+settings validator of issue 17 (``lcmr_xr.settings``).
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import textwrap
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+import pytest
+import xarray as xr
+
+import lcmr_xr
+from lcmr_xr import cli, hdd
+from lcmr_xr.experiment import experiment, validate_experiment
+from lcmr_xr.io import open_dataset, open_experiment, open_frf, save
+from lcmr_xr.io._atomic import stale_temporaries, temporary_prefix
+from lcmr_xr.scaleout import open_archive, save_archive, select_settings, sweep
+
+TH = 1 / 100800
+
+
+# ------------------------------------------------------------------------ environment
+@pytest.fixture(scope="module")
+def small():
+    """Noiseless HDD benchmark experiment: N = 400, F = 2, inputs vcm/pzt, one output."""
+    return hdd.simulate(n_samples=400, noise=False, seed=1)
+
+
+@pytest.fixture(scope="module")
+def small_frf(small):
+    return lcmr_xr.identify(small, window=12, degrees=(2, 2, 2))
+
+
+@pytest.fixture(scope="module")
+def template(tmp_path_factory, small, small_frf):
+    """The files every case starts from (copied, with their times, into its working dir)."""
+    root = tmp_path_factory.mktemp("template")
+    save(small, root / "exp.nc")
+    save(small_frf, root / "frf.nc")
+    save(experiment(small.r.values[:8], small.u.values[:8], small.y.values[:4], factor=2,
+                    sampling_period=TH), root / "short.nc")
+    save(xr.Dataset({"r": ("time", np.ones(4))}, attrs={"conventions": "CF-1.8"}), root / "cf.nc")
+    (root / "notes.nc").write_text("hello, not a netCDF file\n")
+    data = (root / "exp.nc").read_bytes()
+    (root / "trunc.nc").write_bytes(data[: len(data) // 3])
+    save_archive(xr.concat([small, hdd.simulate(n_samples=400, noise=False, seed=2)],
+                           dim="experiment").assign_coords(experiment=["e0", "e1"]), root / "arc",
+                 layout="files")
+    save_archive(small, root / "arc1.nc")  # a consolidated archive (one file)
+    (root / "junkarc").mkdir()
+    shutil.copy2(root / "exp.nc", root / "junkarc" / "good.nc")
+    (root / "junkarc" / "junk.nc").write_bytes(b"\x89HDF\r\n\x1a\n not really")
+    (root / "forarc").mkdir()
+    shutil.copy2(root / "exp.nc", root / "forarc" / "a.nc")
+    shutil.copy2(root / "cf.nc", root / "forarc" / "cf.nc")
+    (root / "mixed").mkdir()
+    save(small, root / "mixed" / "a.nc")
+    save(hdd.simulate(n_samples=800, noise=False, seed=1), root / "mixed" / "b.nc")
+    (root / "empty").mkdir()
+    (root / "dir.nc").mkdir()
+    (root / "demo").mkdir()
+    save(small_frf, root / "demo" / "hdd_frf.nc")
+    return root
+
+
+def snapshot(root: Path) -> dict:
+    """Every file and directory under ``root`` (hidden ones too): size and mtime."""
+    out = {}
+    for base, dirs, files in os.walk(root):
+        for name in dirs + files:
+            path = Path(base) / name
+            st = path.stat()
+            out[str(path.relative_to(root))] = (st.st_size if path.is_file() else -1, st.st_mtime_ns)
+    return out
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+class _Server:
+    """A TCP service on 127.0.0.1 that is not a dask scheduler: it sends junk, or nothing."""
+
+    def __init__(self, reply: bytes | None):
+        self.sock = socket.socket()
+        self.sock.bind(("127.0.0.1", 0))
+        self.sock.listen(8)
+        self.port = self.sock.getsockname()[1]
+        self.reply = reply
+        self.conns = []
+        threading.Thread(target=self._serve, daemon=True).start()
+
+    def _serve(self):
+        while True:
+            try:
+                conn, _ = self.sock.accept()
+            except OSError:
+                return
+            self.conns.append(conn)
+            if self.reply is not None:
+                try:
+                    conn.sendall(self.reply)
+                except OSError:
+                    pass
+
+    def close(self):
+        for c in self.conns:
+            c.close()
+        self.sock.close()
+
+
+@pytest.fixture(scope="module")
+def servers():
+    junk = _Server(b"HTTP/1.1 200 OK\r\nContent-Length: 5\r\n\r\nhello" * 4)
+    silent = _Server(None)
+    yield {"junk": junk.port, "silent": silent.port, "unused": _free_port()}
+    junk.close()
+    silent.close()
+
+
+@dataclass
+class Env:
+    small: xr.Dataset
+    frf: xr.Dataset
+    servers: dict
+    monkeypatch: pytest.MonkeyPatch
+
+    @property
+    def r(self):
+        return self.small.r.values
+
+    @property
+    def u(self):
+        return self.small.u.values
+
+    @property
+    def y(self):
+        return self.small.y.values
+
+    def build(self, **kw):
+        args = {"r": self.r, "u": self.u, "y": self.y}
+        args.update({k: kw.pop(k) for k in ("r", "u", "y") if k in kw})
+        return experiment(args["r"], args["u"], args["y"], **{"factor": 2, "sampling_period": TH, **kw})
+
+    def changed(self, **updates):
+        ds = self.small.copy(deep=True)
+        for key, value in updates.items():
+            ds[key] = value
+        return ds
+
+
+@dataclass
+class Case:
+    id: str
+    call: Callable | None = None           # API: call(env); CLI: argv(env) list
+    raises: type | tuple | None = None
+    words: tuple = ()
+    absent: tuple = ()
+    cli: Callable | None = None
+    argparse: bool = False                 # refused by argparse itself
+    check: Callable | None = None          # for accepted inputs: check(result, env)
+    max_seconds: float | None = None
+    marks: tuple = field(default_factory=tuple)
+
+
+def _drop_attr(ds, key):
+    ds = ds.copy()
+    ds.attrs = {k: v for k, v in ds.attrs.items() if k != key}
+    return ds
+
+
+def _set_attr(ds, **attrs):
+    ds = ds.copy()
+    ds.attrs = {**ds.attrs, **attrs}
+    return ds
+
+
+def _with_nan(ds, name, index, lazy_chunks=None):
+    ds = ds.copy(deep=True)
+    ds[name].values[index] = np.nan
+    return ds if lazy_chunks is None else ds.chunk(lazy_chunks)
+
+
+def _flagged_experiment(bad, words):
+    """Check a sweep result: experiment ``bad`` is NaN, flagged, and its error has ``words``."""
+    def check(result, env):
+        errors = result.experiment_error.values.ravel().tolist()
+        assert all(w in errors[bad] for w in words), errors[bad]
+        assert [m for i, m in enumerate(errors) if i != bad] == [""] * (len(errors) - 1)
+        assert bool(result.P_flag.isel(experiment=bad).all())
+        assert np.isnan(result.P.isel(experiment=bad).values).all()
+        good = result.P.isel(experiment=[i for i in range(len(errors)) if i != bad])
+        want = lcmr_xr.identify(env.small, window=12, degrees=(2, 2, 2)).P
+        np.testing.assert_allclose(good.values.squeeze(), want.values.squeeze(), rtol=1e-6)
+    return check
+
+
+def _same_p(scale_y=1.0, rtol=1e-6):
+    def check(result, env):
+        want = lcmr_xr.identify(env.small, window=12, degrees=(2, 2, 2)).P * scale_y
+        np.testing.assert_allclose(result.P.values, want.values, rtol=rtol)
+    return check
+
+
+def _identify12(ds, **kw):
+    return lcmr_xr.identify(ds, **{"window": 12, "degrees": (2, 2, 2), **kw})
+
+
+def _scaled(env, s_r, s_u, s_y):
+    return env.changed(r=env.small.r * s_r, u=env.small.u * s_u, y=env.small.y * s_y)
+
+
+def _fake_readonly(env):
+    import tempfile
+
+    def refuse(*args, **kwargs):
+        raise PermissionError(13, "Permission denied", os.path.join(kwargs.get("dir", "."), ".x.tmp"))
+
+    env.monkeypatch.setattr(tempfile, "mkstemp", refuse)
+    return save(env.small, "out.nc")
+
+
+API = [
+    # --- experiment(): building from arrays --------------------------------------------
+    Case("factor_1x1_from_loadmat", lambda e: e.build(factor=np.array([[2]])),
+         check=lambda ds, e: (ds.attrs["factor"] == 2 and isinstance(ds.attrs["factor"], int)) or pytest.fail()),
+    Case("sampling_period_1x1_from_loadmat", lambda e: e.build(sampling_period=np.array([[TH]])),
+         check=lambda ds, e: np.testing.assert_allclose(float(ds.time[1]), TH, rtol=1e-12)),
+    Case("factor_vector", lambda e: e.build(factor=np.array([2, 2])), TypeError, ("factor", "single", "(2,)")),
+    Case("factor_fraction", lambda e: e.build(factor=2.5), ValueError, ("factor", "positive integer")),
+    Case("factor_zero", lambda e: e.build(factor=0), ValueError, ("factor", "positive integer")),
+    Case("factor_bool", lambda e: e.build(factor=True), TypeError, ("factor", "boolean")),
+    Case("factor_string", lambda e: e.build(factor="2"), TypeError, ("factor", "number")),
+    Case("factor_nan", lambda e: e.build(factor=np.nan), ValueError, ("factor", "positive integer")),
+    Case("sampling_period_negative", lambda e: e.build(sampling_period=-TH), ValueError, ("sampling_period", "positive")),
+    Case("sampling_period_vector", lambda e: e.build(sampling_period=np.array([TH, TH])), TypeError,
+         ("sampling_period", "single")),
+    Case("sampling_period_missing", lambda e: experiment(e.r, e.u, e.y, factor=2), ValueError,
+         ("sampling_period=Th",)),
+    Case("sampling_period_disagrees_with_time", lambda e: experiment(e.small.r, e.small.u, e.small.y, factor=2,
+                                                                    sampling_period=2 * TH),
+         ValueError, ("disagrees", "spacing")),
+    Case("r_transposed", lambda e: e.build(r=e.r.T), ValueError, ("transposed", "r.T")),
+    Case("u_transposed", lambda e: e.build(u=e.u.T), ValueError, ("transposed", "u.T")),
+    Case("y_matlab_row_vector", lambda e: e.build(y=e.y.T), ValueError, ("transposed", "y.T", "(1, 200)")),
+    Case("r_stacked_transposed", lambda e: e.build(r=np.stack([e.r.T, e.r.T]), u=np.stack([e.u, e.u]),
+                                                   y=np.stack([e.y, e.y])),
+         ValueError, ("transposed", "swapaxes")),
+    Case("r_four_dims", lambda e: e.build(r=e.r[None, None]), ValueError, ("4 dims", "DataArrays")),
+    Case("r_shorter_than_u", lambda e: e.build(r=e.r[:398]), ValueError, ("do not fit together",)),
+    Case("n_not_multiple_of_factor", lambda e: e.build(r=e.r[:399], u=e.u[:399]), ValueError,
+         ("not a multiple", "398")),
+    Case("too_many_labels", lambda e: e.build(inputs=["vcm"]), ValueError, ("1 labels", "2 channels")),
+    Case("labels_of_r_and_u_differ", lambda e: experiment(e.small.r, e.small.u.assign_coords(input=["a", "b"]),
+                                                          e.small.y, factor=2),
+         ValueError, ("same input labels",)),
+    Case("attrs_set_factor", lambda e: e.build(attrs={"factor": 3}), ValueError, ("must not set", "factor")),
+    Case("complex_r", lambda e: e.build(r=e.r + 0j), ValueError, ("complex",)),
+    Case("nan_in_r", lambda e: e.build(r=np.where(np.arange(400)[:, None] == 7, np.nan, e.r)), ValueError,
+         ("NaN",)),
+    Case("inf_in_y", lambda e: e.build(y=np.where(np.arange(200)[:, None] == 7, np.inf, e.y)), ValueError,
+         ("NaN or inf", "'y'", "y: 1 slow_time sample(s) from slow_time = 0.000138889 s")),
+    # a sweep flags the bad experiment (experiment_error says which and why) and goes on
+    Case("nan_in_one_experiment_of_a_sweep", lambda e: sweep(
+        _with_nan(xr.concat([e.small, e.small], "experiment"), "u", (1, 30, 0), {"experiment": 1}),
+        window=[12], degrees=["2-2-2"]).compute(),
+        check=_flagged_experiment(1, ("'u'", "u: 1 time sample(s) from time = 0.000297619 s"))),
+    Case("r_experiment_dim_but_u_y_not", lambda e: e.build(r=np.stack([e.r, e.r])), ValueError,
+         ("leading dims", "r ('experiment',)", "u ()")),
+    Case("y_experiment_dim_but_u_not", lambda e: e.build(y=np.stack([e.y, e.y])), ValueError,
+         ("leading dims",)),
+    Case("r_shared_by_repeated_experiments", lambda e: e.build(u=np.stack([e.u, e.u]), y=np.stack([e.y, e.y])),
+         check=lambda ds, e: ds.u.dims == ("experiment", "time", "input") or pytest.fail()),
+    Case("dataarray_unnamed_dims", lambda e: experiment(xr.DataArray(e.r, dims=("t", "ch")), e.small.u,
+                                                        e.small.y, factor=2),
+         ValueError, ("rename", "'time'")),
+    Case("string_data", lambda e: e.build(r=e.r.astype(str)), ValueError, ("non-numeric",)),
+    Case("labels_as_one_string", lambda e: e.build(inputs="vcm"), TypeError, ("sequence of labels",)),
+    Case("uneven_time", lambda e: experiment(e.small.r.assign_coords(time=e.small.time * (1 + np.arange(400) * 1e-4)),
+                                             e.small.u.drop_vars("time"), e.small.y.drop_vars("slow_time"), factor=2),
+         ValueError, ("not evenly spaced",)),
+    # --- validate_experiment(): datasets -------------------------------------------------
+    Case("validate_dataarray", lambda e: validate_experiment(e.small.r), TypeError,
+         ("xarray.Dataset", "lcmr_xr.experiment(r, u, y")),
+    Case("conventions_missing", lambda e: validate_experiment(_drop_attr(e.small, "conventions")), ValueError,
+         ("conventions", "missing")),
+    Case("conventions_foreign", lambda e: validate_experiment(_set_attr(e.small, conventions="CF-1.8")), ValueError,
+         ("CF-1.8", "lcmr_xr.experiment(r, u, y"), absent=("experiment.experiment",)),
+    Case("factor_attr_missing", lambda e: validate_experiment(_drop_attr(e.small, "factor")), ValueError,
+         ("'factor' is missing",)),
+    Case("factor_attr_disagrees_with_spacing", lambda e: validate_experiment(_set_attr(e.small, factor=4)),
+         ValueError, ("factor=4", "N/M = 400/200 = 2", "spacing / time spacing = 2")),
+    Case("factor_attr_not_a_divisor", lambda e: validate_experiment(_set_attr(e.small, factor=3)),
+         ValueError, ("not a multiple", "factor=3", "= 2")),
+    Case("factor_attr_text", lambda e: validate_experiment(_set_attr(e.small, factor="two")), ValueError,
+         ("positive integer",)),
+    Case("variable_y_missing", lambda e: validate_experiment(e.small.drop_vars("y")), ValueError,
+         ("'y' is missing",)),
+    Case("units_missing", lambda e: validate_experiment(e.changed(r=e.small.r.drop_attrs())), ValueError,
+         ("'units'",)),
+    Case("duplicate_labels", lambda e: validate_experiment(e.small.assign_coords(input=["a", "a"])), ValueError,
+         ("duplicates",)),
+    Case("slow_time_spacing_wrong", lambda e: validate_experiment(e.small.assign_coords(slow_time=e.small.slow_time * 1.5)),
+         ValueError, ("slow_time", "spaced by", "spacing / time spacing = 3")),
+    Case("time_not_starting_at_zero", lambda e: validate_experiment(e.small.assign_coords(time=e.small.time + 1.0)),
+         ValueError, ("starts at",)),
+    # --- identify() ------------------------------------------------------------------------
+    Case("identify_dataarray", lambda e: lcmr_xr.identify(e.small.r), TypeError, ("experiment xarray.Dataset",)),
+    Case("method_unknown", lambda e: _identify12(e.small, method="lsq"), ValueError, ("method", "'lsq'")),
+    Case("degrees_pair_for_lrm", lambda e: _identify12(e.small, degrees=(3, 3)), ValueError, ("degrees", "three non-negative")),
+    Case("degrees_negative", lambda e: _identify12(e.small, degrees=(3, -1, 3)), ValueError, ("non-negative",)),
+    Case("lpm_with_denominator", lambda e: _identify12(e.small, method="lpm", degrees=(2, 2, 2)), ValueError,
+         ("Rd", "(2, 2, 0)")),
+    Case("window_zero", lambda e: _identify12(e.small, window=0), ValueError, ("window", ">= 1")),
+    Case("window_too_small", lambda e: _identify12(e.small, window=3), ValueError, ("Use window >=",)),
+    Case("window_too_wide", lambda e: _identify12(e.small, window=150), ValueError,
+         ("wider than the spectrum", "window <= 99")),
+    Case("experiment_too_short_default_window",
+         lambda e: lcmr_xr.identify(experiment(e.r[:8], e.u[:8], e.y[:4], factor=2, sampling_period=TH)),
+         ValueError, ("too short", "M = 4", "slow samples"), absent=("window <= 0", "window <= 1")),
+    Case("errors_unknown", lambda e: _identify12(e.small, errors="warn"), ValueError, ("errors", "'warn'")),
+    Case("errors_none", lambda e: _identify12(e.small, errors=None), ValueError, ("errors", "None")),
+    Case("closed_loop_unknown", lambda e: _identify12(e.small, closed_loop="bogus"), ValueError, ("closed_loop",)),
+    Case("excitation_held_per_slow_period", lambda e: _identify12(e.changed(r=e.small.r.copy(data=np.repeat(e.r[::2], 2, axis=0)))),
+         ValueError, ("rank", "excite")),
+    Case("data_scaled_1e300", lambda e: _identify12(_scaled(e, 1e300, 1e300, 1e300)), check=_same_p()),
+    Case("data_scaled_1e-300", lambda e: _identify12(_scaled(e, 1e-300, 1e-300, 1e-300)), check=_same_p()),
+    Case("output_scaled_1e200", lambda e: _identify12(_scaled(e, 1, 1, 1e200)), check=_same_p(1e200)),
+    Case("input_scaled_1e-200_single_rate", lambda e: lcmr_xr.identify_single_rate(_scaled(e, 1e-200, 1e-200, 1), window=12,
+                                                                                    degrees=(1, 1, 1)),
+         check=lambda res, e: np.testing.assert_allclose(
+             res.P.values, lcmr_xr.identify_single_rate(e.small, window=12, degrees=(1, 1, 1)).P.values * 1e200, rtol=1e-6)),
+    Case("dask_chunked_along_time", lambda e: _identify12(e.small.chunk(time=100, slow_time=50)).compute(),
+         check=_same_p(rtol=1e-12)),
+    Case("dask_chunked_along_time_with_nan", lambda e: _identify12(_with_nan(e.small, "r", (50, 0), {"time": 100, "slow_time": 50})).compute(),
+         ValueError, ("r contains NaN", "time = 0.000496", "indices 50..50"), absent=("R and Z", "bad bins", "Core dimension")),
+    Case("dask_nan_in_y", lambda e: _identify12(_with_nan(e.small, "y", (20, 0), {})).compute(),
+         ValueError, ("y contains NaN", "slow_time =", "indices 20..20"), absent=("R and Z",)),
+    Case("frequency_chunks_below_window", lambda e: _identify12(e.small, frequency_chunks=5), ValueError,
+         ("frequency_chunks", ">= 12")),
+    Case("frequency_chunks_zero", lambda e: _identify12(e.small, frequency_chunks=0), ValueError, ("frequency_chunks", ">= 1")),
+    Case("single_rate_window_too_wide", lambda e: lcmr_xr.identify_single_rate(e.small, window=120), ValueError,
+         ("wider than the spectrum",)),
+    # settings types (issue 17's validator, lcmr_xr.settings)
+    Case("window_fractional", lambda e: _identify12(e.small, window=30.5), (TypeError, ValueError), ("window", "30.5")),
+    Case("window_text", lambda e: _identify12(e.small, window="30"), (TypeError, ValueError), ("window",)),
+    Case("window_bool", lambda e: _identify12(e.small, window=True), (TypeError, ValueError), ("window", "True")),
+    Case("covariance_text", lambda e: _identify12(e.small, covariance="no"), (TypeError, ValueError), ("covariance",)),
+    Case("covariance_int", lambda e: _identify12(e.small, covariance=2), (TypeError, ValueError), ("covariance",)),
+    Case("method_list", lambda e: _identify12(e.small, method=["lrm"]), (TypeError, ValueError), ("method",)),
+    Case("closed_loop_unknown_on_dask", lambda e: _identify12(e.small.chunk(), closed_loop="bogus"), (TypeError, ValueError),
+         ("closed_loop",)),
+    Case("degrees_fractional", lambda e: _identify12(e.small, degrees=(2.5, 2, 2)), (TypeError, ValueError),
+         ("degrees",)),
+    # --- files: save / open --------------------------------------------------------------
+    Case("save_dataarray", lambda e: save(e.small.r, "x.nc"), TypeError, ("to_dataset",)),
+    Case("save_into_missing_directory", lambda e: save(e.small, "nodir/x.nc"), FileNotFoundError,
+         ("nodir", "does not exist")),
+    Case("save_onto_a_directory", lambda e: save(e.small, "arc"), IsADirectoryError, ("cannot write arc", "is a directory"),
+         absent=(".tmp",)),
+    Case("save_where_not_writable", _fake_readonly, PermissionError, ("cannot write out.nc",), absent=(".x.tmp",)),
+    Case("save_lazy_over_its_source", lambda e: save(open_dataset("exp.nc", chunks={}), "exp.nc"), ValueError,
+         ("exp.nc", "still reads", "load")),
+    Case("save_dict_attribute", lambda e: save(_set_attr(e.small, settings={"a": 1}), "x.nc"), TypeError,
+         ("'settings'", "json.dumps")),
+    Case("save_mixed_tuple_attribute", lambda e: save(_set_attr(e.small, settings=(1, "a")), "x.nc"), TypeError,
+         ("mixed types",)),
+    Case("open_missing", lambda e: open_experiment("nothing.nc"), FileNotFoundError, ("nothing.nc",)),
+    Case("open_text_file", lambda e: open_dataset("notes.nc"), ValueError, ("notes.nc", "not a valid NetCDF")),
+    Case("open_truncated", lambda e: open_experiment("trunc.nc"), ValueError, ("trunc.nc", "truncated")),
+    Case("open_foreign_netcdf", lambda e: open_experiment("cf.nc"), ValueError,
+         ("cf.nc", "'CF-1.8'", "lcmr_xr.experiment(r, u, y"), absent=("experiment.experiment",)),
+    Case("open_frf_on_experiment", lambda e: open_frf("exp.nc"), ValueError, ("no variable 'P'", "open_experiment")),
+    Case("open_experiment_on_frf", lambda e: open_experiment("frf.nc"), ValueError, ("frf.nc", "invalid experiment")),
+    Case("open_directory_as_file", lambda e: open_experiment("arc"), IsADirectoryError, ("arc", "directory", "open_archive")),
+    # --- archives ----------------------------------------------------------------------------
+    Case("archive_missing", lambda e: open_archive("nothing"), FileNotFoundError, ("nothing", "does not exist")),
+    # a consolidated archive is a file: other files are refused, named, with what an archive is
+    Case("archive_path_is_a_file", lambda e: open_archive("exp.nc"), ValueError,
+         ("exp.nc", "is a file but not a consolidated archive", "without the archive attribute",
+          "an archive is one NetCDF file written by", "or a directory", "open_experiment"),
+         absent=("does not exist",)),
+    Case("archive_file_not_netcdf", lambda e: open_archive("notes.nc"), ValueError,
+         ("notes.nc", "not a consolidated archive", "not a NetCDF-4 file", "an archive is one NetCDF file")),
+    Case("archive_file_truncated", lambda e: open_archive("trunc.nc"), ValueError,
+         ("trunc.nc", "not a consolidated archive", "not a NetCDF-4 file")),
+    Case("archive_consolidated_into_directory_layout", lambda e: save_archive(e.small, "arc1.nc", layout="files"),
+         ValueError, ("arc1.nc", "is a file", "layout='files' is a directory")),
+    Case("archive_empty", lambda e: open_archive("empty"), FileNotFoundError, ("holds no .nc",)),
+    Case("archive_with_junk_file", lambda e: open_archive("junkarc"), ValueError, ("junkarc/junk.nc", "not a readable NetCDF",
+                                                                        "move it out")),
+    Case("archive_with_foreign_file", lambda e: open_archive("forarc"), ValueError, ("cf.nc", "not an lcmr-xr-1 experiment")),
+    Case("archive_mixed_lengths", lambda e: open_archive("mixed"), ValueError, ("different lengths", "N=400", "N=800")),
+    Case("save_archive_duplicate_names", lambda e: save_archive(
+        xr.concat([e.small, e.small], "experiment").assign_coords(experiment=["a b", "a_b"]), "newarc",
+        layout="files"),
+        ValueError, ("same file names",)),
+    Case("save_archive_empty", lambda e: save_archive([], "newarc"), ValueError, ("empty",)),
+    Case("save_archive_not_datasets", lambda e: save_archive([e.small.r], "newarc"), TypeError, ("not an experiment Dataset",)),
+    # --- sweep / select ------------------------------------------------------------------------
+    Case("sweep_window_too_small", lambda e: sweep(e.small, window=[3]), ValueError, ("Use window >=",)),
+    Case("sweep_degrees_label", lambda e: sweep(e.small, window=[12], degrees=["3-3"]), ValueError,
+         ("three non-negative", "'3-3'")),
+    Case("select_unknown_criterion", lambda e: select_settings(sweep(e.small, window=[12]), e.small, criterion="aic"),
+         ValueError, ("criterion", "'aic'")),
+    Case("select_cross_with_one_experiment", lambda e: select_settings(sweep(e.small, window=[12]), e.small,
+                                                                      criterion="cross"),
+         ValueError, ("at least two", "fpe")),
+]
+
+
+CLI = [
+    # identify
+    Case("identify_input_missing", cli=lambda e: ["identify", "missing.nc", "-o", "out.nc"], words=("missing.nc",)),
+    Case("identify_input_not_netcdf", cli=lambda e: ["identify", "notes.nc", "-o", "out.nc"], words=("notes.nc",)),
+    Case("identify_output_is_input", cli=lambda e: ["identify", "exp.nc", "-o", "exp.nc"],
+         words=("refusing", "exp.nc", "input")),
+    Case("identify_output_is_input_other_spelling", cli=lambda e: ["identify", "exp.nc", "-o", "./arc/../exp.nc"],
+         words=("refusing",)),
+    Case("identify_output_exists", cli=lambda e: ["identify", "exp.nc", "-o", "frf.nc"],
+         words=("frf.nc", "already exists", "--overwrite")),
+    Case("identify_plot_bad_format", cli=lambda e: ["identify", "exp.nc", "-o", "out.nc", "--plot", "f.xyz"],
+         words=("--plot", "'.xyz'", ".png")),
+    Case("identify_plot_over_input", cli=lambda e: ["identify", "exp.nc", "-o", "out.nc", "--plot", "arc"],
+         words=("--plot",)),
+    Case("identify_output_bad_format", cli=lambda e: ["identify", "exp.nc", "-o", "out.txt"], words=("'.txt'", ".nc")),
+    Case("identify_output_directory_missing", cli=lambda e: ["identify", "exp.nc", "-o", "nodir/out.nc"],
+         words=("nodir", "does not exist")),
+    Case("identify_output_is_a_directory", cli=lambda e: ["identify", "exp.nc", "-o", "dir.nc"],
+         words=("dir.nc", "is a directory")),
+    Case("identify_window_too_wide", cli=lambda e: ["identify", "exp.nc", "-o", "out.nc", "--window", "200"],
+         words=("wider than the spectrum",)),
+    Case("identify_foreign_input", cli=lambda e: ["identify", "cf.nc", "-o", "out.nc"],
+         words=("cf.nc", "lcmr_xr.experiment(r, u, y"), absent=("experiment.experiment",)),
+    Case("identify_frf_as_input", cli=lambda e: ["identify", "frf.nc", "-o", "out.nc"], words=("invalid experiment",)),
+    Case("identify_directory_as_input", cli=lambda e: ["identify", "arc", "-o", "out.nc"], words=("arc", "directory")),
+    Case("identify_too_short", cli=lambda e: ["identify", "short.nc", "-o", "out.nc"], words=("too short",),
+         absent=("window <= 0",)),
+    Case("identify_lpm_with_denominator", cli=lambda e: ["identify", "exp.nc", "-o", "out.nc", "--method", "lpm",
+                                                         "--degrees", "3-3-3"], words=("Rd",)),
+    Case("identify_window_fractional", cli=lambda e: ["identify", "exp.nc", "-o", "out.nc", "--window", "30.5"],
+         argparse=True, words=("invalid int value", "30.5")),
+    Case("identify_method_unknown", cli=lambda e: ["identify", "exp.nc", "-o", "out.nc", "--method", "lsq"],
+         argparse=True, words=("invalid choice", "lsq")),
+    # simulate
+    Case("simulate_output_exists", cli=lambda e: ["simulate", "-o", "exp.nc", "--samples", "400"],
+         words=("exp.nc", "already exists", "--overwrite")),
+    Case("simulate_output_bad_format", cli=lambda e: ["simulate", "-o", "sim.png"], words=("'.png'", ".nc")),
+    Case("simulate_output_directory_missing", cli=lambda e: ["simulate", "-o", "nodir/x.nc"], words=("does not exist",)),
+    Case("simulate_samples_odd", cli=lambda e: ["simulate", "-o", "x.nc", "--samples", "5"],
+         words=("n_samples", "multiple")),
+    Case("simulate_case_unknown", cli=lambda e: ["simulate", "-o", "x.nc", "--case", "10"], argparse=True,
+         words=("invalid choice",)),
+    # sweep
+    Case("sweep_output_over_archive_member", cli=lambda e: ["sweep", "arc", "-o", "arc/e0.nc", "--window", "12"],
+         words=("refusing", "arc/e0.nc", "inside the input directory")),
+    Case("sweep_output_new_file_in_archive", cli=lambda e: ["sweep", "arc", "-o", "arc/new.nc", "--window", "12"],
+         words=("refusing", "arc/new.nc")),
+    Case("sweep_select_in_archive", cli=lambda e: ["sweep", "arc", "-o", "r.nc", "--window", "12", "--select",
+                                                   "arc/choice.nc"], words=("refusing", "--select")),
+    Case("sweep_output_equals_select", cli=lambda e: ["sweep", "arc", "-o", "r.nc", "--select", "r.nc"],
+         words=("same file",)),
+    Case("sweep_output_exists", cli=lambda e: ["sweep", "arc", "-o", "frf.nc", "--window", "12"],
+         words=("frf.nc", "already exists", "--overwrite")),
+    Case("sweep_archive_is_a_file", cli=lambda e: ["sweep", "exp.nc", "-o", "r.nc"], words=("exp.nc", "is a file"),
+         absent=("does not exist",)),
+    Case("sweep_archive_not_netcdf", cli=lambda e: ["sweep", "notes.nc", "-o", "r.nc"],
+         words=("notes.nc", "not a consolidated archive", "not a NetCDF-4 file")),
+    Case("sweep_output_is_consolidated_archive", cli=lambda e: ["sweep", "arc1.nc", "-o", "arc1.nc", "--overwrite"],
+         words=("refusing", "arc1.nc", "the input file")),
+    Case("sweep_archive_missing", cli=lambda e: ["sweep", "nothing", "-o", "r.nc"], words=("nothing", "does not exist")),
+    # archive consolidate
+    Case("consolidate_output_inside_directory", cli=lambda e: ["archive", "consolidate", "arc", "-o", "arc/all.nc"],
+         words=("refusing", "arc/all.nc", "inside the input directory")),
+    Case("consolidate_output_exists", cli=lambda e: ["archive", "consolidate", "arc", "-o", "frf.nc"],
+         words=("frf.nc", "already exists", "--overwrite")),
+    Case("consolidate_output_bad_format", cli=lambda e: ["archive", "consolidate", "arc", "-o", "all.zarr"],
+         words=("'.zarr'", ".nc")),
+    Case("consolidate_input_is_an_archive_file", cli=lambda e: ["archive", "consolidate", "arc1.nc", "-o", "b.nc"],
+         words=("arc1.nc", "consolidated archive file already")),
+    Case("consolidate_input_missing", cli=lambda e: ["archive", "consolidate", "nothing", "-o", "b.nc"],
+         words=("nothing", "does not exist")),
+    Case("consolidate_directory_with_junk", cli=lambda e: ["archive", "consolidate", "junkarc", "-o", "b.nc"],
+         words=("junkarc/junk.nc", "not a readable NetCDF")),
+    Case("sweep_archive_with_junk", cli=lambda e: ["sweep", "junkarc", "-o", "r.nc", "--window", "12"],
+         words=("junk.nc",)),
+    Case("cli_sweep_window_too_small", cli=lambda e: ["sweep", "arc", "-o", "r.nc", "--window", "3"],
+         words=("Use window >=",)),
+    Case("cli_sweep_degrees_label", cli=lambda e: ["sweep", "arc", "-o", "r.nc", "--degrees", "3-3"],
+         words=("three non-negative",)),
+    Case("sweep_scheduler_unknown", cli=lambda e: ["sweep", "arc", "-o", "r.nc", "--scheduler", "gpu"],
+         words=("neither threads",)),
+    Case("sweep_scheduler_bad_port", cli=lambda e: ["sweep", "arc", "-o", "r.nc", "--scheduler", "tcp://127.0.0.1:port"],
+         words=("neither threads",)),
+    Case("sweep_scheduler_nothing_listens", cli=lambda e: ["sweep", "arc", "-o", "r.nc", "--window", "12",
+                                                            "--scheduler", f"tcp://127.0.0.1:{e.servers['unused']}"],
+         words=("no dask scheduler answers", f"127.0.0.1"), max_seconds=8.0),
+    Case("sweep_scheduler_foreign_service", cli=lambda e: ["sweep", "arc", "-o", "r.nc", "--window", "12",
+                                                            "--scheduler", f"tcp://127.0.0.1:{e.servers['junk']}",
+                                                            "--connect-timeout", "3"],
+         words=("not as a dask scheduler",), max_seconds=10.0),
+    Case("sweep_scheduler_silent_service", cli=lambda e: ["sweep", "arc", "-o", "r.nc", "--window", "12",
+                                                           "--scheduler", f"tcp://127.0.0.1:{e.servers['silent']}",
+                                                           "--connect-timeout", "1"],
+         words=("not as a dask scheduler", "within 1 s"), max_seconds=10.0),
+    # demo
+    Case("demo_experiment_missing", cli=lambda e: ["demo", "--experiment", "missing.nc", "--output-dir", "out"],
+         words=("missing.nc",)),
+    Case("demo_output_dir_is_a_file", cli=lambda e: ["demo", "--experiment", "exp.nc", "--output-dir", "exp.nc"],
+         words=("exp.nc", "is a file")),
+    Case("demo_output_exists", cli=lambda e: ["demo", "--experiment", "exp.nc", "--output-dir", "demo"],
+         words=("hdd_frf.nc", "already exists", "--overwrite")),
+    Case("demo_experiment_is_an_output", cli=lambda e: ["demo", "--experiment", "demo/hdd_frf.nc", "--output-dir", "demo",
+                                                        "--overwrite"], words=("refusing", "hdd_frf.nc")),
+    Case("demo_window_too_small", cli=lambda e: ["demo", "--experiment", "exp.nc", "--output-dir", "newdir",
+                                                 "--window", "3", "--no-plot"], words=("Use window >=",)),
+]
+
+
+@pytest.fixture
+def workdir(template, tmp_path, monkeypatch):
+    work = tmp_path / "work"
+    shutil.copytree(template, work, copy_function=shutil.copy2)
+    monkeypatch.chdir(work)
+    return work
+
+
+def _params(cases):
+    return [pytest.param(c, id=c.id, marks=c.marks) for c in cases]
+
+
+@pytest.mark.parametrize("case", _params(API))
+def test_api_bad_input(case, workdir, small, small_frf, servers, monkeypatch):
+    env = Env(small, small_frf, servers, monkeypatch)
+    before = snapshot(workdir)
+    if case.raises is None:
+        case.check(case.call(env), env)
+    else:
+        with pytest.raises(case.raises) as info:
+            case.call(env)
+        message = str(info.value)
+        for word in case.words:
+            assert word in message, f"{word!r} not in: {message}"
+        for word in case.absent:
+            assert word not in message, f"{word!r} in: {message}"
+    monkeypatch.undo()
+    assert snapshot(workdir) == before
+
+
+@pytest.mark.parametrize("case", _params(CLI))
+def test_cli_bad_input(case, workdir, small, small_frf, servers, monkeypatch, capsys):
+    env = Env(small, small_frf, servers, monkeypatch)
+    before = snapshot(workdir)
+    start = time.perf_counter()
+    if case.argparse:
+        with pytest.raises(SystemExit) as info:
+            cli.main(case.cli(env))
+        status = info.value.code
+    else:
+        status = cli.main(case.cli(env))
+    elapsed = time.perf_counter() - start
+    err = capsys.readouterr().err
+    assert status == 2
+    lines = [line for line in err.splitlines() if "error:" in line]
+    assert len(lines) == 1, err
+    line = lines[0]
+    if not case.argparse:
+        assert line.startswith(f"lcmr-xr {case.cli(env)[0]}: error: "), err
+    for word in case.words:
+        assert word in line, f"{word!r} not in: {line}"
+    for word in case.absent:
+        assert word not in line, f"{word!r} in: {line}"
+    if case.max_seconds is not None:
+        assert elapsed < case.max_seconds, f"took {elapsed:.1f} s"
+    assert snapshot(workdir) == before
+
+
+def test_catalogue_size():
+    """The catalogue covers the issue's ~90 bad inputs (API, CLI and files)."""
+    assert len(API) + len(CLI) >= 90
+    assert len({c.id for c in API + CLI}) == len(API) + len(CLI)
+
+
+# ----------------------------------------------------------- interrupted writes (15.5)
+def test_stale_temporary_of_a_dead_writer_is_removed_on_next_save(tmp_path, small):
+    target = tmp_path / "exp.nc"
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True,
+                          text=True, check=True)
+    host = temporary_prefix(target).split(".")[-2].split("-")[0]
+    stale = tmp_path / f".exp.nc.{host}-{int(dead.stdout)}.abcd1234.tmp"
+    stale.write_bytes(b"x" * 1000)
+    live = tmp_path / f"{temporary_prefix(target)}live5678.tmp"  # a writer that still runs: kept
+    live.write_bytes(b"y")
+    other = tmp_path / f".other.nc.{host}-{int(dead.stdout)}.abcd1234.tmp"  # another target's
+    other.write_bytes(b"z")
+    remote = tmp_path / f".exp.nc.0badf00d-{int(dead.stdout)}.abcd1234.tmp"  # another host's, recent
+    remote.write_bytes(b"w")
+    assert stale_temporaries(target) == [stale]
+    save(small, target)
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["exp.nc", live.name, other.name,
+                                                                 remote.name])
+
+
+def test_old_untagged_temporary_is_removed_recent_one_kept(tmp_path, small):
+    old = tmp_path / ".exp.nc.k2j4h5g6.tmp"  # the name older versions used
+    old.write_bytes(b"x")
+    os.utime(old, (time.time() - 7200, time.time() - 7200))
+    recent = tmp_path / ".exp.nc.a1b2c3d4.tmp"
+    recent.write_bytes(b"x")
+    save(small, tmp_path / "exp.nc")
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["exp.nc", recent.name])
+
+
+def test_sigkill_during_save_leaves_a_temporary_that_the_next_save_removes(tmp_path, small):
+    """A real process killed with SIGKILL while ``save`` writes; the next save cleans up."""
+    target = tmp_path / "exp.nc"
+    script = textwrap.dedent(f"""
+        import sys, time
+        import numpy as np, xarray as xr
+        import lcmr_xr
+        real = xr.Dataset.to_netcdf
+        def slow(self, path, *a, **k):
+            real(self, path, *a, **k)
+            print("written", flush=True)
+            time.sleep(60)  # killed here, after the temporary holds the data
+        xr.Dataset.to_netcdf = slow
+        ds = xr.Dataset({{"a": ("x", np.ones(100_000))}})
+        lcmr_xr.save(ds, r"{target}")
+    """)
+    env = {**os.environ, "PYTHONPATH": str(Path(lcmr_xr.__file__).parent.parent)}
+    proc = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, text=True, env=env)
+    try:
+        assert proc.stdout.readline().strip() == "written"
+    finally:
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(timeout=30)
+    leftovers = [p for p in tmp_path.iterdir() if p.name.startswith(".exp.nc.")]
+    assert len(leftovers) == 1 and leftovers[0].stat().st_size > 100_000
+    assert not target.exists()
+    save(small, target)
+    assert [p.name for p in tmp_path.iterdir()] == ["exp.nc"]
+    xr.testing.assert_identical(open_experiment(target), small)

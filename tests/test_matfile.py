@@ -1,0 +1,150 @@
+"""MATLAB files: experiments written the way MATLAB writes them, FRFs that MATLAB's frd takes."""
+
+from __future__ import annotations
+
+import os
+
+import h5py
+import numpy as np
+import pytest
+import scipy.io
+import xarray as xr
+
+import lcmr_xr
+from lcmr_xr import hdd
+
+TH = hdd.FAST_PERIOD
+
+
+@pytest.fixture(scope="module")
+def exp():
+    return hdd.simulate(n_samples=240, noise=True, seed=3)
+
+
+def _same_signals(ds, exp):
+    for name in ("r", "u", "y"):
+        xr.testing.assert_identical(ds[name], exp[name])
+    assert ds.attrs["factor"] == exp.attrs["factor"] and isinstance(ds.attrs["factor"], int)
+
+
+def test_reads_matlab_rows_columns_and_1x1_scalars(exp, tmp_path):
+    path = tmp_path / "hdd.mat"
+    # MATLAB users store channels as rows or as columns, a single output as a row vector,
+    # and every number as a 1 x 1 double
+    scipy.io.savemat(path, {
+        "ref": exp.r.values.T,                    # 2 x N: one channel per row
+        "u": exp.u.values,                        # N x 2
+        "pos": exp.y.values[:, 0][None, :],       # 1 x M row vector
+        "Ts": np.array([[TH]]), "F": np.array([[2.0]]),
+    })
+    raw = scipy.io.loadmat(path)
+    assert raw["Ts"].shape == (1, 1) and raw["pos"].shape == (1, exp.sizes["slow_time"])
+    ds = lcmr_xr.open_experiment(path, r="ref", y="pos", inputs=["vcm", "pzt"],
+                                 outputs=["position"], output_units="m")
+    _same_signals(ds, exp)
+    # numbers may also be given directly, and a column vector works as well as a row
+    scipy.io.savemat(path, {"r": exp.r.values, "u": exp.u.values.T, "y": exp.y.values})
+    ds = lcmr_xr.open_experiment(path, factor=2, sampling_period=TH, inputs=["vcm", "pzt"],
+                                 outputs=["position"], output_units="m")
+    _same_signals(ds, exp)
+
+
+def test_reads_v73_hdf5_files(exp, tmp_path):
+    """MATLAB -v7.3 stores column-major matrices: h5py sees them transposed."""
+    path = tmp_path / "hdd73.mat"
+    with h5py.File(path, "w", userblock_size=512) as fh:
+        fh["r"], fh["u"], fh["y"] = exp.r.values.T, exp.u.values.T, exp.y.values.T
+        fh["Ts"], fh["F"] = np.array([[TH]]), np.array([[2.0]])
+        fh["output_units"] = np.frombuffer(b"m", dtype=np.uint8).astype(np.uint16)[:, None]
+        fh["output_units"].attrs["MATLAB_class"] = np.bytes_(b"char")
+    with open(path, "r+b") as fh:  # MATLAB's 128-byte header in the HDF5 user block
+        text = b"MATLAB 7.3 MAT-file, Platform: GLNXA64, Created on: Mon Nov 23 04:00:00 2026 HDF5 schema 1.00 ."
+        fh.write(text.ljust(116) + b"\x00" * 8 + b"\x00\x02" + b"IM")
+    ds = lcmr_xr.open_experiment(path, inputs=["vcm", "pzt"], outputs=["position"])
+    _same_signals(ds, exp)
+
+
+def test_experiment_round_trip_through_mat(exp, tmp_path):
+    path = lcmr_xr.save(exp, tmp_path / "e.mat")
+    raw = scipy.io.loadmat(path)
+    assert raw["r"].shape == (240, 2) and raw["y"].shape == (120, 1)
+    assert raw["F"].item() == 2.0 and raw["Ts"].item() == TH
+    ds = lcmr_xr.open_experiment(path)  # names, units, F and Ts come from the file
+    _same_signals(ds, exp)
+    assert os.listdir(tmp_path) == ["e.mat"]  # no temporary file left
+
+
+def test_frf_for_matlab_frd(tmp_path):
+    exp = hdd.simulate(n_samples=240, noise=False, seed=0)
+    frf = lcmr_xr.identify(exp, window=6, degrees=(1, 1, 1))
+    path = lcmr_xr.save(frf, tmp_path / "frf.mat")
+    m = scipy.io.loadmat(path)
+    # frd(S.P, S.frequency, S.Ts, "FrequencyUnit", "Hz", "InputName", ..., "OutputName", ...)
+    assert m["P"].shape == (1, 2, frf.sizes["frequency"])
+    np.testing.assert_array_equal(m["P"], frf.P.transpose("output", "input", "frequency").values)
+    np.testing.assert_array_equal(m["P_std"], frf.P_std.transpose("output", "input", "frequency").values)
+    np.testing.assert_array_equal(m["frequency"][:, 0], frf.frequency.values)
+    assert m["frequency"].shape == (frf.sizes["frequency"], 1)
+    assert m["Ts"].item() == frf.attrs["sampling_period"]
+    assert m["FrequencyUnit"].item() == "Hz" and m["P_units"].item() == "m"
+    assert [c.item() for c in m["InputName"].ravel()] == ["vcm", "pzt"]
+    assert [c.item() for c in m["OutputName"].ravel()] == ["position"]
+    with pytest.raises(ValueError, match="is a MATLAB file.*ending in .nc"):
+        lcmr_xr.open_frf(path)
+    with pytest.raises(ValueError, match="sampling_period"):
+        lcmr_xr.save(frf.drop_attrs(), tmp_path / "bare.mat")
+    with pytest.raises(ValueError, match=r"isel\(experiment=0\)"):
+        lcmr_xr.save(xr.concat([frf, frf], dim="experiment"), tmp_path / "two.mat")
+    assert sorted(os.listdir(tmp_path)) == ["frf.mat"]
+
+
+def test_clear_errors(exp, tmp_path):
+    path = tmp_path / "x.mat"
+    scipy.io.savemat(path, {"r": exp.r.values, "u": exp.u.values, "y": exp.y.values,
+                            "Ts": TH, "F": 2.5, "sq": np.ones((3, 3)), "names": ["a", "b"],
+                            "s": {"a": 1.0}})
+    with pytest.raises(ValueError, match=r"no variable 'yy'.*variables are: F, Ts, names, r, s, sq, u, y"):
+        lcmr_xr.open_experiment(path, y="yy")
+    with pytest.raises(ValueError, match="factor"):
+        lcmr_xr.open_experiment(path)  # F = 2.5: not a whole number, refused by experiment()
+    with pytest.raises(ValueError, match="cannot tell samples from channels"):
+        lcmr_xr.open_experiment(path, r="sq", factor=2)
+    with pytest.raises(ValueError, match="real numeric"):
+        lcmr_xr.open_experiment(path, u="s", factor=2)
+    with pytest.raises(ValueError, match="one real number"):
+        lcmr_xr.open_experiment(path, factor="r")
+    with pytest.raises(ValueError, match="no variable 'Tsample'"):
+        lcmr_xr.open_experiment(path, factor=2, sampling_period="Tsample")
+    with pytest.raises(TypeError, match="number or a variable name"):
+        lcmr_xr.open_experiment(path, factor=[2])
+    with pytest.raises(ValueError, match=r"x.mat: .*N = M \* F"):
+        lcmr_xr.open_experiment(path, factor=3)
+    with pytest.raises(ValueError, match="chunks applies to NetCDF"):
+        lcmr_xr.open_experiment(path, chunks={"time": 10}, factor=2)
+    with pytest.raises(TypeError, match="MATLAB .mat files only"):
+        lcmr_xr.open_experiment(tmp_path / "x.nc", factor=2)
+    with pytest.raises(TypeError, match="unexpected keyword"):
+        lcmr_xr.open_experiment(path, bogus=1)
+    garbage = tmp_path / "garbage.mat"
+    garbage.write_bytes(b"not a MAT-file at all" * 20)
+    with pytest.raises(ValueError, match="cannot read .*garbage.mat"):
+        lcmr_xr.open_experiment(garbage, factor=2)
+    with pytest.raises(FileNotFoundError, match="no such file"):
+        lcmr_xr.open_experiment(tmp_path / "missing.mat")
+
+
+def test_save_mat_refuses_and_leaves_nothing(exp, tmp_path, monkeypatch):
+    with pytest.raises(ValueError, match="FRF dataset .* or an experiment dataset"):
+        lcmr_xr.save(xr.Dataset({"a": ("x", [1.0])}), tmp_path / "a.mat")
+    with pytest.raises(FileNotFoundError, match="create it first"):
+        lcmr_xr.save(exp, tmp_path / "missing" / "e.mat")
+
+    def disk_full(*args, **kwargs):
+        raise OSError("disk full")
+
+    target = lcmr_xr.save(exp, tmp_path / "e.mat")
+    before = target.read_bytes()
+    monkeypatch.setattr(scipy.io, "savemat", disk_full)
+    with pytest.raises(OSError, match="disk full"):
+        lcmr_xr.save(exp, target)
+    assert target.read_bytes() == before and os.listdir(tmp_path) == ["e.mat"]
