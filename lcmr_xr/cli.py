@@ -1,9 +1,9 @@
 """Command line: ``lcmr-xr identify | demo | simulate | sweep | archive``.
 
-    lcmr-xr identify EXPERIMENT.nc -o FRF.nc [--method lrm|lpm] [--window N]
+    lcmr-xr identify EXPERIMENT.nc -o FRF.nc [--method lrm|lpm] [--window N|auto]
                      [--degrees RN-RM-RD] [--closed-loop indirect|direct] [--plot FILE.png]
                      [--overwrite]
-    lcmr-xr demo [--experiment FILE.nc] [--output-dir DIR] [--window N] [--degrees RN-RM-RD]
+    lcmr-xr demo [--experiment FILE.nc] [--output-dir DIR] [--window N|auto] [--degrees RN-RM-RD]
                  [--overwrite]
     lcmr-xr simulate -o EXPERIMENT.nc [--samples N] [--case 1..9] [--seed S] [--noiseless]
                      [--overwrite]
@@ -26,7 +26,7 @@ from pathlib import Path
 
 from lcmr_xr._cli_support import (FIGURE_SUFFIXES, NETCDF_SUFFIXES, HelpFormatter,
                                   add_overwrite, check_outputs, error_line, heartbeat)
-from lcmr_xr.settings import CLOSED_LOOP, METHODS
+from lcmr_xr.settings import CLOSED_LOOP, DEFAULT_WINDOW, METHODS, window_argument
 
 #: Help text of every ``--degrees`` option: one syntax on every command line.
 DEGREES_HELP = ("local model degrees RN-RM-RD: numerator, transient, denominator (default "
@@ -47,7 +47,8 @@ def _parser() -> argparse.ArgumentParser:
                        help="FRF NetCDF file to write (.nc)")
     ident.add_argument("--method", choices=tuple(METHODS), default="lrm",
                        help="local rational (lrm) or polynomial (lpm) model")
-    ident.add_argument("--window", type=int, default=30, help="local window half-width n (2n+1 bins)")
+    ident.add_argument("--window", type=window_argument, default=DEFAULT_WINDOW,
+                       help="local window half-width n (2n+1 bins), or 'auto': chosen per bin")
     ident.add_argument("--degrees", nargs="+", metavar="RN-RM-RD", default=None, help=DEGREES_HELP)
     ident.add_argument("--closed-loop", choices=tuple(CLOSED_LOOP), default="indirect",
                        help="indirect: P = PS S^-1 from the excitation (unbiased); direct: from "
@@ -63,7 +64,8 @@ def _parser() -> argparse.ArgumentParser:
                            "datasets/hdd_case2_N3600.nc, simulated when missing)")
     demo.add_argument("--output-dir", type=Path, default=Path("demo-output"),
                       help="directory for hdd_frf.nc and the Bode plots (created if missing)")
-    demo.add_argument("--window", type=int, default=30, help="local window half-width n (2n+1 bins)")
+    demo.add_argument("--window", type=window_argument, default=DEFAULT_WINDOW,
+                      help="local window half-width n (2n+1 bins), or 'auto': chosen per bin")
     demo.add_argument("--degrees", nargs="+", metavar="RN-RM-RD", default=["3-3-3"], help=DEGREES_HELP)
     demo.add_argument("--no-plot", action="store_true",
                       help="skip the PNG Bode plots (default: write them)")

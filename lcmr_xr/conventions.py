@@ -47,6 +47,13 @@ TRANSIENT_U = "transient_u"
 TRANSIENT_Y = "transient_y"
 NOISE_VARIANCE_U = "noise_variance_u"
 NOISE_VARIANCE_Y = "noise_variance_y"
+# Honest uncertainty (docs/uncertainty.md): P_std is calibrated so that
+# |P_hat - P| <= sqrt(ln 20) P_std is a 95 % region, inf where P_UNDETERMINED.
+P_STD_LINEAR = "P_std_linear"  # first-order noise standard deviation of P
+P_UNDETERMINED = "P_undetermined"  # the data do not determine P (unbounded band)
+P_BIAS = "P_bias"  # estimated model error of P (window="auto")
+LOCAL_WINDOW = "local_window"  # half-width chosen per slow bin (window="auto")
+S_WEAK_REL_STD = "s_weak_rel_std"  # relative std of the weakest direction of S
 CONDITION = "condition"  # of the local least-squares problem, per slow bin
 ILL_POSED = "ill_posed"  # flag: local model ill-conditioned
 S_CONDITION = "s_condition"  # of the estimated lifted sensitivity, per slow bin
@@ -58,7 +65,10 @@ FRF_VARIABLES = (
     LIFTED_S, LIFTED_S + STD_SUFFIX, LIFTED_PS, LIFTED_PS + STD_SUFFIX,
     TRANSIENT_U, TRANSIENT_Y, NOISE_VARIANCE_U, NOISE_VARIANCE_Y,
     CONDITION, ILL_POSED, S_CONDITION, S_SINGULAR,
+    P_STD_LINEAR, P_UNDETERMINED, S_WEAK_REL_STD,
 )
+# window="auto" adds these two.
+AUTO_WINDOW_VARIABLES = (P_BIAS, LOCAL_WINDOW)
 
 # Pooled estimates (identify on a ``period`` dim or with combine="experiment"): the noise
 # variances of the averaged spectra estimated from the spread over the records.
@@ -89,6 +99,8 @@ FRF_ATTRS = (
     CONVENTIONS_ATTR, METHOD, CLOSED_LOOP, WINDOW, WINDOW_BINS, DEGREES, FACTOR,
     SAMPLING_PERIOD, SLOW_NYQUIST, N_SAMPLES, PARAMETERS_PER_ROW, COVARIANCE, TITLE,
 )
+# Added to FRF_ATTRS by window="auto" (then WINDOW and WINDOW_BINS are the string "auto").
+CANDIDATE_WINDOWS = "candidate_windows"  # int array: the half-widths chosen from
 # Added to FRF_ATTRS by a pooled estimate.
 COMBINE = "combine"
 PERIODS = "periods"

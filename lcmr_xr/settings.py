@@ -22,7 +22,8 @@ import numpy as np
 __all__ = [
     "METHODS", "CLOSED_LOOP", "ERRORS", "EstimatorSettings", "estimator_settings",
     "parse_degrees", "degrees_label", "degrees_arguments", "as_integer", "as_bool", "as_choice",
-    "check_window_fits",
+    "check_window_fits", "AUTO_WINDOW", "DEFAULT_WINDOW", "as_window", "window_argument",
+    "auto_window_range",
 ]
 
 
@@ -52,6 +53,12 @@ ERRORS = {
     "ignore": "return NaN with the flag s_singular there",
 }
 
+#: ``window=AUTO_WINDOW``: the half-width is chosen per slow bin (lcmr_xr.kernels.adaptive).
+AUTO_WINDOW = "auto"
+#: The default ``window`` of :func:`lcmr_xr.identify` and of the ``identify``/``demo``
+#: command lines (the one place it is set).  Sweeps compare fixed windows (default 30).
+DEFAULT_WINDOW = AUTO_WINDOW
+
 #: The degrees syntax of the command lines and sweep labels: ``Rn-Rm-Rd``.
 DEGREES_SYNTAX = "Rn-Rm-Rd"
 
@@ -61,7 +68,7 @@ class EstimatorSettings(NamedTuple):
 
     method: str
     degrees: tuple[int, int, int]
-    window: int
+    window: int | str  # a half-width, or AUTO_WINDOW
     closed_loop: str
     covariance: bool
     errors: str
@@ -210,7 +217,45 @@ def degrees_label(degrees) -> str:
     return "-".join(str(d) for d in parse_degrees(degrees))
 
 
-def estimator_settings(*, method="lrm", window=30, degrees=None, closed_loop="indirect",
+def as_window(value) -> int | str:
+    """``window``: a half-width >= 1 (whole numbers only) or ``"auto"``.
+
+    Examples
+    --------
+    >>> as_window("auto"), as_window(30.0)
+    ('auto', 30)
+    """
+    if isinstance(value, str):
+        if value == AUTO_WINDOW:
+            return value
+        raise TypeError(f"window must be an integer or {AUTO_WINDOW!r}, got {value!r} (a str); "
+                        f"pass e.g. window=30 or window={AUTO_WINDOW!r}.")
+    return as_integer(value, "window", minimum=1, example=30)
+
+
+def window_argument(text: str):
+    """A command line's ``--window`` token, for :func:`estimator_settings` to check.
+
+    ``"auto"`` stays a string, numbers become numbers (``30.5`` too: the validator refuses
+    it with its own words, never rounded); anything else is passed on as text and refused
+    there.
+
+    Examples
+    --------
+    >>> window_argument("auto"), window_argument("20"), window_argument("30.5")
+    ('auto', 20, 30.5)
+    """
+    text = str(text).strip()
+    for kind in (int, float):
+        try:
+            return kind(text)
+        except ValueError:
+            pass
+    return text
+
+
+def estimator_settings(*, method="lrm", window=DEFAULT_WINDOW, degrees=None,
+                       closed_loop="indirect",
                        covariance=True, errors="raise", frequency_chunks=None) -> EstimatorSettings:
     """Check and normalise every setting of a local-model estimate, before any data is read.
 
@@ -218,7 +263,8 @@ def estimator_settings(*, method="lrm", window=30, degrees=None, closed_loop="in
     ----------
     method, window, degrees, closed_loop, covariance, errors, frequency_chunks
         As in :func:`lcmr_xr.identify`.  ``degrees=None`` is the method's default
-        (:data:`METHODS`).
+        (:data:`METHODS`); ``window`` a half-width or ``"auto"`` (default
+        :data:`DEFAULT_WINDOW`), which needs ``covariance=True`` and no ``frequency_chunks``.
 
     Returns
     -------
@@ -240,28 +286,49 @@ def estimator_settings(*, method="lrm", window=30, degrees=None, closed_loop="in
     """
     method = as_choice(method, "method", METHODS)
     degrees = METHODS[method].default_degrees if degrees is None else parse_degrees(degrees, method)
-    window = as_integer(window, "window", minimum=1, example=30)
+    window = as_window(window)
     closed_loop = as_choice(closed_loop, "closed_loop", CLOSED_LOOP)
     covariance = as_bool(covariance, "covariance")
     errors = as_choice(errors, "errors", ERRORS)
     if frequency_chunks is not None:
         frequency_chunks = as_integer(frequency_chunks, "frequency_chunks", minimum=1, example=64)
-        if frequency_chunks < window:
-            raise ValueError(
-                f"frequency_chunks={frequency_chunks} is smaller than the halo the local window "
-                f"needs (window={window} bins on each side); use frequency_chunks >= {window}."
-            )
+    if window == AUTO_WINDOW:
+        if not covariance:
+            raise ValueError("window='auto' chooses the window from the estimates' covariances; "
+                             "pass covariance=True, or an integer window (e.g. window=30) with "
+                             "covariance=False.")
+        if frequency_chunks is not None:
+            raise ValueError("frequency_chunks is not supported with window='auto' (the window "
+                             "choice needs every candidate's fit at every bin); pass an integer "
+                             "window (e.g. window=30), or leave frequency_chunks unset.")
+    elif frequency_chunks is not None and frequency_chunks < window:
+        raise ValueError(
+            f"frequency_chunks={frequency_chunks} is smaller than the halo the local window "
+            f"needs (window={window} bins on each side); use frequency_chunks >= {window}."
+        )
     return EstimatorSettings(method, degrees, window, closed_loop, covariance, errors,
                              frequency_chunks)
 
 
-def check_window_fits(window: int, degrees, n_excitation: int, n_bins: int) -> None:
+def auto_window_range(degrees, n_excitation: int, n_bins: int) -> tuple[int, int]:
+    """Smallest and largest half-width ``window="auto"`` may choose from.
+
+    The smallest leaves two degrees of freedom per row (``2 n + 1 >= p + 2``, so the
+    small-sample factor of the band stays finite); the largest fits the spectrum.
+    """
+    from lcmr_xr.kernels.local_models import parameters_per_row
+
+    p = parameters_per_row(n_excitation, tuple(degrees))
+    return p // 2 + 1, (n_bins - 1) // 2
+
+
+def check_window_fits(window, degrees, n_excitation: int, n_bins: int) -> None:
     """Refuse a window with too few bins for the local model, or wider than the spectrum.
 
     Parameters
     ----------
-    window : int
-        Half-width ``n`` (``2 n + 1`` bins).
+    window : int or "auto"
+        Half-width ``n`` (``2 n + 1`` bins); ``"auto"``: the smallest candidate must fit.
     degrees : (int, int, int)
         ``(Rn, Rm, Rd)``.
     n_excitation : int
@@ -285,6 +352,17 @@ def check_window_fits(window: int, degrees, n_excitation: int, n_bins: int) -> N
             f"{2 * n_min + 1} bins. Record at least {2 * n_min + 1} slow samples (N >= "
             f"{2 * n_min + 1} x factor fast samples), or lower the degrees."
         )
+    if window == AUTO_WINDOW:
+        lo, hi = auto_window_range(degrees, n_excitation, n_bins)
+        if lo > hi:
+            raise ValueError(
+                f"the experiment is too short for window='auto': it has M = {n_bins} slow bins, "
+                f"but degrees {tuple(degrees)} with {n_excitation} excitation channels need "
+                f"{p} parameters per row, and the smallest candidate window ({2 * lo + 1} bins) "
+                f"leaves two degrees of freedom for the band. Pass window={(p + 1) // 2} or "
+                f"more, lower the degrees, or record a longer experiment."
+            )
+        return
     if 2 * window + 1 <= p:  # at least one degree of freedom is left for the noise estimate
         raise ValueError(
             f"too few bins for the local model: window={window} gives 2n+1 = {2 * window + 1} bins "

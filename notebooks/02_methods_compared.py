@@ -213,6 +213,53 @@ view.figure.suptitle("PZT: single-rate estimate; red lines: aliases of the reson
 plt.show()
 
 # %% [markdown]
+# ## 4. Adaptive vs fixed window
+#
+# A fixed window trades model error (wide windows, where the lifted FRF changes fast: near
+# DC on the HDD) against noise (narrow windows). `window="auto"` makes that trade per bin
+# (Lepski's method: the model error of a wider window is estimated from its distance to the
+# narrowest one, against the noise variance). Noiseless first: the error per band of every
+# fixed window and of `auto`.
+
+# %%
+from lcmr_xr.demo import band_table
+
+clean = hdd.simulate(n_samples=3600, noise=False, seed=0)
+truth = None
+rows = {}
+for w in (12, 16, 20, 30, 40, 60, "auto"):
+    frf = lcmr_xr.identify(clean, window=w, errors="ignore")
+    if truth is None:
+        truth = hdd.true_frf(frf.frequency[1:]).reindex(frequency=frf.frequency)
+    t = band_table(frf, truth).isel(output=0, drop=True).median_error
+    rows[str(w)] = t.to_pandas().stack()
+pd.DataFrame(rows).T  # median relative error per band and actuator
+
+# %% [markdown]
+# Without noise the narrowest window is best everywhere, and `auto` finds it. With the
+# benchmark disturbances the trade changes: wider windows pay off where the FRF is smooth.
+
+# %%
+noisy = hdd.simulate(n_samples=3600, noise=True, seed=0)
+rows = {}
+for w in (12, 20, 30, 40, "auto"):
+    frf = lcmr_xr.identify(noisy, window=w, errors="ignore")
+    t = band_table(frf, truth).isel(output=0, drop=True)
+    rows[str(w)] = pd.concat({"error": t.median_error.to_pandas().stack(),
+                              "coverage": t.coverage.to_pandas().stack()})
+pd.DataFrame(rows).T
+
+# %%
+auto = lcmr_xr.identify(noisy)
+f = auto.frequency
+ax = abs(auto.P_bias.sel(input="pzt") / abs(truth.sel(input="pzt"))).isel(output=0).plot(
+    xscale="log", yscale="log", label="estimated model error (relative)")
+(auto.P_std_linear.sel(input="pzt") / abs(truth.sel(input="pzt"))).isel(output=0).plot(
+    label="first-order noise std (relative)")
+ax[0].axes.legend()
+ax[0].axes.set_title("PZT: what the band is made of (window='auto')")
+
+# %% [markdown]
 # ## Summary
 #
 # * The LRM follows the resonances where the LPM with the same window does not;
@@ -223,3 +270,7 @@ plt.show()
 # * A single-rate estimate stops at the slow Nyquist frequency and shows the PZT
 #   resonances at their aliases; the lifted estimate places them correctly, up to
 #   the fast Nyquist frequency.
+# * `window="auto"` (the default) picks the window per bin: noiseless it matches the
+#   best fixed window in every band; with disturbances its band is honest and the bins
+#   the data cannot determine (below a few hundred hertz here) are flagged instead of
+#   drawn with a confident wrong curve.

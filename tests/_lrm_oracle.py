@@ -11,8 +11,11 @@ from __future__ import annotations
 import numpy as np
 
 
-def oracle_local_model(R, Z, half_width, degrees, circular=True, bins=None):
+def oracle_local_model(R, Z, half_width, degrees, circular=True, bins=None, covariance=True):
     """Per-bin ``lstsq`` fit of ``D(r) Z_i(k+r) - N_i(r) R(k+r) - Mt_i(r) = e_i(r)``.
+
+    ``covariance=False`` stops after ``G``, ``T`` and the residual covariance (a plain
+    per-bin fit, the speed baseline of ``benchmarks/local_models.py``).
 
     ``R`` (M, nr), ``Z`` (M, nz) (no batch dims).  Returns a dict with ``G`` (M, nz, nr),
     ``T`` (M, nz), ``noise_covariance`` (M, nz, nz) and ``noise_variance`` (M, nz) (its
@@ -76,8 +79,10 @@ def oracle_local_model(R, Z, half_width, degrees, circular=True, bins=None):
             K = np.stack(columns, axis=1)
             theta, *_ = np.linalg.lstsq(K, Zw[:, i], rcond=None)
             out["G"][k, i] = theta[0 : nr * (rn + 1) : rn + 1]
-            out["T"][k, i] = theta[nr * (rn + 1)]
+            out["T"][k, i] = theta[nr * (rn + 1)] if rm >= 0 else 0.0  # Rm = -1: no T
             resid[i] = Zw[:, i] - K @ theta
+            if not covariance:
+                continue
             pinv = np.linalg.pinv(K)
             gain.append(pinv[0 : nr * (rn + 1) : rn + 1])
             proj.append(np.eye(2 * n + 1) - K @ pinv)
@@ -89,6 +94,9 @@ def oracle_local_model(R, Z, half_width, degrees, circular=True, bins=None):
             Ks = K / np.linalg.norm(K, axis=0)
             out["singular"][k, i] = np.linalg.svd(Ks, compute_uv=False)
         raw = resid @ resid.conj().T  # raw[i, j] = sum_r r_i conj(r_j)
+        out["residual_covariance"][k] = raw / dof
+        if not covariance:
+            continue
         # tau_ij = tr(D_j^H P_j P_i D_i) = sum of conj(P_j D_j) * (P_i D_i) (P Hermitian)
         pd = [proj[i] @ dwin[i] for i in range(nz)]
         tau = np.array([[np.sum(np.conj(pd[j]) * pd[i]) for j in range(nz)] for i in range(nz)])

@@ -465,8 +465,9 @@ CLI = [
          absent=("window <= 0",)),
     Case("identify_lpm_with_denominator", cli=lambda e: ["identify", "exp.nc", "-o", "out.nc", "--method", "lpm",
                                                          "--degrees", "3-3-3"], words=("Rd",)),
+    # --window goes through the settings' validator (it also takes 'auto'): refused, not rounded
     Case("identify_window_fractional", cli=lambda e: ["identify", "exp.nc", "-o", "out.nc", "--window", "30.5"],
-         argparse=True, words=("invalid int value", "30.5")),
+         words=("window must be an integer", "30.5", "not rounded")),
     Case("identify_method_unknown", cli=lambda e: ["identify", "exp.nc", "-o", "out.nc", "--method", "lsq"],
          argparse=True, words=("invalid choice", "lsq")),
     # simulate

@@ -63,6 +63,10 @@ def test_demo_writes_frf_and_pictures(tmp_path):
     assert "main PZT resonance peaks" in text
     # the table printed is the one computed
     assert f"{float(result['errors'].below.sel(input='pzt').item()):.2e}" in text
+    # the per-band table: the 95 % bands (unbounded where flagged) hold the truth
+    assert "per band" in text and "flagged" in text
+    assert float(result["bands"].coverage.min()) >= 0.9
+    assert float(result["bands"].flagged.sel(band="500-5000 Hz").max()) <= 0.1
 
 
 def test_cli_identify_and_plot(tmp_path, capsys):

@@ -38,8 +38,8 @@ def test_every_option_help_states_its_default(command):
 
 @pytest.mark.parametrize("command, expected", [
     ("simulate", ["(default: 3600)", "(default: 2)", "(default: 0)", "(default: with noise)"]),
-    ("demo", ["(default: demo-output)", "(default: 30)", "(default 3-3-3", "(default: the bundled"]),
-    ("identify", ["(default: lrm)", "(default: 30)", "(default 3-3-3; LPM: 3-3-0", "(default: indirect)",
+    ("demo", ["(default: demo-output)", "(default: auto)", "(default 3-3-3", "(default: the bundled"]),
+    ("identify", ["(default: lrm)", "(default: auto)", "(default 3-3-3; LPM: 3-3-0", "(default: indirect)",
                   "(default: no plot)", "(default: refuse them)"]),
     ("sweep", ["(default: threads)", "(default: the method's, 3-3-3 for LRM", "(default: 10.0)",
                "(default: no selection)"]),

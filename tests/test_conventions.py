@@ -21,7 +21,7 @@ README = ROOT / "README.md"
 
 # Variables only the indirect estimate has (the direct one has no lifted S side).
 S_SIDE = {cv.LIFTED_S, cv.LIFTED_S + cv.STD_SUFFIX, cv.TRANSIENT_U, cv.NOISE_VARIANCE_U,
-          cv.S_CONDITION, cv.S_SINGULAR}
+          cv.S_CONDITION, cv.S_SINGULAR, cv.S_WEAK_REL_STD}
 
 
 def _constants() -> dict:

@@ -51,6 +51,8 @@ CASES = [
     (2, 3, 9, (2, 2, 2)),  # MIMO LRM
     (3, 2, 10, (2, 2, 0)),  # MIMO LPM
     (2, 2, 7, (1, 0, 3)),  # high denominator degree
+    (2, 2, 7, (2, -1, 2)),  # no transient term (periodic data)
+    (1, 2, 6, (2, -1, 0)),  # LPM without transient
 ]
 
 
@@ -65,7 +67,10 @@ def test_agrees_with_lstsq_oracle(nr, nz, n, degrees, circular):
     assert fit.dof == ref["dof"] == 2 * n + 1 - parameters_per_row(nr, degrees)
     assert ok.sum() >= 96 - 2 * n
     assert _max_rel(fit.G, ref["G"], np.broadcast_to(ok[:, None, None], fit.G.shape)) < 1e-6
-    assert _max_rel(fit.T, ref["T"], np.broadcast_to(ok[:, None], fit.T.shape)) < 1e-6
+    if degrees[1] >= 0:
+        assert _max_rel(fit.T, ref["T"], np.broadcast_to(ok[:, None], fit.T.shape)) < 1e-6
+    else:  # no transient term (bins without a full window stay NaN)
+        assert np.all(fit.T[ok] == 0)
     assert _max_rel(fit.noise_variance, ref["noise_variance"],
                     np.broadcast_to(ok[:, None], fit.T.shape)) < 1e-6
     # covariances: compare relative to the norm of each bin's matrix (entries may be ~0)
@@ -161,6 +166,13 @@ def test_leading_dims_broadcast():
 
 
 # ------------------------------------------------------------------------ exactness
+def _exact_rational_data(m, nr, nz):
+    """Noiseless spectra of a resonance rational in the bin index (second order)."""
+    G, T = continuous_resonance(np.arange(m), nz, nr, seed=nr + nz, damping=0.02, width=6.0)
+    R = np.exp(2j * np.pi * np.random.default_rng(1).random((m, nr)))
+    return R, np.einsum("kip,kp->ki", G, R) + T, G, T
+
+
 @pytest.mark.parametrize("nr,nz", [(1, 1), (2, 3)])
 @pytest.mark.parametrize("degrees", [(1, 1, 2), (2, 2, 2)])
 def test_lrm_exact_for_rational_system(nr, nz, degrees):
@@ -170,11 +182,7 @@ def test_lrm_exact_for_rational_system(nr, nz, degrees):
     transient degree must come out zero, so G and T are recovered to rounding.
     """
     m, n = 120, 12
-    k = np.arange(m)
-    G, T = continuous_resonance(k, nz, nr, seed=nr + nz, damping=0.02, width=6.0)
-    rng = np.random.default_rng(1)
-    R = np.exp(2j * np.pi * rng.random((m, nr)))
-    Z = np.einsum("kip,kp->ki", G, R) + T
+    R, Z, G, T = _exact_rational_data(m, nr, nz)
     # not periodic on the circle: use the padded mode (windows never wrap)
     fit = local_model(R, Z, half_width=n, degrees=degrees, circular=False)
     inner = slice(n, m - n)
@@ -424,6 +432,8 @@ def test_errors_say_what_to_fix():
         local_model(R, Z, half_width=6, degrees=(1, 1, 1), covariance="yes")
     with pytest.raises(ValueError, match="degrees must be three integers"):
         local_model(R, Z, half_width=6, degrees=(1, 1))
+    with pytest.raises(ValueError, match="Rm = -1: no transient"):
+        local_model(R, Z, half_width=6, degrees=(1, -2, 1))
     bad = Z.copy()
     bad[3] = np.nan
     with pytest.raises(ValueError, match="finite"):
@@ -462,109 +472,128 @@ def test_scaling_equivariance_and_oracle(seed, nr, nz, degrees, alpha, beta):
 
 
 # ---------------------------------------------------------- internals of the fast kernel
-# (the speed work replaced whole-array passes by blocked, table-driven steps; these pin
-# each step to an independent reference so that a wrong index cannot hide in the tails)
-from lcmr_xr.kernels import local_models as lm
+# (the compiled per-bin loop works on moments from a recurrence and on small hand-written
+# factorisations; these pin each step to an independent reference so that a wrong index
+# cannot hide in the tails)
+from lcmr_xr.kernels import local_model_bins as lmb  # noqa: E402
+from lcmr_xr.kernels import local_models as lm  # noqa: E402
 
 
 @settings(max_examples=30, deadline=None)
-@given(seed=st.integers(0, 2**32 - 1), q=st.integers(1, 11), extra=st.integers(0, 5),
-       split_extra=st.integers(0, 3), block=st.integers(1, 6))
-def test_blocked_augmented_cholesky_matches_numpy(seed, q, extra, split_extra, block):
+@given(seed=st.integers(0, 2**32 - 1), q=st.integers(1, 11), extra=st.integers(0, 8))
+def test_augmented_cholesky_matches_numpy(seed, q, extra):
     rng = np.random.default_rng(seed)
-    nb = 3
-    a = rng.standard_normal((nb, 3 * q, q)) + 1j * rng.standard_normal((nb, 3 * q, q))
-    gram = np.conj(a.swapaxes(-1, -2)) @ a
-    rhs = rng.standard_normal((nb, q, extra + split_extra)) + 0j
-    m = np.concatenate([gram, rhs], axis=2)
-    m[:, np.tril_indices(q, -1)[0], np.tril_indices(q, -1)[1]] = np.nan  # never read
-    old = lm._CHOL_BLOCK
-    lm._CHOL_BLOCK = block
-    try:
-        piv = lm._augmented_cholesky(m, q, q + extra)
-    finally:
-        lm._CHOL_BLOCK = old
+    a = rng.standard_normal((3 * q, q)) + 1j * rng.standard_normal((3 * q, q))
+    gram = np.conj(a.T) @ a
+    rhs = rng.standard_normal((q, extra)) + 1j * rng.standard_normal((q, extra))
+    m = np.concatenate([gram, rhs], axis=1)
+    m[np.tril_indices(q, -1)] = np.nan  # never read
+    piv = lmb.cholesky_augmented(m, q)
     low = np.linalg.cholesky(gram)
-    np.testing.assert_allclose(np.triu(m[:, :, :q]), np.conj(low.swapaxes(-1, -2)),
+    np.testing.assert_allclose(np.triu(m[:, :q]), np.conj(low.T),
                                rtol=1e-10, atol=1e-10 * np.abs(low).max())
-    np.testing.assert_allclose(m[:, :, q:], np.linalg.solve(low, rhs), rtol=1e-9, atol=1e-9)
-    np.testing.assert_allclose(piv, np.abs(np.diagonal(low, axis1=1, axis2=2)) ** 2,
-                               rtol=1e-10)
+    np.testing.assert_allclose(m[:, q:], np.linalg.solve(low, rhs), rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(piv, np.abs(np.diagonal(low)) ** 2, rtol=1e-10)
 
 
-def test_augmented_cholesky_nan_pivot_stays_in_its_bin():
+def test_augmented_cholesky_stops_at_a_non_positive_pivot():
     rng = np.random.default_rng(3)
-    a = rng.standard_normal((4, 12, 6)) + 1j * rng.standard_normal((4, 12, 6))
-    gram = np.conj(a.swapaxes(-1, -2)) @ a
-    gram[2, 4] = gram[2, :, 4] = 0.0  # bin 2: column 4 is zero, not positive definite
-    m = np.concatenate([gram, np.ones((4, 6, 2), complex)], axis=2)
-    with np.errstate(invalid="ignore"):
-        piv = lm._augmented_cholesky(m, 6, 8)
-    assert np.isnan(piv[2, 4:]).all() and np.isnan(m[2, 5, 5:]).all()
-    keep = [0, 1, 3]
-    np.testing.assert_allclose(np.triu(m[keep, :, :6]),
-                               np.conj(np.linalg.cholesky(gram[keep]).swapaxes(-1, -2)),
-                               rtol=1e-10, atol=1e-10 * np.abs(gram).max())
+    a = rng.standard_normal((12, 6)) + 1j * rng.standard_normal((12, 6))
+    gram = np.conj(a.T) @ a
+    gram[4] = gram[:, 4] = 0.0  # column 4 is zero: not positive definite
+    m = np.concatenate([gram, np.ones((6, 2), complex)], axis=1)
+    piv = lmb.cholesky_augmented(m, 6)
+    assert np.isnan(piv[4:]).all()
+    np.testing.assert_allclose(piv[:4], np.diagonal(np.linalg.cholesky(gram[:4, :4])).real ** 2,
+                               rtol=1e-10)
 
 
 @settings(max_examples=30, deadline=None)
 @given(seed=st.integers(0, 2**32 - 1), k=st.integers(1, 6))
 def test_small_factorisations_match_numpy(seed, k):
     rng = np.random.default_rng(seed)
-    a = rng.standard_normal((5, 2, 2 * k, k)) + 1j * rng.standard_normal((5, 2, 2 * k, k))
-    gram = np.conj(a.swapaxes(-1, -2)) @ a
-    b = rng.standard_normal((5, 2, k)) + 1j * rng.standard_normal((5, 2, k))
-    low, piv = lm._small_cholesky(gram)
+    a = rng.standard_normal((2 * k, k)) + 1j * rng.standard_normal((2 * k, k))
+    gram = np.conj(a.T) @ a
+    b = rng.standard_normal(k) + 1j * rng.standard_normal(k)
     ref = np.linalg.cholesky(gram)
-    np.testing.assert_allclose(low, ref, rtol=1e-10, atol=1e-12 * np.abs(ref).max())
-    np.testing.assert_allclose(piv, np.diagonal(ref, axis1=-2, axis2=-1).real ** 2, rtol=1e-10)
-    x = lm._small_solve(low, b)
-    np.testing.assert_allclose(gram @ x[..., None], b[..., None], rtol=1e-8, atol=1e-9)
-    np.testing.assert_allclose(lm._lower_inverse(low) @ low,
-                               np.broadcast_to(np.eye(k), low.shape), atol=1e-9)
-    low2, inv2, piv2 = lm._small_cholesky(gram, inverse=True)
-    np.testing.assert_array_equal(low2, low)
-    np.testing.assert_array_equal(piv2, piv)
-    np.testing.assert_allclose(inv2, lm._lower_inverse(low), rtol=1e-12, atol=1e-14)
+    scratch = np.zeros((k, k), complex)
+    assert lmb._natural_min_pivot(gram, scratch) == pytest.approx(
+        np.min(np.diagonal(ref).real ** 2), rel=1e-10)
+    low = np.zeros((k, k), complex)
+    perm = np.zeros(k, dtype=np.int64)
+    piv = np.empty(k)
+    rank = lmb.pivoted_cholesky(gram.copy(), 0.0, low, perm, piv)
+    assert rank == k
+    # pivoted: L L^H is the permuted matrix and the pivots do not increase
+    np.testing.assert_allclose(np.tril(low) @ np.conj(np.tril(low).T), gram[perm][:, perm],
+                               rtol=1e-10, atol=1e-10 * np.abs(gram).max())
+    assert np.all(np.diff(piv) <= 1e-12 * piv[0])
+    x = np.empty(k, complex)
+    lmb._chol_solve(low, k, b[perm], x)
+    np.testing.assert_allclose(gram[perm][:, perm] @ x, b[perm], rtol=1e-8, atol=1e-9)
 
 
-@pytest.mark.parametrize("n,degrees,ext",
-                         [(6, (2, 1, 1), 0), (5, (3, 3, 3), 6), (40, (1, 2, 0), 0)])
-def test_moment_table_matches_direct_sums(n, degrees, ext):
-    """Every table entry the readers use equals the literal windowed sum."""
+def test_pivoted_cholesky_drops_dependent_columns():
+    rng = np.random.default_rng(4)
+    a = rng.standard_normal((8, 3)) + 1j * rng.standard_normal((8, 3))
+    a = np.concatenate([a, a[:, :1] * (2 - 1j) + a[:, 2:] * 0.5], axis=1)  # column 3 dependent
+    gram = np.conj(a.T) @ a
+    low = np.zeros((4, 4), complex)
+    perm = np.zeros(4, dtype=np.int64)
+    piv = np.empty(4)
+    rank = lmb.pivoted_cholesky(gram.copy(), 1e-10 * np.abs(gram).max(), low, perm, piv)
+    assert rank == 3
+    assert abs(piv[3]) < 1e-10 * np.abs(gram).max()
+    kept = perm[:3]
+    np.testing.assert_allclose(np.tril(low[:3, :3]) @ np.conj(np.tril(low[:3, :3]).T),
+                               gram[kept][:, kept], rtol=1e-10, atol=1e-12)
+
+
+@pytest.mark.parametrize("n,degrees,restart",
+                         [(6, (2, 1, 1), 4), (5, (3, 3, 3), 4), (40, (1, 2, 0), 32),
+                          (7, (2, 2, 2), 1)])
+def test_recurrence_moments_match_direct_sums(n, degrees, restart):
+    """Every moment the fit reads equals the literal windowed sum, and the rounding floor
+    of the R energies bounds their error and follows its definition."""
     rng = np.random.default_rng(11)
     nr, nz, nbat, k_out = 2, 3, 2, 150
     length = k_out + 2 * n
     R = rng.standard_normal((nbat, length, nr)) + 1j * rng.standard_normal((nbat, length, nr))
     Z = rng.standard_normal((nbat, length, nz)) + 1j * rng.standard_normal((nbat, length, nz))
-    tab, floor = lm._moment_table(R, Z, n, degrees, ext)
+    R[0, 60:] *= 1e-4  # a drop in level: the recurrence carries the louder past along
+    slot_i, slot_j, p1 = lm._slot_pairs(nr, nz, degrees)
+    top = lm._top_powers(degrees, 0)
+    kind = ["R"] * nr + ["1"] + ["Z"] * nz
+    slot_top = [top["".join(sorted([kind[i], kind[j]], key="R1Z".index))]
+                for i, j in zip(slot_i, slot_j)]
+    sel = np.ones((nbat, k_out), dtype=bool)
+    sel[1, :37] = False  # segments without a wanted bin are skipped
+    mom = np.full((nbat, k_out, len(slot_i) * p1), np.nan + 0j)
+    floor = np.full((nbat, k_out, nr), np.nan)
+    lmb.moments_and_floor(R, Z, n, sel, restart, 0, slot_i, slot_j, p1, mom, floor)
     base = np.concatenate([R, np.ones((nbat, length, 1)), Z], axis=-1)
     rho = np.arange(-n, n + 1) / n
-    top = lm._top_powers(degrees, ext)
-    kind = ["R"] * nr + ["1"] + ["Z"] * nz
-    slots = lm._table_slots(nr, nz, degrees, ext)
-    for i in range(nr + 1 + nz):
-        for j in range(nr + 1 + nz):
-            powers = np.arange(top["".join(sorted([kind[i], kind[j]], key="R1Z".index))] + 1)
-            index = lm._table_index(slots, np.full(powers.shape, i),
-                                    np.full(powers.shape, j), powers)
-            got = tab.gather(index).reshape(nbat, k_out, -1)
-            x = np.conj(base[..., i]) * base[..., j]
-            windows = np.lib.stride_tricks.sliding_window_view(x, 2 * n + 1, axis=1)
-            want = np.einsum("bkr,ar->bka", windows, rho[None, :] ** powers[:, None])
-            np.testing.assert_allclose(got, want, rtol=0, atol=1e-12 * np.abs(want).max())
-            if i == j < nr:  # the rounding floor bounds the FFT error of |R_p|^2 from above
-                err = np.abs(got[..., 0] - want[..., 0]).reshape(-1)
-                assert np.all(err <= floor[:, i])
-    assert floor.shape == (nbat * k_out, nr) and np.all(floor > 0)
-    # the floor is eps nfft times the sum of |R_p|^2 over the FFT block holding the bin
-    nfft = lm._fft_length(n)
-    step = nfft - 2 * n
+    for s in range(len(slot_i)):
+        x = np.conj(base[..., slot_i[s]]) * base[..., slot_j[s]]
+        windows = np.lib.stride_tricks.sliding_window_view(x, 2 * n + 1, axis=1)
+        powers = np.arange(slot_top[s] + 1)
+        want = np.einsum("bkr,ar->bka", windows, rho[None, :] ** powers[:, None])
+        got = mom[:, :, s * p1: s * p1 + len(powers)]
+        np.testing.assert_allclose(got[sel], want[sel], rtol=0,
+                                   atol=1e-12 * np.abs(want).max())
+        if slot_i[s] == slot_j[s] < nr:  # the floor bounds the error of sum |R_p|^2
+            err = np.abs(got[..., 0] - want[..., 0])[sel]
+            assert np.all(err <= floor[..., slot_i[s]][sel])
+    assert np.all(floor[sel] > 0)
+    # the floor is 2 eps (W + 2 restart) times the R energy of the samples covered by
+    # the windows of the segment (restart bins) that holds the bin
+    w = 2 * n + 1
     energy = np.abs(R) ** 2
-    for b, k in [(0, 0), (1, min(step, k_out) - 1), (1, min(step, k_out - 1)), (0, k_out - 1)]:
-        j0 = (k // step) * step
-        want = np.finfo(float).eps * nfft * energy[b, j0 : j0 + nfft].sum(axis=0)
-        np.testing.assert_allclose(floor[b * k_out + k], want, rtol=1e-12)
+    for b, k in [(0, 0), (0, restart - 1), (0, min(restart, k_out - 1)), (1, 37)]:
+        k0 = k - k % restart  # segments start at multiples of restart
+        want = 2 * np.finfo(float).eps * (w + 2 * restart) * energy[
+            b, k0: k0 + restart + w - 1].sum(axis=0)
+        np.testing.assert_allclose(floor[b, k], want, rtol=1e-12)
 
 
 def test_chunking_and_batch_grouping_do_not_change_results(monkeypatch):
@@ -573,11 +602,144 @@ def test_chunking_and_batch_grouping_do_not_change_results(monkeypatch):
     Z = rng.standard_normal((3, 150, 2)) + 1j * rng.standard_normal((3, 150, 2))
     kw = {"half_width": 6, "degrees": (2, 1, 1)}
     ref = [local_model(R[b], Z[b], **kw) for b in range(3)]
-    # one step per chunk, per batch element; one step, 3 batch elements; all in one chunk
+    per_bin = lm._CHUNK_BYTES // lm._chunk_elements(2, 2, "full")  # bytes per bin
+    # one bin per chunk (a restart per bin); 200 bins, batch elements grouped; one chunk
     for elements in (1, 200, 10**6):
-        monkeypatch.setattr(lm, "_CHUNK_BYTES", elements * 16 * 400)
+        monkeypatch.setattr(lm, "_CHUNK_BYTES", elements * per_bin)
         fit = local_model(R, Z, **kw)
         for b in range(3):
             for name in ("G", "T", "noise_covariance", "G_cov", "condition"):
                 np.testing.assert_allclose(getattr(fit, name)[b], getattr(ref[b], name),
                                            rtol=1e-9, atol=1e-300)
+
+
+# ------------------------------------------------------- windows per bin, real signals
+def test_window_per_bin_matches_oracle():
+    """An integer array of half-widths: every bin is the oracle's fit at its own window."""
+    rng = np.random.default_rng(21)
+    m, nr, nz, degrees = 96, 2, 2, (2, 1, 1)
+    R, Z, _, _ = resonant_system(m, nz, nr, seed=4, noise=1e-3)
+    widths = rng.choice([6, 8, 11], size=m)
+    fit = local_model(R, Z, half_width=widths, degrees=degrees)
+    assert fit.dof.shape == (m,)
+    np.testing.assert_array_equal(fit.dof, 2 * widths + 1 - parameters_per_row(nr, degrees))
+    ok = ~fit.ill_posed
+    assert ok.all()
+    for n in (6, 8, 11):
+        bins = np.flatnonzero(widths == n)
+        ref = oracle_local_model(R, Z, n, degrees, bins=bins)
+        assert _max_rel(fit.G[bins], ref["G"][bins]) < 1e-6
+        assert _max_rel(fit.noise_variance[bins], ref["noise_variance"][bins]) < 1e-6
+        diff = np.linalg.norm(fit.G_cov[bins] - ref["G_cov"][bins], axis=(1, 2))
+        assert np.max(diff / np.linalg.norm(ref["G_cov"][bins], axis=(1, 2))) < 1e-6
+    # a constant array is the scalar window
+    same = local_model(R, Z, half_width=np.full(m, 8), degrees=degrees)
+    scalar = local_model(R, Z, half_width=8, degrees=degrees)
+    np.testing.assert_allclose(same.G, scalar.G, rtol=1e-12)
+    np.testing.assert_allclose(same.G_cov, scalar.G_cov, rtol=1e-12, atol=1e-300)
+    assert scalar.dof == 17 - parameters_per_row(nr, degrees)
+    # padded mode: a bin lacks a full window for its own width only
+    pad = local_model(R, Z, half_width=widths, degrees=degrees, circular=False)
+    k = np.arange(m)
+    full = (k - widths >= 0) & (k + widths <= m - 1)
+    assert np.isnan(pad.G[~full]).all() and pad.ill_posed[~full].all()
+    assert not pad.ill_posed[full].any()
+    with pytest.raises(ValueError, match="one half-width per bin"):
+        local_model(R, Z, half_width=widths[:-1], degrees=degrees)
+    with pytest.raises(ValueError, match="integer"):
+        local_model(R, Z, half_width=widths + 0.5, degrees=degrees)
+
+
+def test_real_signal_spectra_are_fitted_on_half_the_bins_and_mirrored():
+    """Spectra of real signals: G(M-k) = conj(G(k)) exactly, and still the oracle's fit."""
+    rng = np.random.default_rng(22)
+    m, n, degrees = 80, 9, (2, 2, 2)
+    r = rng.standard_normal((m, 2))
+    z = np.stack([np.convolve(np.tile(r[:, 0], 2), [1.0, 0.5, -0.3])[m: 2 * m]
+                  + 0.01 * rng.standard_normal(m),
+                  np.convolve(np.tile(r[:, 1], 2), [0.2, 1.0])[m: 2 * m]
+                  + 0.01 * rng.standard_normal(m)], axis=1)
+    R, Z = np.fft.fft(r, axis=0), np.fft.fft(z, axis=0)
+    fit = local_model(R, Z, half_width=n, degrees=degrees)
+    k = np.arange(1, m // 2)  # (DC and Nyquist are their own mirrors)
+    np.testing.assert_array_equal(fit.G[m - k], np.conj(fit.G[k]))
+    np.testing.assert_array_equal(fit.G_cov[m - k], np.conj(fit.G_cov[k]))
+    np.testing.assert_array_equal(fit.condition[m - k], fit.condition[k])
+    bins = np.array([0, 3, m // 2, m // 2 + 1, m - 5, m - 1])
+    ref = oracle_local_model(R, Z, n, degrees, bins=bins)
+    assert _max_rel(fit.G[bins], ref["G"][bins]) < 1e-6
+    diff = np.linalg.norm(fit.G_cov[bins] - ref["G_cov"][bins], axis=(1, 2))
+    assert np.max(diff / np.linalg.norm(ref["G_cov"][bins], axis=(1, 2))) < 1e-6
+
+
+# -------------------------------------------------------- exactly modelled, noiseless data
+@pytest.mark.parametrize("nr,nz", [(1, 1), (2, 3)])
+def test_exactly_modelled_data_give_G_not_nan(nr, nz):
+    """Denominator degree above the truth: numerator and denominator can share any factor
+    (1 + c rho), so the local parameters are not unique, but G = N(0)/D(0) is.  The
+    undetermined denominator term is dropped and G comes out exact, not NaN/flagged."""
+    m, n = 120, 12
+    R, Z, G, T = _exact_rational_data(m, nr, nz)
+    fit = local_model(R, Z, half_width=n, degrees=(2, 2, 3), circular=False)
+    inner = slice(n, m - n)
+    assert not fit.ill_posed[inner].any()
+    assert (fit.dropped[inner] >= nz).all()  # at least one term per row was dropped
+    assert np.all(fit.condition[inner] > CONDITION_LIMIT)  # the full model is singular
+    assert _max_rel(fit.G[inner], G[inner]) < 1e-8
+    assert _max_rel(fit.T[inner], T[inner]) < 1e-7
+
+
+def test_noiseless_hdd_experiments_flag_no_bin_and_error_falls_with_n():
+    """Issue 12: noiseless HDD experiments lost up to half their slow bins (NaN, and
+    identify raised for a singular S) once the window became narrow in frequency
+    (N = 18000 flagged 2631 bins, N = 36000 9000).  N = 180000 is in
+    ``benchmarks/local_models.py`` (too long for the suite)."""
+    import lcmr_xr
+    from lcmr_xr import hdd
+
+    medians = []
+    for n_samples in (3600, 18000, 36000):
+        exp = hdd.simulate(n_samples=n_samples, noise=False, seed=1)
+        frf = lcmr_xr.identify(exp, window=30, degrees=(3, 3, 3), covariance=False)
+        assert not frf.ill_posed.any() and not frf.s_singular.any()
+        assert not frf.P_flag[1:].any()  # DC: the VCM's double integrator is infinite
+        true = hdd.true_frf(frf.frequency[1:]).values
+        medians.append(float(np.median(np.abs(frf.P.values[1:] - true) / np.abs(true))))
+    assert medians[0] > medians[1] > medians[2]
+    assert medians[2] < 1e-5
+
+
+def test_one_thread_inside_worker_threads():
+    import threading
+
+    assert lm._threads() >= 1
+    seen = []
+    worker = threading.Thread(target=lambda: seen.append(lm._threads()))
+    worker.start()
+    worker.join()
+    assert seen == [1]
+    rng = np.random.default_rng(23)
+    R, Z = _random_spectra(rng, 300, 2, 2)
+    main = local_model(R, Z, half_width=6, degrees=(1, 1, 1))
+    got = []
+    worker = threading.Thread(
+        target=lambda: got.append(local_model(R, Z, half_width=6, degrees=(1, 1, 1))))
+    worker.start()
+    worker.join()
+    np.testing.assert_allclose(got[0].G, main.G, rtol=1e-12)
+
+
+def test_no_transient_term_is_exact_for_periodic_data():
+    """Rm = -1 (issue 14's periodic case): no transient column, T = 0, G exact."""
+    m, n, rn = 80, 8, 2
+    k = np.arange(m) / m
+    rng = np.random.default_rng(24)
+    cg = rng.standard_normal((rn + 1, 2, 2)) + 1j * rng.standard_normal((rn + 1, 2, 2))
+    G = np.einsum("bip,kb->kip", cg, k[:, None] ** np.arange(rn + 1))
+    R = np.exp(2j * np.pi * rng.random((m, 2)))
+    Z = np.einsum("kip,kp->ki", G, R)
+    fit = local_model(R, Z, half_width=n, degrees=(rn, -1, 0), circular=False)
+    inner = slice(n, m - n)
+    assert fit.dof == 2 * n + 1 - 2 * (rn + 1) == 2 * n + 1 - parameters_per_row(2, (rn, -1, 0))
+    assert _max_rel(fit.G[inner], G[inner]) < 1e-10
+    assert np.all(fit.T[inner] == 0)

@@ -72,7 +72,9 @@ def scaled_call(kernel, r, u, y, *, closed_loop: str = "indirect", noise_covaria
 
     Scaling by powers of two is exact, and every result is homogeneous in the data:
     ``G`` rows ``[U; Y]`` (``Y`` for ``closed_loop="direct"``) over columns ``R``,
-    ``P = Y / U``; variances as squares; condition numbers and flags do not change.  A
+    ``P = Y / U``; variances as squares; condition numbers, flags, relative errors
+    (``s_weak_rel_std``) and the window choice of ``window="auto"`` (relative criteria)
+    do not change.  A
     known noise covariance of the rows of ``Z`` (``(..., M, nz, nz)``, from repeated
     periods) is scaled with its rows and columns.
     """
@@ -96,6 +98,10 @@ def scaled_call(kernel, r, u, y, *, closed_loop: str = "indirect", noise_covaria
         out["P"] = out["P"] * p
         if "P_var" in out:
             out["P_var"] = out["P_var"] * p * p
+        if "P_var_linear" in out:
+            out["P_var_linear"] = out["P_var_linear"] * p * p
+        if "P_bias" in out:  # window="auto": the model error, in P's units
+            out["P_bias"] = out["P_bias"] * p
         if "G" in out:
             src = sr if closed_loop == "indirect" else su
             nz = out["G"].shape[-2]

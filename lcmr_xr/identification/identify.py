@@ -22,12 +22,16 @@ from lcmr_xr.kernels.identification import (
     finish_packed,
     fit_packed,
     identify_spectra,
+    identify_spectra_auto,
     identify_window0_arrays,
     packed_width,
+    window_dof,
 )
 from lcmr_xr.identification import _guards
+from lcmr_xr.kernels.adaptive import candidate_windows
 from lcmr_xr.kernels.local_models import parameters_per_row
-from lcmr_xr.settings import as_bool, check_window_fits, estimator_settings
+from lcmr_xr.settings import (AUTO_WINDOW, DEFAULT_WINDOW, as_bool, auto_window_range,
+                              check_window_fits, estimator_settings)
 from lcmr_xr.transforms._coords import even_spacing
 
 
@@ -54,7 +58,7 @@ def _ratio_units(num: str, den: str) -> str:
     return f"{num}/{den}"
 
 
-def identify(experiment: xr.Dataset, *, method: str = "lrm", window: int = 30, degrees=None,
+def identify(experiment: xr.Dataset, *, method: str = "lrm", window=DEFAULT_WINDOW, degrees=None,
              closed_loop: str = "indirect", covariance: bool = True, errors: str = "raise",
              frequency_chunks: int | None = None, stacked: bool = False,
              transient_periods: int | None = None, combine: str | None = None) -> xr.Dataset:
@@ -74,9 +78,17 @@ def identify(experiment: xr.Dataset, *, method: str = "lrm", window: int = 30, d
         (e.g. ``experiment``) broadcast and may be dask-chunked.
     method : {"lrm", "lpm"}, default "lrm"
         Local rational model, or local polynomial model (denominator degree ``Rd = 0``).
-    window : int, default 30
+    window : int or "auto", default "auto"
         Half-width ``n`` of the local window: each estimate uses ``2 n + 1`` slow bins.
-        A whole number (``30.0`` is 30; ``30.5`` is refused, not rounded).
+        ``"auto"``: chosen per slow bin among a ladder of half-widths from the smallest
+        one the degrees allow to 30 (the paper's) by a local mean-squared-error criterion
+        (model error against noise; see ``docs/uncertainty.md`` and
+        :mod:`lcmr_xr.kernels.adaptive`); the choice is returned as ``local_window`` and
+        the estimated model error is part of ``P_std``.  ``"auto"`` needs
+        ``covariance=True`` and no ``frequency_chunks``; with repeated periods each
+        candidate's band uses the noise covariance from the periods.
+        An integer window is a whole number (``30.0`` is 30; ``30.5`` is refused, not
+        rounded).  The default is :data:`lcmr_xr.settings.DEFAULT_WINDOW`.
     degrees : (int, int, int) or str, optional
         ``(Rn, Rm, Rd)``: degrees of the numerator, transient and (diagonal) denominator
         polynomials in the local frequency variable, or the label ``"Rn-Rm-Rd"``.  Default
@@ -131,10 +143,15 @@ Returns
     -------
     xarray.Dataset
         ``P`` (``frequency``, ``output``, ``input``), complex: fast FRF at bins
-        ``k / (N Th)``, ``k = 0..N/2``; ``P_std``: standard deviation of the complex estimate,
-        ``sqrt(E|P_hat - P|^2)``, same units (the 95 % region for a circular Gaussian error
-        is ``|P_hat - P| <= sqrt(ln 20) P_std``); ``P_flag``: bins that could not be
-        estimated.  Lifted estimates on ``slow_frequency``: ``S`` (``lift_phase``, ``input``,
+        ``k / (N Th)``, ``k = 0..N/2``; ``P_std``: uncertainty of ``P`` calibrated so that
+        the disc ``|P_hat - P| <= sqrt(ln 20) P_std`` is a 95 % region (first-order noise
+        standard deviation ``P_std_linear`` times a small-sample factor and, for the
+        indirect method, a factor for the nonlinearity of ``S^-1``, plus the model-error
+        estimate ``P_bias`` with ``window="auto"``); ``inf`` where ``P_undetermined``: the
+        data do not determine the weakest direction of ``S`` there, so no finite band can
+        be promised (``docs/uncertainty.md``).  ``P_flag``: bins that could not be
+        estimated.  ``s_weak_rel_std`` (``slow_frequency``): relative standard deviation of
+        the weakest direction of ``S``.  Lifted estimates on ``slow_frequency``: ``S`` (``lift_phase``, ``input``,
         ``lift_phase2``, ``input2``), ``PS`` (``output``, ``lift_phase2``, ``input2``) with
         ``S_std``, ``PS_std``; residual noise variances ``noise_variance_u``,
         ``noise_variance_y``; transients ``transient_u``, ``transient_y``; ``condition``,
@@ -218,6 +235,12 @@ Returns
 
 def _settings_attrs(ds, s, *, factor, th) -> dict:
     """The attributes that record the settings of a result of :func:`identify`."""
+    if s.window == AUTO_WINDOW:
+        attrs = _settings_attrs(ds, s._replace(window=1), factor=factor, th=th)
+        windows = _candidate_windows(s, factor * ds.sizes[cv.INPUT], ds.sizes[cv.TIME] // factor)
+        attrs.update({"window": AUTO_WINDOW, "window_bins": AUTO_WINDOW,
+                      cv.CANDIDATE_WINDOWS: np.array(windows, dtype=int)})
+        return attrs
     return {
         "conventions": cv.CONVENTIONS,
         "method": s.method,
@@ -248,7 +271,8 @@ FQ, SF = cv.FREQUENCY, cv.SLOW_FREQUENCY
 RESPONSE, EXCITATION = "response", "excitation"
 
 
-def output_specs(closed_loop: str, stacked: bool = False) -> list[tuple[str, list[str], type]]:
+def output_specs(closed_loop: str, stacked: bool = False,
+                 auto: bool = False) -> list[tuple[str, list[str], type]]:
     """``(name, core dims, dtype)`` of every variable :func:`identify` returns.
 
     The one description of the result's layout: :func:`identify` fills it, and
@@ -260,6 +284,8 @@ def output_specs(closed_loop: str, stacked: bool = False) -> list[tuple[str, lis
         The estimator (``"direct"`` has no ``S`` and its by-products).
     stacked : bool, default False
         Include the stacked local model ``G``, ``G_std``, ``noise_variance``.
+    auto : bool, default False
+        ``window="auto"``: include ``P_bias`` and ``local_window``.
 
     Returns
     -------
@@ -277,7 +303,11 @@ def output_specs(closed_loop: str, stacked: bool = False) -> list[tuple[str, lis
         ("noise_variance_y", [SF, cv.OUTPUT], float),
         ("condition", [SF], float),
         ("ill_posed", [SF], bool),
+        ("P_std_linear", [FQ, cv.OUTPUT, cv.INPUT], float),
+        ("P_undetermined", [FQ], bool),
     ]
+    if auto:
+        specs += [("P_bias", [FQ, cv.OUTPUT, cv.INPUT], float), ("local_window", [SF], int)]
     if closed_loop == "indirect":
         specs += [
             ("S", [SF, LP, cv.INPUT, LP2, IN2], complex),
@@ -286,6 +316,7 @@ def output_specs(closed_loop: str, stacked: bool = False) -> list[tuple[str, lis
             ("noise_variance_u", [SF, LP, cv.INPUT], float),
             ("s_condition", [SF], float),
             ("s_singular", [SF], bool),
+            ("s_weak_rel_std", [SF], float),
         ]
     if stacked:
         specs += [
@@ -335,6 +366,8 @@ def _split(out: dict, specs, *, factor: int, nu: int, ny: int, closed_loop: str)
         "G": G,
         "G_std": G_sd,
         "noise_variance": out["noise_variance"],
+        "P_std_linear": np.sqrt(out["P_var_linear"]),
+        "P_undetermined": out["P_undetermined"],
     }
     zy = slice(fnu, None) if closed_loop == "indirect" else slice(0, None)
     pieces["PS"] = G[..., zy, :].reshape(lead_m + (ny, factor, nu))
@@ -349,6 +382,10 @@ def _split(out: dict, specs, *, factor: int, nu: int, ny: int, closed_loop: str)
         pieces["noise_variance_u"] = out["noise_variance"][..., :fnu].reshape(lead_m + (factor, nu))
         pieces["s_condition"] = out["s_condition"]
         pieces["s_singular"] = out["s_singular"]
+        pieces["s_weak_rel_std"] = out["s_weak_rel_std"]
+    if "window" in out:  # window="auto"
+        pieces["P_bias"] = out["P_bias"]
+        pieces["local_window"] = out["window"]
     return tuple(pieces[name] for name, _, _ in specs)
 
 
@@ -364,7 +401,8 @@ def _estimate(r: xr.DataArray, u: xr.DataArray, y: xr.DataArray, s, *, factor: i
     """
     n, nu = r.sizes[cv.TIME], r.sizes[cv.INPUT]
     ny = y.sizes[cv.OUTPUT]
-    specs = output_specs(s.closed_loop, stacked)
+    auto = s.window == AUTO_WINDOW
+    specs = output_specs(s.closed_loop, stacked, auto)
     core_in = [[cv.TIME, cv.INPUT], [cv.TIME, cv.INPUT], [cv.SLOW_TIME, cv.OUTPUT]]
     sizes = output_sizes(factor=factor, n=n, nu=nu, ny=ny, closed_loop=s.closed_loop)
     used = {d for _, dims, _ in specs for d in dims}
@@ -388,10 +426,17 @@ def _estimate(r: xr.DataArray, u: xr.DataArray, y: xr.DataArray, s, *, factor: i
         results = xr.apply_ufunc(kernel, r, u, y, input_core_dims=[pooled_dims + c for c in core_in],
                                  **output_spec)
     elif s.frequency_chunks is None:
+        windows = _candidate_windows(s, factor * nu, n // factor) if auto else None
+
         def fit(r_, u_, y_, noise_covariance=None):
             R, Z = experiment_spectra(r_, u_, y_, factor=factor, closed_loop=s.closed_loop)
             if check_rank and not lazy:  # lazy: the local model's condition numbers flag it
                 _check_excitation_rank(R, "r" if s.closed_loop == "indirect" else "u")
+            if auto:  # a window per slow bin (kernels.adaptive), same guards as below
+                return identify_spectra_auto(R, Z, n_fast=n, factor=factor, nu=nu,
+                                             windows=windows, degrees=s.degrees,
+                                             closed_loop=s.closed_loop,
+                                             noise_covariance=noise_covariance)
             return identify_spectra(R, Z, n_fast=n, factor=factor, nu=nu, half_width=s.window,
                                     degrees=s.degrees, closed_loop=s.closed_loop,
                                     covariance=s.covariance, noise_covariance=noise_covariance)
@@ -416,13 +461,19 @@ def _estimate(r: xr.DataArray, u: xr.DataArray, y: xr.DataArray, s, *, factor: i
         def finish(p):
             p = np.ascontiguousarray(p).view(complex)
             return _split(finish_packed(p, nz=nz_, nr=nr_, n_fast=n, factor=factor, nu=nu, ny=ny,
-                                        closed_loop=s.closed_loop, covariance=s.covariance),
+                                        closed_loop=s.closed_loop, covariance=s.covariance,
+                                        dof=window_dof(s.window, nr_, s.degrees)),
                           **split)
 
         # the recovery gathers every slow bin (P(k) uses bin k mod M): one chunk along it
         results = xr.apply_ufunc(finish, packed.chunk({SF: -1}), input_core_dims=[[SF, "_packed"]],
                                  **output_spec)
     return xr.Dataset({name: da for (name, _, _), da in zip(specs, results)})
+
+
+def _candidate_windows(s, n_excitation: int, n_bins: int) -> tuple[int, ...]:
+    """The half-widths ``window="auto"`` chooses from (settings already checked to fit)."""
+    return candidate_windows(*auto_window_range(s.degrees, n_excitation, n_bins))
 
 
 def _fit_frequency_chunked(r, u, y, s, *, factor, check_rank, noise=None):
@@ -553,7 +604,7 @@ def _label(out, ds, *, factor, th):
     ru = ds["r"].attrs.get("units", "1")
     meta = {
         "P": ("plant FRF", p_units),
-        "P_std": ("standard deviation of P", p_units),
+        "P_std": ("uncertainty of P (95 % disc radius / sqrt(ln 20))", p_units),
         "P_flag": ("P could not be estimated", "1"),
         "PS": ("lifted process sensitivity, first block row", _ratio_units(y_units, ru)),
         "PS_std": ("standard deviation of PS", _ratio_units(y_units, ru)),
@@ -567,6 +618,11 @@ def _label(out, ds, *, factor, th):
         "ill_posed": ("local model ill-posed", "1"),
         "s_condition": ("condition number of the estimated lifted sensitivity", "1"),
         "s_singular": ("lifted sensitivity not invertible", "1"),
+        cv.S_WEAK_REL_STD: ("relative standard deviation of the weakest direction of S", "1"),
+        "P_std_linear": ("first-order noise standard deviation of P", p_units),
+        "P_undetermined": ("P not determined by the data (unbounded band)", "1"),
+        "P_bias": ("estimated model error of P", p_units),
+        "local_window": ("chosen local window half-width n", "1"),
         "G": ("lifted local model [S; PS] (rows: response, columns: excitation)",
               f"{_ratio_units(u_units, ru)} (u rows), {_ratio_units(y_units, ru)} (y rows)"),
         "G_std": ("standard deviation of G",
@@ -620,6 +676,9 @@ def identify_single_rate(experiment: xr.Dataset, *, method: str = "lrm", window:
         ``m = 0..M/2`` (Hz); attributes as :func:`identify`.
     """
     s = estimator_settings(method=method, window=window, degrees=degrees, covariance=covariance)
+    if s.window == AUTO_WINDOW:
+        raise ValueError("identify_single_rate takes an integer window (the comparison estimate "
+                         "of the paper, e.g. window=30); window='auto' is for identify.")
     ds = _validate(experiment)
     factor = int(ds.attrs[cv.FACTOR])
     check_window_fits(s.window, s.degrees, ds.sizes[cv.INPUT], ds.sizes[cv.SLOW_TIME])

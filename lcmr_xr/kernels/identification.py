@@ -9,12 +9,14 @@ from __future__ import annotations
 
 import numpy as np
 
+from lcmr_xr.kernels.adaptive import (nonlinearity_factor, select_windows, small_sample_factor,
+                                      weak_direction)
 from lcmr_xr.kernels.closed_loop import (
     frf_variance_from_first_row,
     indirect_first_row,
 )
 from lcmr_xr.kernels.lifting import frf_from_first_block_row, lift
-from lcmr_xr.kernels.local_models import local_model
+from lcmr_xr.kernels.local_models import local_model, parameters_per_row
 from lcmr_xr.kernels.pooling import (mean_and_covariance, pooled_least_squares,
                                      rescale_covariance, window_mean)
 from lcmr_xr.settings import CLOSED_LOOP
@@ -79,18 +81,25 @@ def experiment_spectra(r, u, y, *, factor: int, closed_loop: str = "indirect"):
 
 
 def recover_frf(G, G_cov, *, n_fast: int, factor: int, nu: int, ny: int,
-                closed_loop: str = "indirect", ill_posed=None) -> dict:
+                closed_loop: str = "indirect", ill_posed=None, dof=None) -> dict:
     """From the local-model ``G`` (..., M, nz, nr) per slow bin to the fast FRF.
 
     ``"indirect"``: ``P_1 = PS_1 S^-1`` with first-order covariance; ``"direct"``:
     ``P_1 = G``.  Then ``P(k) = sum_j exp(2j pi k j / N) P_1,j(k mod M)`` for
     ``k = 0..N/2``.
 
+    ``P_var`` is calibrated for the 95 % disc ``|P_hat - P| <= sqrt(ln 20) sqrt(P_var)``
+    (see :mod:`lcmr_xr.kernels.adaptive`): the first-order variance ``P_var_linear`` times
+    the squared small-sample factor of ``dof`` (scalar or (..., M); None: 1) and, for the
+    indirect method, the squared nonlinearity factor of the weakest direction of ``S``;
+    ``inf`` where ``P`` is undetermined.
+
     Returns
     -------
     dict of ndarray
-        ``P``, ``P_var`` (NaN when ``G_cov`` is None), ``P_bad``, ``s_condition``,
-        ``s_singular``.
+        ``P``, ``P_var``, ``P_var_linear`` (NaN when ``G_cov`` is None), ``P_bad``,
+        ``P_undetermined``, ``s_condition``, ``s_singular``, ``s_weak_rel_std`` (NaN
+        without ``G_cov`` or for the direct method).
     """
     f_ = int(factor)
     nr = f_ * nu
@@ -104,17 +113,36 @@ def recover_frf(G, G_cov, *, n_fast: int, factor: int, nu: int, ny: int,
     m = G.shape[-3]
     bins = np.arange(n_fast // 2 + 1)
     P = frf_from_first_block_row(P1, f_)[..., : n_fast // 2 + 1, :, :]
+    # per slow bin: the factor turning the first-order std into the calibrated one
+    slow_factor = np.ones(G.shape[:-2])
+    undetermined = np.zeros(G.shape[:-2], dtype=bool)
+    rho = np.full(G.shape[:-2], np.nan)
+    if dof is not None:
+        slow_factor = slow_factor * small_sample_factor(dof)
     if P1_cov is not None:
-        P_var = frf_variance_from_first_row(P1_cov, n_fast, f_, bins, ny, nu)
+        P_var_lin = frf_variance_from_first_row(P1_cov, n_fast, f_, bins, ny, nu)
+        if closed_loop == "indirect":
+            S_cov = G_cov[..., : nr * nr, : nr * nr]
+            rho, rho_v = weak_direction(G[..., :nr, :], S_cov)
+            nl, undetermined = nonlinearity_factor(rho, rho_v)
+            undetermined = undetermined & ~s_sing
+            slow_factor = slow_factor * nl
+        fast_factor = np.take(np.where(undetermined, 1.0, slow_factor), bins % m, axis=-1)
+        P_var = P_var_lin * fast_factor[..., None, None] ** 2
+        # unbounded where undetermined (also where the first-order variance is 0 or NaN)
+        P_var = np.where(np.take(undetermined, bins % m, axis=-1)[..., None, None], np.inf, P_var)
     else:
-        P_var = np.full(P.shape, np.nan)
+        P_var_lin = P_var = np.full(P.shape, np.nan)
     slow_bad = s_sing if ill_posed is None else (ill_posed | s_sing)
     return {
         "P": P,
         "P_var": P_var,
+        "P_var_linear": P_var_lin,
         "P_bad": np.take(slow_bad, bins % m, axis=-1),
+        "P_undetermined": np.take(undetermined, bins % m, axis=-1),
         "s_condition": s_cond,
         "s_singular": s_sing,
+        "s_weak_rel_std": rho,
     }
 
 
@@ -154,8 +182,12 @@ def fit_packed(R, Z, *, half_width: int, degrees=(3, 3, 3), circular: bool = Tru
 
 
 def finish_packed(packed, *, nz: int, nr: int, n_fast: int, factor: int, nu: int, ny: int,
-                  closed_loop: str = "indirect", covariance: bool = True) -> dict:
-    """Unpack :func:`fit_packed` and recover the fast FRF (see :func:`identify_arrays`)."""
+                  closed_loop: str = "indirect", covariance: bool = True, dof=None) -> dict:
+    """Unpack :func:`fit_packed` and recover the fast FRF (see :func:`identify_arrays`).
+
+    ``dof``: degrees of freedom per row of the local model (scalar or per slow bin), for the
+    small-sample factor of ``P_var``; None leaves it out.
+    """
     packed = np.asarray(packed)
     lead_m = packed.shape[:-1]
     g = nz * nr
@@ -168,7 +200,7 @@ def finish_packed(packed, *, nz: int, nr: int, n_fast: int, factor: int, nu: int
     ill_posed = packed[..., g + 2 * nz + 1].real != 0
     G_cov = packed[..., g + 2 * nz + 2:].reshape(lead_m + (g, g)) if covariance else None
     out = recover_frf(G, G_cov, n_fast=n_fast, factor=factor, nu=nu, ny=ny,
-                      closed_loop=closed_loop, ill_posed=ill_posed)
+                      closed_loop=closed_loop, ill_posed=ill_posed, dof=dof)
     if covariance:
         G_var = np.real(np.diagonal(G_cov, axis1=-2, axis2=-1)).reshape(G.shape)
     else:
@@ -234,7 +266,84 @@ def identify_spectra(R, Z, *, n_fast: int, factor: int, nu: int, half_width: int
     packed = fit_packed(R, Z, half_width=half_width, degrees=degrees, covariance=covariance,
                         noise_covariance=noise_covariance)
     return finish_packed(packed, nz=nz, nr=nr, n_fast=n_fast, factor=factor, nu=nu, ny=ny,
-                         closed_loop=closed_loop, covariance=covariance)
+                         closed_loop=closed_loop, covariance=covariance,
+                         dof=window_dof(half_width, nr, degrees))
+
+
+def window_dof(half_width, nr: int, degrees) -> np.ndarray:
+    """Degrees of freedom per row of the local model: ``2 n + 1 - parameters_per_row``."""
+    return 2 * np.asarray(half_width) + 1 - parameters_per_row(nr, tuple(degrees))
+
+
+def identify_arrays_auto(r, u, y, *, factor: int, windows, degrees=(3, 3, 3),
+                         closed_loop: str = "indirect", noise_covariance=None) -> dict:
+    """:func:`identify_arrays` with a window chosen per slow bin among ``windows``.
+
+    See :func:`identify_spectra_auto` (this computes the spectra first).
+    """
+    R, Z = experiment_spectra(r, u, y, factor=factor, closed_loop=closed_loop)
+    return identify_spectra_auto(R, Z, n_fast=np.shape(r)[-2], factor=factor,
+                                 nu=np.shape(r)[-1], windows=windows, degrees=degrees,
+                                 closed_loop=closed_loop, noise_covariance=noise_covariance)
+
+
+def identify_spectra_auto(R, Z, *, n_fast: int, factor: int, nu: int, windows,
+                          degrees=(3, 3, 3), closed_loop: str = "indirect",
+                          noise_covariance=None) -> dict:
+    """:func:`identify_spectra` with a window chosen per slow bin among ``windows``.
+
+    Every candidate half-width (ascending) is fitted with its covariance, its fast FRF and
+    calibrated variance recovered, and :func:`lcmr_xr.kernels.adaptive.select_windows`
+    picks one per slow bin; every returned array is then gathered bin by bin from the
+    chosen window's (a fast bin ``k`` from the choice at slow bin ``k mod M``).  The
+    squared model-error estimate of the chosen window is added to ``P_var``.
+
+    Returns
+    -------
+    dict of ndarray
+        As :func:`identify_arrays`, plus ``window`` (..., M) int, the chosen half-width per
+        slow bin, and ``P_bias`` (..., N/2+1, ny, nu), the model-error estimate (same
+        units as ``P``).  ``noise_covariance`` (periods) as in :func:`identify_arrays`:
+        every candidate's covariance is built from it, averaged over that candidate's window.
+    """
+    windows = np.asarray(sorted(int(w) for w in windows))
+    nz, nr = Z.shape[-1], R.shape[-1]
+    ny = nz - nr if closed_loop == "indirect" else nz
+    shape = dict(nz=nz, nr=nr, n_fast=n_fast, factor=factor, nu=nu, ny=ny,
+                 closed_loop=closed_loop, covariance=True)
+    # Emulates a per-bin window: one fit per candidate.  A kernel taking half_width per
+    # bin replaces the gather below by a single fit at the chosen windows.
+    packed = np.stack([fit_packed(R, Z, half_width=int(w), degrees=degrees,
+                                  noise_covariance=noise_covariance) for w in windows])
+    outs = [finish_packed(p, dof=window_dof(w, nr, degrees), **shape)
+            for p, w in zip(packed, windows)]
+    P = np.stack([o["P"] for o in outs])
+    P_var = np.stack([o["P_var"] for o in outs])
+    P_lin = np.stack([o["P_var_linear"] for o in outs])
+    m = packed.shape[-2]
+    choice, bias2 = select_windows(P, P_var, P_lin, m)
+    fast_choice = np.take(choice, np.arange(P.shape[-3]) % m, axis=-1)
+
+    def gather(name):
+        """The chosen candidate's array, bin by bin (slow or fast bins)."""
+        stack = np.stack([o[name] for o in outs])
+        lead = choice.ndim  # (..., M) or (..., K): the bin axis is the last of ``lead``
+        idx = choice if stack.shape[lead] == m else fast_choice
+        idx = idx.reshape((1,) + idx.shape + (1,) * (stack.ndim - 1 - lead))
+        return np.take_along_axis(stack, idx, axis=0)[0]
+
+    out = {name: gather(name) for name in outs[0]}
+    b2 = np.take_along_axis(
+        bias2, fast_choice.reshape((1,) + fast_choice.shape + (1, 1)), axis=0)[0]
+    # The widest candidate has the most data: where even it cannot determine the weakest
+    # direction of S, a narrower window that seems to is a lucky draw (choosing among noisy
+    # determinacy tests), so the bin stays undetermined.
+    undetermined = out["P_undetermined"] | outs[-1]["P_undetermined"]
+    out["P_undetermined"] = undetermined
+    out["P_var"] = np.where(undetermined[..., None, None], np.inf, out["P_var"] + b2)
+    out["P_bias"] = np.sqrt(b2)
+    out["window"] = windows[choice]
+    return out
 
 
 def identify_window0_arrays(r, u, y, *, factor: int, closed_loop: str = "indirect",

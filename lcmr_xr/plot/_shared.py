@@ -234,6 +234,25 @@ def draw_band(axis, x, values, sigma, factor, db, color, label):
     return edges + [fill]
 
 
+def draw_unbounded(axis, x, sigma, color, label):
+    """Hatched spans where ``P_std`` is inf: the data do not bound the error there.
+
+    Each run of such bins is spanned from the bin before it to the bin after it, so a
+    single bin is visible; returns the spans (the first carries ``label``).
+    """
+    inf = np.isposinf(np.asarray(sigma, dtype=float))
+    if not inf.any():
+        return []
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], inf.astype(int), [0]])))
+    spans = []
+    for start, stop in zip(edges[::2], edges[1::2]):  # runs [start, stop)
+        lo, hi = x[max(start - 1, 0)], x[min(stop, x.size - 1)]
+        spans.append(axis.axvspan(lo, hi, facecolor=color, alpha=0.12, hatch="//",
+                                  edgecolor=color, linewidth=0, label=label))
+        label = None
+    return spans
+
+
 # ----------------------------------------------------------------------------- styling
 
 

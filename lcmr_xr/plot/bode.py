@@ -14,6 +14,7 @@ from lcmr_xr.conventions import FACTOR, FREQUENCY, INPUT, OUTPUT
 from lcmr_xr.plot._shared import (
     confidence_radius,
     draw_band,
+    draw_unbounded,
     frequency_selection,
     magnitude,
     magnitude_label,
@@ -45,8 +46,9 @@ class BodePlot:
     lines : dict
         ``lines[(output, input)]`` is a dict with keys ``"estimate"`` (magnitude and
         phase :class:`~matplotlib.lines.Line2D`), ``"truth"`` (same, dashed),
-        ``"band"`` (upper and lower edge ``Line2D`` then the filled
-        :class:`~matplotlib.collections.PolyCollection`) and ``"nyquist"`` (one
+        ``"band"`` (upper and lower edge ``Line2D``, the filled
+        :class:`~matplotlib.collections.PolyCollection`, then one hatched span per run of
+        bins where ``P_std`` is inf: not determined by the data, unbounded band) and ``"nyquist"`` (one
         vertical ``Line2D`` per axes of the pair); absent artists give empty lists.
     """
 
@@ -104,7 +106,8 @@ def bode(
         (1.731 ``P_std`` for the default 0.95).  The band is clipped 20 dB below the
         smallest magnitude of the estimate in the panel: where the lower edge reaches
         zero (or falls below that floor) the band fills down to it and the edge line
-        stops.  None (or False) draws no band; no band is drawn either when ``frf`` has
+        stops.  Where ``P_std`` is inf (``P_undetermined``: the data do not bound the
+        error) a hatched span marks the unbounded band.  None (or False) draws no band; no band is drawn either when ``frf`` has
         no ``P_std``.
     nyquist : bool or float, optional
         True (default) draws the slow Nyquist frequency from the attrs (``slow_nyquist``,
@@ -207,6 +210,8 @@ def bode(
                     mag_ax, x, values[:, o, i], sigma[:, o, i], band_factor, db, color,
                     f"{band:.0%} confidence" if first else None,
                 )
+                pair["band"] += draw_unbounded(mag_ax, x, sigma[:, o, i], color,
+                                               "not determined (unbounded band)" if first else None)
             if truth_values is not None:
                 pair["truth"] += mag_ax.plot(
                     x, magnitude(truth_values[:, o, i], db), color="k", linestyle="--",
@@ -448,6 +453,9 @@ def _in_view(artist, lo: float, hi: float) -> bool:
     """True when ``artist`` has a finite point with x in ``[lo, hi]`` (data coordinates)."""
     if hasattr(artist, "get_xydata"):  # Line2D; axvline's y is in axes coordinates
         xy = np.asarray(artist.get_xydata(), dtype=float)
+    elif hasattr(artist, "get_width"):  # the hatched span of an unbounded band (Rectangle)
+        x0, x1 = sorted((artist.get_x(), artist.get_x() + artist.get_width()))
+        return bool(x0 <= hi and x1 >= lo)
     else:  # the band's PolyCollection
         paths = artist.get_paths()
         xy = np.concatenate([p.vertices for p in paths]) if paths else np.empty((0, 2))

@@ -34,7 +34,7 @@ from lcmr_xr._cli_support import (NETCDF_SUFFIXES, HelpFormatter, add_overwrite,
                                   check_outputs, error_line, futures_progress, progress)
 
 from lcmr_xr import conventions as cv
-from lcmr_xr.settings import CLOSED_LOOP, METHODS
+from lcmr_xr.settings import CLOSED_LOOP, METHODS, window_argument
 
 LOCAL_SCHEDULERS = ("threads", "processes", "synchronous")
 #: Seconds to wait for a dask scheduler to answer (``--connect-timeout``).
@@ -87,7 +87,9 @@ def add_sweep_parser(subparsers) -> argparse.ArgumentParser:
     sw.add_argument("-o", "--output", type=Path, required=True,
                     help="result NetCDF file to write (.nc; not inside the archive; its parts "
                          "are kept in .OUTPUT.parts/ next to it while the sweep runs)")
-    sw.add_argument("--window", type=int, nargs="+", default=[30], help="window half-widths n")
+    # the settings' parser: every token reaches the sweep's validator ('auto' is refused there)
+    sw.add_argument("--window", type=window_argument, nargs="+", default=[30],
+                    help="window half-widths n (fixed: a sweep compares windows)")
     sw.add_argument("--degrees", nargs="+", default=None, metavar="RN-RM-RD",
                     help="local model degrees, one or more RN-RM-RD, e.g. 3-3-3 2-2-2; every one "
                          "is combined with every --method, and LPM needs RD = 0 (default: the "

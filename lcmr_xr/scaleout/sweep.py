@@ -28,6 +28,7 @@ import xarray as xr
 
 from lcmr_xr import conventions as cv
 from lcmr_xr.settings import (
+    AUTO_WINDOW,
     CLOSED_LOOP,
     METHODS,
     as_bool,
@@ -235,8 +236,12 @@ def sweep_settings(*, window=(30,), degrees=None, method=("lrm",), closed_loop="
     >>> list(sweep_settings(window=[20, 30], degrees=["3-3-0"], method=["lrm", "lpm"]))[:2]
     [('lrm', (3, 3, 0), 20), ('lrm', (3, 3, 0), 30)]
     """
-    windows = _unique([as_integer(w, "window", minimum=1, example=30)
-                       for w in _as_list(window, "window")], "window")
+    listed = _as_list(window, "window")
+    if any(isinstance(w, str) and w == AUTO_WINDOW for w in listed):
+        raise ValueError("a sweep compares fixed windows: window='auto' (chosen per bin) is not "
+                         "supported here; pass integer half-widths (e.g. window=[10, 20, 30]), "
+                         "or call lcmr_xr.identify(..., window='auto') per experiment.")
+    windows = _unique([as_integer(w, "window", minimum=1, example=30) for w in listed], "window")
     methods = _unique([as_choice(m, "method", METHODS) for m in _as_list(method, "method")], "method")
     degrees_list = _unique(_degrees_list(degrees, methods), "degrees")
     closed_loop = as_choice(closed_loop, "closed_loop", CLOSED_LOOP)

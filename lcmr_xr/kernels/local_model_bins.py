@@ -1,0 +1,662 @@
+"""Compiled per-bin algebra of the local model (numba): factorisations, solves, covariance.
+
+:func:`lcmr_xr.kernels.local_models.local_model` computes the windowed moments of a chunk
+of bins (FFT, window-independent) and hands them here; :func:`fit_bins` then runs one
+plain loop over the chunk's bins.  Everything per bin is written as explicit loops on
+small matrices: no BLAS call (threaded BLAS on thousands of 20 x 20 matrices spins and
+fights for the cores), no temporaries per bin (scratch is allocated once per call).
+Compiled once with ``cache=True`` (the first call of a new install compiles, later
+processes load the cache) and ``nogil=True``, so chunks run in parallel threads.
+
+Per bin and output row ``i`` the model's regressors are the shared block ``A`` (columns
+``rho^b R_p`` and ``rho^c``, ordered so that ``T`` and then ``G`` come last) and the row's
+own block ``B_i`` (``-rho^s Z_i``, ``s = 1..Rd``).  All columns are scaled to unit norm
+(Jacobi), so pivots are squared sines of angles between columns and the condition
+estimate is scale-free:
+
+1. Cholesky of the scaled ``A^H A`` with all rows' right-hand sides ``A^H rho^s Z_i``
+   carried along (``Y = L^-1 A^H X``: the forward substitution for free).
+2. Per row, the ``Rd x Rd`` Schur complement ``S_i = B~_i^H (I - P_A) B~_i`` is factored
+   with diagonal pivoting.  A column whose pivot (its squared distance from the span of
+   all other columns) is below ``drop_tol`` is dropped in that bin: the data do not
+   determine its coefficient (noiseless, exactly modelled data: numerator and
+   denominator share a factor), the fit continues with a reduced denominator degree.
+   ``G`` is unaffected when the dropped direction has no ``G`` component, which is
+   checked (``g_sensitivity``); only bins where it has one are flagged.
+3. ``G`` and ``T`` from the trailing block of ``L^H``; residual cross products from
+   ``v_i = Y_i delta_i``.
+4. Covariance (optional): explicit over the window (cost ``O(W)`` per bin, the fit
+   itself stays window independent).  With orthonormal bases ``Q_A = A~ L^-H`` and
+   ``U_i`` of ``(I - P_A) B~_i``, the G-rows of ``K_i^+`` are ``w^H [Q_A, U_i]^H`` where
+   ``w`` has only ``nr + Rd`` non-zero entries (G is last in ``A``), so the gains
+   ``h_i = g_i D_i`` cost ``(nr + Rd) W`` per row and ``Cov(G_i, G_j) = s_ij h_i h_j^H``
+   is one Hermitian product.  ``tau_ij = tr(D_j^H P_j P_i D_i)`` with
+   ``P_i = I - Q_A Q_A^H - U_i U_i^H``::
+
+       tau_ij = sum_r c_ij(r) (1 - lev(r) - nu_i(r) - nu_j(r))
+                + tr((U_j^H U_i)(U_i^H diag(c_ij) U_j)),   c_ij = d_i conj(d_j)
+
+   (``lev``, ``nu_i`` the squared row norms of ``Q_A``, ``U_i``).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+#: ``fit_bins`` modes: which covariance of ``G`` to compute.
+COV_NONE, COV_DIAG, COV_FULL = 0, 1, 2
+
+_JIT = {"cache": True, "nogil": True, "error_model": "numpy", "boundscheck": False}
+
+
+@numba.njit(**_JIT)
+def cholesky_augmented(m, q):
+    """In place: ``m`` (q, c) holds a Hermitian positive definite ``G`` (upper triangle
+    of the first ``q`` columns read) and right-hand sides ``X`` after it; its rows become
+    ``[L^H | L^-1 X]``.  Returns the pivots (squared diagonal of ``L``); the first
+    non-positive pivot stops the factorisation (that and later pivots are NaN)."""
+    c = m.shape[1]
+    piv = np.full(q, np.nan)
+    for j in range(q):
+        p = m[j, j].real
+        if not p > 0.0:
+            return piv
+        piv[j] = p
+        d = math.sqrt(p)
+        m[j, j] = d
+        inv = 1.0 / d
+        for col in range(j + 1, c):
+            m[j, col] *= inv
+        for i in range(j + 1, q):
+            f = m[j, i].conjugate()
+            for col in range(i, c):
+                m[i, col] -= f * m[j, col]
+    return piv
+
+
+@numba.njit(**_JIT)
+def pivoted_cholesky(s, drop_tol, low, perm, piv):
+    """Cholesky with diagonal pivoting of the small Hermitian ``s`` (k, k), stopped when
+    the largest remaining pivot is below ``drop_tol``.
+
+    ``s`` is overwritten.  ``low`` receives ``L`` of the kept columns in pivot order
+    (``s[perm][:, perm] = L L^H`` on the kept block), ``perm`` the pivot order, ``piv``
+    the pivots in that order (the first dropped one included; later ones NaN).  Returns
+    the number of kept columns.
+    """
+    k = s.shape[0]
+    for j in range(k):
+        perm[j] = j
+        piv[j] = np.nan
+    for j in range(k):
+        best = j
+        for t in range(j + 1, k):
+            if s[perm[t], perm[t]].real > s[perm[best], perm[best]].real:
+                best = t
+        perm[j], perm[best] = perm[best], perm[j]
+        for c in range(j):  # the rows of L computed so far follow the permutation
+            low[j, c], low[best, c] = low[best, c], low[j, c]
+        pj = perm[j]
+        p = s[pj, pj].real
+        piv[j] = p
+        if not p >= drop_tol:
+            return j
+        d = math.sqrt(p)
+        low[j, j] = d
+        for t in range(j + 1, k):
+            low[t, j] = s[perm[t], pj] / d
+        for t in range(j + 1, k):
+            pt = perm[t]
+            for u in range(j + 1, k):
+                pu = perm[u]
+                s[pt, pu] -= low[t, j] * low[u, j].conjugate()
+    return k
+
+
+@numba.njit(**_JIT)
+def _natural_min_pivot(s, scratch):
+    """Smallest pivot of the unpivoted Cholesky of the small Hermitian ``s`` (0 when one
+    is not positive); ``s`` is kept, ``scratch`` (k, k) overwritten."""
+    k = s.shape[0]
+    for a in range(k):
+        for c in range(k):
+            scratch[a, c] = s[a, c]
+    best = np.inf
+    for j in range(k):
+        p = scratch[j, j].real
+        if not p > 0.0:
+            return 0.0
+        best = min(best, p)
+        for a in range(j + 1, k):  # lower triangle: s[a, c] -= s[a, j] conj(s[c, j]) / p
+            f = scratch[a, j] / p
+            for c in range(j + 1, a + 1):
+                scratch[a, c] -= f * scratch[c, j].conjugate()
+    return best
+
+
+@numba.njit(**_JIT)
+def _chol_solve(low, rank, b, x):
+    """``x = (L L^H)^-1 b`` on the leading ``rank`` entries (``b``, ``x`` may alias)."""
+    for j in range(rank):
+        acc = b[j]
+        for c in range(j):
+            acc -= low[j, c] * x[c]
+        x[j] = acc / low[j, j].real
+    for j in range(rank - 1, -1, -1):
+        acc = x[j]
+        for c in range(j + 1, rank):
+            acc -= low[c, j].conjugate() * x[c]
+        x[j] = acc / low[j, j].real
+
+
+@numba.njit(**_JIT)
+def _tail_solve(u, q, nt, v, x):
+    """``x = U22^-1 v[q-nt:]`` for the trailing ``nt x nt`` block of upper-triangular
+    ``u`` (``x`` has length ``nt``)."""
+    off = q - nt
+    for j in range(nt - 1, -1, -1):
+        acc = v[off + j]
+        for c in range(j + 1, nt):
+            acc -= u[off + j, off + c] * x[c]
+        x[j] = acc / u[off + j, off + j].real
+
+
+@numba.njit(**_JIT)
+def _products(rt, zt, b, j, slot_i, slot_j, base, x):
+    """``x[s] = conj(base_i) base_j`` at padded sample ``j`` for every slot ``(i, j)``;
+    the bases are ``R_0..R_{nr-1}``, ``1``, ``Z_0..`` (``base`` is scratch)."""
+    nr = rt.shape[2]
+    for c in range(nr):
+        base[c] = rt[b, j, c]
+    base[nr] = 1.0
+    for c in range(zt.shape[2]):
+        base[nr + 1 + c] = zt[b, j, c]
+    for s in range(slot_i.shape[0]):
+        x[s] = base[slot_i[s]].conjugate() * base[slot_j[s]]
+
+
+@numba.njit(**_JIT)
+def direct_moments(rt, zt, b, k, slot_i, slot_j, rho_pow, mom, base, x):
+    """``mom[a n_slots + s] = sum_r rho^a conj(base_i) base_j`` over the window of output
+    bin ``k`` (padded samples ``k .. k + 2n``) by direct sums, ``(i, j) = (slot_i[s],
+    slot_j[s])``.  Power-major, so that the inner loops run over the slots."""
+    ns = slot_i.shape[0]
+    for f in range(mom.shape[0]):
+        mom[f] = 0j
+    for r in range(rho_pow.shape[0]):
+        _products(rt, zt, b, k + r, slot_i, slot_j, base, x)
+        for a in range(rho_pow.shape[1]):
+            w = rho_pow[r, a]
+            o = a * ns
+            for s in range(ns):
+                mom[o + s] += w * x[s]
+
+
+@numba.njit(**_JIT)
+def step_moments(rt, zt, b, k, n, slot_i, slot_j, shift, lead, mom, base, x_out, x_in, acc):
+    """Moments of output bin ``k + 1`` from those of bin ``k``, in place.
+
+    With ``x`` a product series and the window moved by one bin,
+    ``S_a(k+1) = sum_c C(a, c) (-1/n)^(a-c) S_c(k) - (-(n+1)/n)^a x(k-n) + x(k+n+1)``
+    (``shift[a, c]``, ``lead[a]``): ``O(p^2)`` per product, whatever the width.
+    """
+    ns = slot_i.shape[0]
+    _products(rt, zt, b, k, slot_i, slot_j, base, x_out)
+    _products(rt, zt, b, k + 2 * n + 1, slot_i, slot_j, base, x_in)
+    for a in range(shift.shape[0] - 1, -1, -1):  # descending: lower powers are still old
+        la = lead[a]
+        for s in range(ns):
+            acc[s] = x_in[s] - la * x_out[s]
+        for c in range(a + 1):
+            w = shift[a, c]
+            o = c * ns
+            for s in range(ns):
+                acc[s] += w * mom[o + s]
+        o = a * ns
+        for s in range(ns):
+            mom[o + s] = acc[s]
+
+
+@numba.njit(**_JIT)
+def _moment(mom, n_flat, f):
+    """Table entry ``f``: the moments, then (``f >= n_flat``) their conjugates."""
+    if f >= n_flat:
+        return mom[f - n_flat].conjugate()
+    return mom[f]
+
+
+@numba.njit(**_JIT)
+def moments_and_floor(rt, zt, n, sel, restart, k_base, slot_i, slot_j, p1, mom_out,
+                      floor_out):
+    """All moments and R-energy rounding floors of the selected bins, exactly as
+    :func:`fit_bins` computes them (for tests): ``mom_out`` (nbat, K, n_slots p1) slot
+    major (``s p1 + a``), ``floor_out`` (nbat, K, nr); ``k_base`` the global index of the
+    first bin (see ``_advance``)."""
+    nr = rt.shape[2]
+    ns = slot_i.shape[0]
+    rho_pow, shift, lead = _recurrence(n, p1)
+    mom = np.empty(ns * p1, dtype=np.complex128)
+    floor = np.empty(nr)
+    scratch = np.empty((4, max(ns, nr + 1 + zt.shape[2])), dtype=np.complex128)
+    for b in range(sel.shape[0]):
+        valid = False
+        for k in range(sel.shape[1]):
+            valid = _advance(rt, zt, b, k, valid, sel[b], restart, k_base, n, slot_i,
+                             slot_j, rho_pow, shift, lead, mom, floor, scratch)
+            if sel[b, k]:
+                for s in range(ns):
+                    for a in range(p1):
+                        mom_out[b, k, s * p1 + a] = mom[a * ns + s]
+                floor_out[b, k] = floor
+    return 0
+
+
+@numba.njit(**_JIT)
+def _recurrence(n, p1):
+    """``rho^a`` over the window, and the coefficients of :func:`step_moments`."""
+    width = 2 * n + 1
+    rho_pow = np.empty((width, p1))
+    for r in range(width):
+        rho = (r - n) / n
+        for a in range(p1):
+            rho_pow[r, a] = rho**a
+    shift = np.zeros((p1, p1))
+    for a in range(p1):
+        binom = 1.0
+        for c in range(a, -1, -1):  # C(a, c) (-1/n)^(a - c), c = a, a-1, ..
+            shift[a, c] = binom * (-1.0 / n) ** (a - c)
+            binom = binom * c / (a - c + 1)
+    lead = np.empty(p1)
+    for a in range(p1):
+        lead[a] = (-(n + 1.0) / n) ** a
+    return rho_pow, shift, lead
+
+
+@numba.njit(**_JIT)
+def _advance(rt, zt, b, k, valid, sel_b, restart, k_base, n, slot_i, slot_j, rho_pow, shift,
+             lead, mom, floor, scratch):
+    """Bring ``mom`` to output bin ``k`` and return whether it holds valid moments.
+
+    Segments of ``restart`` bins start at global bins ``k_base + k`` that are multiples
+    of ``restart`` (so results do not depend on how the bins are chunked): direct sums
+    at a segment's start when one of its bins is wanted, then one step per bin (the
+    recurrence's rounding grows with the distance, by at most ``2^p`` within ``n``
+    bins).  A chunk starting inside a segment starts with direct sums.  ``floor``:
+    ``2 eps (W + 2 restart)`` times the R energy of the samples the segment's windows
+    cover, a bound of the absolute rounding of the windowed ``sum |R_p|^2``.
+    ``scratch`` (4, >= max(n_slots, n_bases)).
+    """
+    nr = rt.shape[2]
+    phase = (k_base + k) % restart
+    if phase != 0 and (valid or k > 0):
+        if valid:
+            step_moments(rt, zt, b, k - 1, n, slot_i, slot_j, shift, lead, mom, scratch[0],
+                         scratch[1], scratch[2], scratch[3])
+        return valid
+    end = min(k + restart - phase, sel_b.shape[0])
+    want = False
+    for kk in range(k, end):
+        want = want or sel_b[kk]
+    if not want:
+        return False
+    direct_moments(rt, zt, b, k, slot_i, slot_j, rho_pow, mom, scratch[0], scratch[1])
+    width = rho_pow.shape[0]
+    hi = min(end + width - 1, rt.shape[1])
+    for p in range(nr):
+        e = 0.0
+        for j in range(k, hi):
+            e += rt[b, j, p].real ** 2 + rt[b, j, p].imag ** 2
+        floor[p] = 2.0 * 2.220446049250313e-16 * (width + 2 * restart) * e
+    return True
+
+
+@numba.njit(**_JIT)
+def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
+             aug_index, zz_index, a_base, a_pow, mean_pow, dof, mode, drop_tol,
+             pivot_limit, sens_limit, out_g, out_t, out_ncov, out_cond, out_ill,
+             out_reduced, out_gcov, out_gvar):
+    """Fit the local model at the selected bins of one chunk (see the module notes).
+
+    ``rt``, ``zt`` (nbat, K + 2n, nr / nz): the chunk with its ``n``-bin halo on each
+    side; ``sel`` (nbat, K) the bins to fit, whose flat output row is
+    ``out_offset + b m_out + k`` (``out_offset mod m_out`` is the chunk's first bin, which
+    aligns the moment restarts, see ``_advance``).  Windowed moments of the product pairs ``(slot_i,
+    slot_j)``, ``p1`` powers each, power-major (entry ``a n_slots + s``), read through
+    ``aug_index`` (q, q + nx) and ``zz_index`` (nz, nz, Rd+1, Rd+1) (entries from
+    ``n_slots p1`` on are conjugates).  ``mode`` is ``COV_*``.  Outputs: ``G`` (., nz,
+    nr), ``T`` (., nz), noise covariance (., nz, nz), condition estimate, ill-posed flag,
+    number of dropped denominator columns, ``G`` covariance (., nz nr, nz nr; mode full)
+    or variances (., nz, nr; mode diag).
+    """
+    q = aug_index.shape[0]
+    nx = aug_index.shape[1] - q
+    nz = zz_index.shape[0]
+    rd1 = zz_index.shape[2]
+    rd = rd1 - 1
+    nr = out_g.shape[2]
+    # T (the constant column rho^0) precedes G at the end of A, unless Rm = -1 (no
+    # transient term: periodic data)
+    has_t = q > nr and a_base[q - nr - 1] == nr
+    nt = nr + 1 if has_t else nr
+    width = 2 * n + 1
+    nan_c = complex(np.nan, np.nan)
+    m = np.empty((q, q + nx), dtype=np.complex128)
+    ds = np.empty(q)
+    xx = np.empty((nz, nz, rd1, rd1), dtype=np.complex128)
+    delta = np.zeros((nz, rd1), dtype=np.complex128)
+    v = np.empty((nz, q), dtype=np.complex128)
+    schur = np.empty((max(rd, 1), max(rd, 1)), dtype=np.complex128)
+    low = np.zeros((nz, max(rd, 1), max(rd, 1)), dtype=np.complex128)
+    perm = np.zeros((nz, max(rd, 1)), dtype=np.int64)
+    spiv = np.empty(max(rd, 1))
+    rank = np.zeros(nz, dtype=np.int64)
+    tsc = np.empty((nz, max(rd, 1)))
+    rhs = np.empty(max(rd, 1), dtype=np.complex128)
+    dsol = np.empty(max(rd, 1), dtype=np.complex128)
+    tail = np.empty(nt, dtype=np.complex128)
+    ehe = np.empty((nz, nz), dtype=np.complex128)
+    wa = np.empty(q, dtype=np.complex128)
+    # covariance scratch (window-sized)
+    cov = mode != 0
+    qh = np.empty((q, width if cov else 0), dtype=np.complex128)
+    lev = np.empty(width if cov else 0)
+    um = np.empty((nz, max(rd, 1), width if cov else 0), dtype=np.complex128)
+    dwin = np.empty((nz, width if cov else 0), dtype=np.complex128)
+    vmat = np.empty((nz, max(rd, 1), width if cov else 0), dtype=np.complex128)
+    nuv = np.empty((nz, width if cov else 0))
+    hgain = np.empty((nz * nr, width if cov else 0), dtype=np.complex128)
+    ybk = np.empty((q, max(rd, 1)), dtype=np.complex128)
+    wb = np.empty(max(rd, 1), dtype=np.complex128)
+    tau = np.empty((nz, nz), dtype=np.complex128)
+    scov = np.empty((nz, nz), dtype=np.complex128)
+
+    n_flat = slot_i.shape[0] * p1
+    rho_pow, shift, lead = _recurrence(n, p1)
+    mom = np.empty(n_flat, dtype=np.complex128)
+    floor = np.empty(nr)
+    scratch = np.empty((4, max(slot_i.shape[0], nr + 1 + nz)), dtype=np.complex128)
+    for b in range(sel.shape[0]):
+      valid = False
+      for k in range(sel.shape[1]):
+        valid = _advance(rt, zt, b, k, valid, sel[b], restart, out_offset % m_out, n, slot_i,
+                         slot_j, rho_pow, shift, lead, mom, floor, scratch)
+        if not sel[b, k]:
+            continue
+        o = out_offset + b * m_out + k
+        # ---- gather [Gaa | A^H X]; an R column within FFT rounding of zero energy is
+        # unexcited: the bin fails (NaN, flagged)
+        dead = False
+        for a in range(q):
+            for c in range(a, q + nx):
+                m[a, c] = _moment(mom, n_flat, aug_index[a, c])
+            dia = m[a, a].real
+            if a_base[a] < nr and not dia > floor[a_base[a]]:
+                dead = True
+            ds[a] = 1.0 / math.sqrt(dia) if dia > 0.0 else np.nan
+        if dead:
+            out_cond[o] = np.inf
+            out_ill[o] = True
+            continue
+        for a in range(q):  # Jacobi scaling of the Gram (both sides) and of A^H X (rows)
+            for c in range(a, q):
+                m[a, c] *= ds[a] * ds[c]
+            for c in range(q, q + nx):
+                m[a, c] *= ds[a]
+        piv_a = cholesky_augmented(m, q)
+        min_a = np.inf
+        for a in range(q):
+            if not piv_a[a] > 0.0:
+                min_a = np.nan
+                break
+            min_a = min(min_a, piv_a[a])
+        if not min_a > 0.0:  # the shared block (holding G) is singular: G undetermined
+            out_cond[o] = np.inf
+            out_ill[o] = True
+            continue
+        min_piv = min_a
+        for i in range(nz):
+            for j in range(nz):
+                for s in range(rd1):
+                    for t in range(rd1):
+                        xx[i, j, s, t] = _moment(mom, n_flat, zz_index[i, j, s, t])
+
+        # ---- per row: Schur complement of the D columns, pivoted and rank revealing
+        ill = False
+        n_drop = 0
+        for i in range(nz):
+            delta[i, 0] = 1.0
+            for s in range(1, rd1):
+                delta[i, s] = 0.0
+            rank[i] = 0
+            if rd > 0:
+                c0 = i * rd1
+                for s in range(1, rd1):
+                    e = xx[i, i, s, s].real
+                    tsc[i, s - 1] = 1.0 / math.sqrt(e) if e > 0.0 else 0.0
+                for s in range(1, rd1):
+                    for t in range(1, rd1):
+                        acc = xx[i, i, s, t]
+                        for a in range(q):
+                            acc -= m[a, q + c0 + s].conjugate() * m[a, q + c0 + t]
+                        schur[s - 1, t - 1] = acc * (tsc[i, s - 1] * tsc[i, t - 1])
+                    acc = xx[i, i, s, 0]
+                    for a in range(q):
+                        acc -= m[a, q + c0 + s].conjugate() * m[a, q + c0]
+                    rhs[s - 1] = -acc * tsc[i, s - 1]
+                # condition estimate from the pivots in natural order (the same lower
+                # bound as for the shared block); the pivoted factorisation decides drops
+                min_piv = min(min_piv, _natural_min_pivot(schur, low[i]))
+                rk = pivoted_cholesky(schur, drop_tol, low[i], perm[i], spiv)
+                rank[i] = rk
+                for j in range(rk):
+                    dsol[j] = rhs[perm[i, j]]
+                _chol_solve(low[i], rk, dsol, dsol)
+                for j in range(rk):
+                    s = perm[i, j]
+                    delta[i, s + 1] = dsol[j] * tsc[i, s]
+                n_drop += rd - rk
+                # a dropped column: its null direction [-Gaa^-1 A^H b~; b~] (kept
+                # columns eliminated) must not move G, or G is undetermined here
+                for jd in range(rk, rd):
+                    sd = perm[i, jd]
+                    # kept-column coefficients of the direction: -S_kk^-1 S_k,sd
+                    for j in range(rk):
+                        sj = perm[i, j]
+                        acc = xx[i, i, sj + 1, sd + 1]
+                        for a in range(q):
+                            acc -= m[a, q + c0 + sj + 1].conjugate() * m[a, q + c0 + sd + 1]
+                        dsol[j] = -acc * (tsc[i, sj] * tsc[i, sd])
+                    _chol_solve(low[i], rk, dsol, dsol)
+                    # Y~_B v_B on the shared rows (scaled B columns are -tsc rho^s Z_i)
+                    norm2 = 1.0
+                    for j in range(rk):
+                        norm2 += abs(dsol[j]) ** 2
+                    for a in range(q):
+                        acc = -tsc[i, sd] * m[a, q + c0 + sd + 1]
+                        for j in range(rk):
+                            sj = perm[i, j]
+                            acc -= dsol[j] * tsc[i, sj] * m[a, q + c0 + sj + 1]
+                        wa[a] = acc
+                    _tail_solve(m, q, nt, wa, tail)
+                    sens = 0.0
+                    for p in range(nr):
+                        sens += abs(tail[nt - nr + p]) ** 2
+                    if sens > sens_limit**2 * norm2:
+                        ill = True
+            # v_i = Y_i delta_i (the shared coordinates of D z_i); T, G from its tail
+            for a in range(q):
+                acc = 0j
+                for s in range(rd1):
+                    acc += m[a, q + i * rd1 + s] * delta[i, s]
+                v[i, a] = acc
+            _tail_solve(m, q, nt, v[i], tail)
+            out_t[o, i] = tail[0] * ds[q - nt] if has_t else 0j
+            for p in range(nr):
+                out_g[o, i, p] = tail[nt - nr + p] * ds[q - nr + p]
+
+        # ---- residual cross products e_i^H e_j = delta_i^H X_i^H X_j delta_j - v_i^H v_j
+        for i in range(nz):
+            for j in range(i, nz):
+                acc = 0j
+                for s in range(rd1):
+                    inner = 0j
+                    for t in range(rd1):
+                        inner += xx[i, j, s, t] * delta[j, t]
+                    acc += delta[i, s].conjugate() * inner
+                for a in range(q):
+                    acc -= v[i, a].conjugate() * v[j, a]
+                ehe[i, j] = acc
+                ehe[j, i] = acc.conjugate()
+        out_cond[o] = math.sqrt(1.0 / min_piv) if min_piv > 0.0 else np.inf
+        out_ill[o] = ill or not min_a * pivot_limit**2 >= 1.0
+        out_reduced[o] = n_drop
+
+        if not cov:
+            # tau_ij ~ dof mean_r d_i(r) conj(d_j(r)) (exact for the LPM; local_model Notes)
+            for i in range(nz):
+                for j in range(nz):
+                    acc = 0j
+                    for s in range(rd1):
+                        for t in range(rd1):
+                            acc += delta[i, s] * mean_pow[s + t] * delta[j, t].conjugate()
+                    out_ncov[o, i, j] = ehe[i, j].conjugate() / (dof * acc)
+            continue
+
+        # ---- covariance, explicit over the window (loops over r innermost, contiguous):
+        # qh = Q_A^H = L^-1 A~^H (q, W) and the leverages lev(r) = ||Q_A(r, :)||^2
+        for a in range(q):
+            sc = ds[a]
+            pw = a_pow[a]
+            if a_base[a] < nr:
+                col = a_base[a]
+                for r in range(width):
+                    qh[a, r] = rt[b, k + r, col].conjugate() * (sc * rho_pow[r, pw])
+            else:
+                for r in range(width):
+                    qh[a, r] = sc * rho_pow[r, pw]
+            for c in range(a):
+                f = m[c, a].conjugate()
+                for r in range(width):
+                    qh[a, r] -= f * qh[c, r]
+            inv = 1.0 / m[a, a].real
+            for r in range(width):
+                qh[a, r] *= inv
+        for r in range(width):
+            lev[r] = 0.0
+        for a in range(q):
+            for r in range(width):
+                lev[r] += qh[a, r].real ** 2 + qh[a, r].imag ** 2
+        for i in range(nz):
+            for r in range(width):
+                acc = delta[i, 0]
+                for s in range(1, rd1):
+                    acc += delta[i, s] * rho_pow[r, s]
+                dwin[i, r] = acc
+            rk = rank[i]
+            c0 = i * rd1
+            # U_i (rows j, over r): the kept scaled D columns projected off A, whitened
+            # by L_s^-H
+            for j in range(rk):
+                s = perm[i, j]
+                for a in range(q):
+                    ybk[a, j] = -tsc[i, s] * m[a, q + c0 + s + 1]
+            for j in range(rk):
+                s = perm[i, j]
+                f = -tsc[i, s]
+                for r in range(width):
+                    um[i, j, r] = f * rho_pow[r, s + 1] * zt[b, k + r, i]
+                for a in range(q):  # - Q_A Y~_B: Q_A(r, a) = conj(qh[a, r])
+                    f = ybk[a, j]
+                    for r in range(width):
+                        um[i, j, r] -= qh[a, r].conjugate() * f
+                for c in range(j):
+                    f = low[i, j, c].conjugate()
+                    for r in range(width):
+                        um[i, j, r] -= um[i, c, r] * f
+                inv = 1.0 / low[i, j, j].real
+                for r in range(width):
+                    um[i, j, r] *= inv
+            # G rows of K_i^+: w_A = L^-1 e_g (non-zero on the trailing nr entries only),
+            # w_B = -L_s^-1 Y~_B^H w_A; gain g~(r) = conj(Q_A w_A + U_i w_B)(r)
+            for p in range(nr):
+                g = q - nr + p
+                for a in range(q):
+                    wa[a] = 0j
+                for a in range(g, q):
+                    acc = 1.0 + 0j if a == g else 0j
+                    for c in range(g, a):
+                        acc -= m[c, a].conjugate() * wa[c]
+                    wa[a] = acc / m[a, a].real
+                for j in range(rk):
+                    acc = 0j
+                    for a in range(g, q):
+                        acc -= ybk[a, j].conjugate() * wa[a]
+                    for c in range(j):
+                        acc -= low[i, j, c] * wb[c]
+                    wb[j] = acc / low[i, j, j].real
+                x = i * nr + p
+                for r in range(width):
+                    hgain[x, r] = 0j
+                for a in range(g, q):
+                    f = wa[a].conjugate()
+                    for r in range(width):
+                        hgain[x, r] += qh[a, r] * f
+                for j in range(rk):
+                    f = wb[j].conjugate()
+                    for r in range(width):
+                        hgain[x, r] += um[i, j, r].conjugate() * f
+                for r in range(width):
+                    hgain[x, r] *= ds[g] * dwin[i, r]
+        # tau_ij and s_ij = raw_ij / tau_ij (i <= j, Hermitian).  Per row first: the
+        # weights 1 - lev - nu_i, and V_i = U_i conj(d_i), so that the trace term's
+        # U_i^H diag(d_i conj(d_j)) U_j is V_i^H V_j
+        for i in range(nz):
+            for r in range(width):
+                nu = 0.0
+                for s in range(rank[i]):
+                    u = um[i, s, r]
+                    nu += u.real * u.real + u.imag * u.imag
+                    vmat[i, s, r] = u * dwin[i, r].conjugate()
+                nuv[i, r] = nu
+        for i in range(nz):
+            for j in range(i, nz):
+                acc = 0j
+                for r in range(width):
+                    acc += dwin[i, r] * dwin[j, r].conjugate() * (1.0 - lev[r] - nuv[i, r]
+                                                                  - nuv[j, r])
+                for s in range(rank[j]):
+                    for t in range(rank[i]):
+                        uji = 0j  # (U_j^H U_i)[s, t]
+                        uci = 0j  # (V_i^H V_j)[t, s] = (U_i^H diag(c_ij) U_j)[t, s]
+                        for r in range(width):
+                            uji += um[j, s, r].conjugate() * um[i, t, r]
+                            uci += vmat[i, t, r].conjugate() * vmat[j, s, r]
+                        acc += uji * uci
+                tau[i, j] = acc
+                scov[i, j] = ehe[i, j].conjugate() / acc
+                scov[j, i] = scov[i, j].conjugate()
+        for i in range(nz):
+            for j in range(nz):
+                out_ncov[o, i, j] = scov[i, j]
+        if mode == 1:
+            for i in range(nz):
+                for p in range(nr):
+                    acc = 0.0
+                    for r in range(width):
+                        h = hgain[i * nr + p, r]
+                        acc += h.real**2 + h.imag**2
+                    out_gvar[o, i, p] = acc * scov[i, i].real
+            continue
+        ng = nz * nr
+        for x in range(ng):
+            for y in range(x, ng):
+                acc = 0j
+                for r in range(width):
+                    acc += hgain[x, r] * hgain[y, r].conjugate()
+                acc *= scov[x // nr, y // nr]
+                out_gcov[o, x, y] = acc
+                out_gcov[o, y, x] = acc.conjugate()
+    return 0
