@@ -199,10 +199,12 @@ def finish_packed(packed, *, nz: int, nr: int, n_fast: int, factor: int, nu: int
     packed = np.asarray(packed)
     lead_m = packed.shape[:-1]
     g = nz * nr
-    G = packed[..., :g].reshape(lead_m + (nz, nr))
-    T = packed[..., g: g + nz]
-    noise_variance = packed[..., g + nz: g + 2 * nz].real
-    condition = packed[..., g + 2 * nz].real
+    # copies, not views: a view would keep all of ``packed`` (with the (nz nr)^2 covariance
+    # columns, ~12 MB per HDD experiment) alive for as long as the small results live
+    G = packed[..., :g].reshape(lead_m + (nz, nr)).copy()
+    T = packed[..., g: g + nz].copy()
+    noise_variance = packed[..., g + nz: g + 2 * nz].real.copy()
+    condition = packed[..., g + 2 * nz].real.copy()
     ill_posed = packed[..., g + 2 * nz + 1].real != 0
     G_cov = packed[..., g + 2 * nz + 2:].reshape(lead_m + (g, g)) if covariance else None
     out = recover_frf(G, G_cov, n_fast=n_fast, factor=factor, nu=nu, ny=ny,
