@@ -136,8 +136,14 @@ def identify(experiment: xr.Dataset, *, method: str = "lrm", window=DEFAULT_WIND
         ``G(k) = Z(k) R(k)^+`` at every slow bin, no local model, with the band from the
         nonparametric noise (bins where the experiments' lifted excitations are not of full
         rank, e.g. the slow bin 0 of multisines without DC, are NaN and flagged
-        ``ill_posed``); with a local window they need a pooled local-model kernel that does
-        not exist yet (refused with a message).
+        ``ill_posed``); with a local window (fixed or ``"auto"``) they are fitted as ONE
+        local model: ``G`` and the denominator shared, a transient term per experiment
+        (``transient_y``/``transient_u`` keep the ``experiment`` dim), one noise
+        covariance with ``E (2n + 1) - p`` degrees of freedom; attribute
+        ``pooled_experiments``.  Lazy data work along the other leading dims (not with
+        ``frequency_chunks``).  ``degrees`` with ``Rm = -1`` (no transient term) is
+        accepted only for steady-state periodic records (a ``period`` dim, transient
+        periods dropped).
 
 Returns
     -------
@@ -192,15 +198,14 @@ Returns
                            degrees=degrees)
     s = estimator_settings(method=method, window=1 if window0 else window, degrees=degrees,
                            closed_loop=closed_loop, covariance=covariance, errors=errors,
-                           frequency_chunks=None if window0 else frequency_chunks)
+                           frequency_chunks=None if window0 else frequency_chunks,
+                           no_transient=True)
     stacked = as_bool(stacked, "stacked")
     ds = _validate(experiment)
     factor = int(ds.attrs[cv.FACTOR])
     th = even_spacing(ds[cv.TIME].values, cv.TIME)[1]
     # ---- pooling hook: periods / experiments (lcmr_xr.identification.pooling).  Rm = -1
-    # (no transient term) plugs in here once the local-model kernel accepts it: steady-state
-    # averaged records (plan.attrs["transient_periods"] > 0) may then be fitted with
-    # degrees (Rn, -1, Rd); the settings validator must let Rm = -1 through for them only.
+    # (no transient term) only for steady-state averaged records (checked below).
     plan = None
     if window0 or pooling.requested(ds, transient_periods, combine):
         plan = pooling.plan(ds, window=0 if window0 else s.window,
@@ -208,6 +213,13 @@ Returns
                             closed_loop=s.closed_loop, covariance=s.covariance,
                             frequency_chunks=frequency_chunks)
         s = s._replace(window=0) if window0 else s
+    if s.degrees[1] < 0 and (plan is None or plan.attrs[cv.TRANSIENT_PERIODS] < 1):
+        raise ValueError(
+            f"degrees={s.degrees} leaves the transient term out (Rm = -1), which is right only "
+            "for steady-state periodic data: records with a 'period' dim whose transient "
+            "period(s) are dropped (transient_periods >= 1, the default with a 'period' dim). "
+            "These data are not: use Rm >= 0 (e.g. degrees=(3, 3, 3))."
+        )
     fit = ds if plan is None else plan.dataset
     if not window0:
         check_window_fits(s.window, s.degrees, factor * ds.sizes[cv.INPUT], ds.sizes[cv.SLOW_TIME])

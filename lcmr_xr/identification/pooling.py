@@ -12,18 +12,19 @@ What :func:`lcmr_xr.identify` does with a ``period`` dim or ``combine="experimen
   robust LPM).  The local model then runs on the averaged record and its band uses the
   nonparametric covariance (averaged over the local window) instead of the residual one.
   The local model still carries its transient term (degrees ``Rm`` as given): what is
-  left of the transient after dropping periods is absorbed by it.
-  WHERE Rm = -1 PLUGS IN: once the local-model kernel accepts ``Rm = -1`` (no transient
-  term), steady-state averaged data can be fitted without it (``degrees=(Rn, -1, Rd)``,
-  one parameter less per row and no transient/FRF trade-off); only
-  ``identify._resolve_degrees`` has to let ``Rm = -1`` through for records that went
-  through :func:`plan` with a ``period`` dim.
+  left of the transient after dropping periods is absorbed by it.  On these steady-state
+  averaged records ``degrees=(Rn, -1, Rd)`` leaves the transient term out (one parameter
+  less per row, no transient/FRF trade-off); ``identify`` refuses ``Rm = -1`` for any
+  record that did not go through :func:`plan` with a ``period`` dim and at least one
+  dropped period.
 * **Experiments** (``combine="experiment"``): experiments with the SAME excitation are
   pooled by averaging, like periods (the deterministic response is the same in each).
   With different excitations and ``window=0`` (``E >= F nu`` periodic experiments),
   ``G(k) = Z(k) R(k)^+`` at every slow bin, no local model.  Different excitations with
-  a local window need the pooled local-model kernel (shared ``G`` and ``D``, a transient
-  per experiment), which does not exist yet: refused with a message saying so.
+  a local window are fitted as ONE local model (``local_model(..., experiment_axis=)``:
+  ``G`` and ``D`` shared, a transient per experiment, noise dof ``E (2n + 1) - p``), each
+  experiment's periods averaged first; lazy data are always fitted this way (they are
+  not read to compare the excitations).
 """
 
 from __future__ import annotations
