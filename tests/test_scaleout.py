@@ -219,6 +219,34 @@ def test_sweep_of_one_experiment_without_experiment_dim():
     np.testing.assert_allclose(res.P.isel(method=0, degrees=0, window=0).values, want.P.values, rtol=1e-12)
 
 
+def test_sweep_pools_groups_of_experiments_from_an_archive(tmp_path):
+    exps = _stack([f"e{i}" for i in range(5)])
+    save_archive(exps, tmp_path)
+    arc = open_archive(tmp_path)
+    res = sweep(arc, window=[15], degrees=["2-2-2"], pool=[1, 2])
+    assert dict(res.P.sizes) == {"method": 1, "degrees": 1, "window": 1, "pool": 2,
+                                 "pool_group": 5, "frequency": 241, "output": 1, "input": 1}
+    res = res.compute(scheduler="synchronous")
+    got = res.P.isel(method=0, degrees=0, window=0)
+    # pool 2: groups (e0, e1), (e2, e3); e4 left over, group slots 2..4 NaN
+    for g in range(2):
+        want = identify(exps.isel(experiment=[2 * g, 2 * g + 1]), window=15, degrees=(2, 2, 2),
+                        combine="experiment", errors="ignore")
+        np.testing.assert_allclose(got.sel(pool=2).isel(pool_group=g).values, want.P.values,
+                                   rtol=1e-9)
+    assert np.isnan(got.sel(pool=2).isel(pool_group=slice(2, None)).values).all()
+    one = identify(exps.isel(experiment=4), window=15, degrees=(2, 2, 2), errors="ignore")
+    np.testing.assert_allclose(got.sel(pool=1).isel(pool_group=4).values, one.P.values, rtol=1e-9)
+    # identify pools the lazily opened archive itself (one local model over its experiments)
+    lazy = identify(arc, window=15, degrees=(2, 2, 2), combine="experiment", errors="ignore")
+    assert lazy.P.chunks is not None
+    np.testing.assert_allclose(lazy.P.values, identify(exps, window=15, degrees=(2, 2, 2),
+                                                       combine="experiment", errors="ignore").P.values,
+                               rtol=1e-9)
+    with pytest.raises(ValueError, match="more than the 5 experiments"):
+        sweep(arc, window=[15], pool=[8])
+
+
 # ------------------------------------------------------------------------------- selection
 def _true_error(res):
     truth = tf_frf(*PLANT, 480)[: 241]
