@@ -92,17 +92,22 @@ def variance_against_periods(seeds: int, kind: str):
     return var, {name: np.array(v) for name, v in noise.items()}
 
 
-def report_variance(kind: str, var, noise):
+def print_slopes(var, what: str):
+    """Slope of log(variance) against log(count), per input and summary over bins."""
     k = np.log(np.array(COUNTS, dtype=float))
-    print(f"\n1. [{kind} output noise] variance of P in {BAND[0]:g}-{BAND[1]:g} Hz against "
-          f"averaged periods K = {COUNTS} (goal: slope -1 +- 0.2)")
     for i, name in enumerate(hdd.INPUTS):
         for label, summary in (("mean over bins", np.mean), ("median over bins", np.median)):
             v = np.array([summary(var[c][:, i]) for c in COUNTS])
             slope = np.polyfit(k, np.log(v), 1)[0]
             cells = " ".join(f"{v[j] / v[0]:.3f}" for j in range(len(COUNTS)))
-            print(f"   {name} {label:17s}: slope {slope:+.3f};  var(K)/var(1) = {cells}  "
-                  f"(1/K = {' '.join(f'{1 / c:.3f}' for c in COUNTS)})")
+            print(f"   {name} {label:17s}: slope {slope:+.3f};  var({what})/var(1) = {cells}  "
+                  f"(1/{what} = {' '.join(f'{1 / c:.3f}' for c in COUNTS)})")
+
+
+def report_variance(kind: str, var, noise):
+    print(f"\n1. [{kind} output noise] variance of P in {BAND[0]:g}-{BAND[1]:g} Hz against "
+          f"averaged periods K = {COUNTS} (goal: slope -1 +- 0.2)")
+    print_slopes(var, "K")
     print(f"2. [{kind} output noise] nonparametric / residual noise variance in the band, "
           f"K = {max(COUNTS)} (goal 0.8-1.2)")
     for rows in ("y", "u"):
@@ -158,15 +163,9 @@ def variance_against_experiments(seeds: int):
 
 
 def report_experiments(var):
-    k = np.log(np.array(COUNTS, dtype=float))
     print(f"\n4. [white output noise] variance of P in {BAND[0]:g}-{BAND[1]:g} Hz against E = "
           f"{COUNTS} experiments (different multisines) in one local model (goal: slope -1 +- 0.2)")
-    for i, name in enumerate(hdd.INPUTS):
-        for label, summary in (("mean over bins", np.mean), ("median over bins", np.median)):
-            v = np.array([summary(var[c][:, i]) for c in COUNTS])
-            slope = np.polyfit(k, np.log(v), 1)[0]
-            cells = " ".join(f"{v[j] / v[0]:.3f}" for j in range(len(COUNTS)))
-            print(f"   {name} {label:17s}: slope {slope:+.3f};  var(E)/var(1) = {cells}")
+    print_slopes(var, "E")
 
 
 def disturbances_pooled(groups: int, n_exp: int = 8):
