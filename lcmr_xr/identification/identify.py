@@ -218,7 +218,7 @@ Returns
             f"degrees={s.degrees} leaves the transient term out (Rm = -1), which is right only "
             "for steady-state periodic data: records with a 'period' dim whose transient "
             "period(s) are dropped (transient_periods >= 1, the default with a 'period' dim). "
-            "These data are not: use Rm >= 0 (e.g. degrees=(3, 3, 3))."
+            "These data are not: use non-negative degrees (Rm >= 0, e.g. degrees=(3, 3, 3))."
         )
     fit = ds if plan is None else plan.dataset
     if not window0:
