@@ -1,4 +1,4 @@
-"""Command line: ``lcmr-xr identify | demo | simulate | sweep``.
+"""Command line: ``lcmr-xr identify | demo | simulate | sweep | archive``.
 
     lcmr-xr identify EXPERIMENT.nc -o FRF.nc [--method lrm|lpm] [--window N|auto]
                      [--degrees RN-RM-RD] [--closed-loop indirect|direct] [--plot FILE.png]
@@ -7,8 +7,9 @@
                  [--overwrite]
     lcmr-xr simulate -o EXPERIMENT.nc [--samples N] [--case 1..9] [--seed S] [--noiseless]
                      [--overwrite]
-    lcmr-xr sweep ARCHIVE_DIR -o RESULT.nc --window 10 20 30 [--degrees 3-3-3 ...]
+    lcmr-xr sweep ARCHIVE -o RESULT.nc --window 10 20 30 [--degrees 3-3-3 ...]
                   [--method lrm lpm] [--scheduler threads|processes|ADDRESS] [--overwrite]
+    lcmr-xr archive consolidate ARCHIVE_DIR -o ARCHIVE.nc [--overwrite]
 
 Errors in the input (a missing or foreign file, bad settings) print one line that says
 what is wrong and exit with status 2; nothing is written then.  Every output path is
@@ -82,9 +83,11 @@ def _parser() -> argparse.ArgumentParser:
                      help="no disturbances or measurement noise (default: with noise)")
     add_overwrite(sim)
 
+    from lcmr_xr.scaleout.archive_cli import add_archive_parser
     from lcmr_xr.scaleout.cli import add_sweep_parser
 
     add_sweep_parser(sub)
+    add_archive_parser(sub)
     return p
 
 
@@ -165,7 +168,7 @@ def main(argv=None) -> int:
             return 0
         if args.command == "simulate":
             return _simulate(args)
-        if args.command == "sweep":
+        if args.command in ("sweep", "archive"):
             return args.func(args)
     except (ValueError, TypeError, FileNotFoundError, OSError) as exc:
         print(error_line(args.command, exc), file=sys.stderr)

@@ -116,6 +116,16 @@ POOLED_ATTRS = (COMBINE, PERIODS, TRANSIENT_PERIODS, STEADY_PERIODS, RECORDS_AVE
 POOLED_EXPERIMENTS = "pooled_experiments"
 
 
+# ---- archives (lcmr_xr.scaleout): docs/conventions.md, "Files and archives"
+ARCHIVE_KIND_ATTR = "lcmr_archive"  # file attribute that marks a consolidated archive
+ARCHIVE_KIND = "consolidated-1"  # its value (layout version)
+ARCHIVE_COUNT_ATTR = "lcmr_archive_count"  # complete experiments in a consolidated archive
+ARCHIVE_ORDER_ATTR = "lcmr_archive_index"  # order of a file in an archive directory
+ARCHIVE_METADATA = ("seed", "case", "date", "drive_id")  # attrs that become coords along experiment
+ARCHIVE_PARTS_SUFFIX = ".parts"  # sweep_to_disk keeps finished tasks in .OUTPUT.parts/
+EXPERIMENT_ERROR = "experiment_error"  # sweep output: why an experiment failed ("" if it did not)
+
+
 def time_attrs(long_name: str = "time") -> dict:
     """Attributes of a time coordinate, in seconds (CF: standard_name, axis)."""
     return {"units": "s", "long_name": long_name, "standard_name": "time", "axis": "T"}

@@ -50,13 +50,15 @@ from lcmr_xr.scaleout import open_archive, save_archive, select_settings, sweep
 
 N = 3600
 workdir = tempfile.TemporaryDirectory()
-archive_dir = os.path.join(workdir.name, "hdd_archive")
+archive_path = os.path.join(workdir.name, "hdd_archive.nc")
 
 # %% [markdown]
 # ## 1. Write and open an archive
 #
 # Four simulated experiments with independent disturbances (seeds 0-3), labelled by
-# seed; `save_archive` writes one file each, `open_archive` opens them lazily.
+# seed; `save_archive` writes them into one consolidated NetCDF file (`experiment` along an
+# unlimited dim, metadata such as `seed` as coordinates; `layout="files"` would write a
+# directory of one file each), `open_archive` opens it lazily.
 
 # %%
 seeds = [0, 1, 2, 3]
@@ -64,10 +66,10 @@ experiments = xr.concat([hdd.simulate(n_samples=N, case=2, noise=True, seed=s) f
                         dim="experiment")
 experiments = experiments.assign_coords(
     experiment=("experiment", [f"seed{s}" for s in seeds], {"units": "1", "long_name": "experiment"}))
-files = save_archive(experiments, archive_dir)
+files = save_archive(experiments, archive_path)
 print([f.name for f in files])
 
-archive = open_archive(archive_dir)
+archive = open_archive(archive_path)
 assert archive.r.chunks is not None  # lazy: nothing read yet beyond metadata
 assert np.array_equal(archive.y.values, experiments.y.values)
 archive

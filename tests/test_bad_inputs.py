@@ -69,7 +69,9 @@ def template(tmp_path_factory, small, small_frf):
     data = (root / "exp.nc").read_bytes()
     (root / "trunc.nc").write_bytes(data[: len(data) // 3])
     save_archive(xr.concat([small, hdd.simulate(n_samples=400, noise=False, seed=2)],
-                           dim="experiment").assign_coords(experiment=["e0", "e1"]), root / "arc")
+                           dim="experiment").assign_coords(experiment=["e0", "e1"]), root / "arc",
+                 layout="files")
+    save_archive(small, root / "arc1.nc")  # a consolidated archive (one file)
     (root / "junkarc").mkdir()
     shutil.copy2(root / "exp.nc", root / "junkarc" / "good.nc")
     (root / "junkarc" / "junk.nc").write_bytes(b"\x89HDF\r\n\x1a\n not really")
@@ -206,6 +208,20 @@ def _with_nan(ds, name, index, lazy_chunks=None):
     return ds if lazy_chunks is None else ds.chunk(lazy_chunks)
 
 
+def _flagged_experiment(bad, words):
+    """Check a sweep result: experiment ``bad`` is NaN, flagged, and its error has ``words``."""
+    def check(result, env):
+        errors = result.experiment_error.values.ravel().tolist()
+        assert all(w in errors[bad] for w in words), errors[bad]
+        assert [m for i, m in enumerate(errors) if i != bad] == [""] * (len(errors) - 1)
+        assert bool(result.P_flag.isel(experiment=bad).all())
+        assert np.isnan(result.P.isel(experiment=bad).values).all()
+        good = result.P.isel(experiment=[i for i in range(len(errors)) if i != bad])
+        want = lcmr_xr.identify(env.small, window=12, degrees=(2, 2, 2)).P
+        np.testing.assert_allclose(good.values.squeeze(), want.values.squeeze(), rtol=1e-6)
+    return check
+
+
 def _same_p(scale_y=1.0, rtol=1e-6):
     def check(result, env):
         want = lcmr_xr.identify(env.small, window=12, degrees=(2, 2, 2)).P * scale_y
@@ -271,9 +287,11 @@ API = [
          ("NaN",)),
     Case("inf_in_y", lambda e: e.build(y=np.where(np.arange(200)[:, None] == 7, np.inf, e.y)), ValueError,
          ("NaN or inf", "'y'", "y: 1 slow_time sample(s) from slow_time = 0.000138889 s")),
+    # a sweep flags the bad experiment (experiment_error says which and why) and goes on
     Case("nan_in_one_experiment_of_a_sweep", lambda e: sweep(
         _with_nan(xr.concat([e.small, e.small], "experiment"), "u", (1, 30, 0), {"experiment": 1}),
-        window=[12], degrees=["2-2-2"]).compute(), ValueError, ("'u'", "u: 1 time sample(s) from time = 0.000297619 s")),
+        window=[12], degrees=["2-2-2"]).compute(),
+        check=_flagged_experiment(1, ("'u'", "u: 1 time sample(s) from time = 0.000297619 s"))),
     Case("r_experiment_dim_but_u_y_not", lambda e: e.build(r=np.stack([e.r, e.r])), ValueError,
          ("leading dims", "r ('experiment',)", "u ()")),
     Case("y_experiment_dim_but_u_not", lambda e: e.build(y=np.stack([e.y, e.y])), ValueError,
@@ -384,15 +402,25 @@ API = [
     Case("open_directory_as_file", lambda e: open_experiment("arc"), IsADirectoryError, ("arc", "directory", "open_archive")),
     # --- archives ----------------------------------------------------------------------------
     Case("archive_missing", lambda e: open_archive("nothing"), FileNotFoundError, ("nothing", "does not exist")),
-    Case("archive_path_is_a_file", lambda e: open_archive("exp.nc"), NotADirectoryError, ("exp.nc", "is a file"),
+    # a consolidated archive is a file: other files are refused, named, with what an archive is
+    Case("archive_path_is_a_file", lambda e: open_archive("exp.nc"), ValueError,
+         ("exp.nc", "is a file but not a consolidated archive", "without the archive attribute",
+          "an archive is one NetCDF file written by", "or a directory", "open_experiment"),
          absent=("does not exist",)),
+    Case("archive_file_not_netcdf", lambda e: open_archive("notes.nc"), ValueError,
+         ("notes.nc", "not a consolidated archive", "not a NetCDF-4 file", "an archive is one NetCDF file")),
+    Case("archive_file_truncated", lambda e: open_archive("trunc.nc"), ValueError,
+         ("trunc.nc", "not a consolidated archive", "not a NetCDF-4 file")),
+    Case("archive_consolidated_into_directory_layout", lambda e: save_archive(e.small, "arc1.nc", layout="files"),
+         ValueError, ("arc1.nc", "is a file", "layout='files' is a directory")),
     Case("archive_empty", lambda e: open_archive("empty"), FileNotFoundError, ("holds no .nc",)),
     Case("archive_with_junk_file", lambda e: open_archive("junkarc"), ValueError, ("junkarc/junk.nc", "not a readable NetCDF",
                                                                         "move it out")),
     Case("archive_with_foreign_file", lambda e: open_archive("forarc"), ValueError, ("cf.nc", "not an lcmr-xr-1 experiment")),
     Case("archive_mixed_lengths", lambda e: open_archive("mixed"), ValueError, ("different lengths", "N=400", "N=800")),
     Case("save_archive_duplicate_names", lambda e: save_archive(
-        xr.concat([e.small, e.small], "experiment").assign_coords(experiment=["a b", "a_b"]), "newarc"),
+        xr.concat([e.small, e.small], "experiment").assign_coords(experiment=["a b", "a_b"]), "newarc",
+        layout="files"),
         ValueError, ("same file names",)),
     Case("save_archive_empty", lambda e: save_archive([], "newarc"), ValueError, ("empty",)),
     Case("save_archive_not_datasets", lambda e: save_archive([e.small.r], "newarc"), TypeError, ("not an experiment Dataset",)),
@@ -468,7 +496,24 @@ CLI = [
          words=("frf.nc", "already exists", "--overwrite")),
     Case("sweep_archive_is_a_file", cli=lambda e: ["sweep", "exp.nc", "-o", "r.nc"], words=("exp.nc", "is a file"),
          absent=("does not exist",)),
+    Case("sweep_archive_not_netcdf", cli=lambda e: ["sweep", "notes.nc", "-o", "r.nc"],
+         words=("notes.nc", "not a consolidated archive", "not a NetCDF-4 file")),
+    Case("sweep_output_is_consolidated_archive", cli=lambda e: ["sweep", "arc1.nc", "-o", "arc1.nc", "--overwrite"],
+         words=("refusing", "arc1.nc", "the input file")),
     Case("sweep_archive_missing", cli=lambda e: ["sweep", "nothing", "-o", "r.nc"], words=("nothing", "does not exist")),
+    # archive consolidate
+    Case("consolidate_output_inside_directory", cli=lambda e: ["archive", "consolidate", "arc", "-o", "arc/all.nc"],
+         words=("refusing", "arc/all.nc", "inside the input directory")),
+    Case("consolidate_output_exists", cli=lambda e: ["archive", "consolidate", "arc", "-o", "frf.nc"],
+         words=("frf.nc", "already exists", "--overwrite")),
+    Case("consolidate_output_bad_format", cli=lambda e: ["archive", "consolidate", "arc", "-o", "all.zarr"],
+         words=("'.zarr'", ".nc")),
+    Case("consolidate_input_is_an_archive_file", cli=lambda e: ["archive", "consolidate", "arc1.nc", "-o", "b.nc"],
+         words=("arc1.nc", "consolidated archive file already")),
+    Case("consolidate_input_missing", cli=lambda e: ["archive", "consolidate", "nothing", "-o", "b.nc"],
+         words=("nothing", "does not exist")),
+    Case("consolidate_directory_with_junk", cli=lambda e: ["archive", "consolidate", "junkarc", "-o", "b.nc"],
+         words=("junkarc/junk.nc", "not a readable NetCDF")),
     Case("sweep_archive_with_junk", cli=lambda e: ["sweep", "junkarc", "-o", "r.nc", "--window", "12"],
          words=("junk.nc",)),
     Case("cli_sweep_window_too_small", cli=lambda e: ["sweep", "arc", "-o", "r.nc", "--window", "3"],

@@ -131,3 +131,12 @@ def test_cli_sweep_select_explains_the_criterion(tmp_path, capsys):
     assert (tmp_path / "r.nc").stat().st_mtime_ns != before
     with xr.open_dataset(tmp_path / "r.nc") as result:
         assert result.sizes["experiment"] == 2
+
+
+def test_archive_consolidate_help_states_its_defaults(capsys):
+    with pytest.raises(SystemExit) as info:
+        cli.main(["archive", "consolidate", "--help"])
+    assert info.value.code == 0
+    text = " ".join(capsys.readouterr().out.split())
+    assert "--overwrite" in text and "(default: refuse them)" in text
+    assert "not inside the directory" in text

@@ -314,3 +314,71 @@ class TestErrors:
 
 def test_top_level_entry_point():
     assert lcmr_xr.identify is identify
+
+
+def test_first_row_covariance_is_the_linearisation_of_ps_s_inverse():
+    """``Cov(vec P_1) = J Cov(vec G) J^H`` with ``J`` the derivative of ``PS_1 S^-1``
+    (holomorphic in ``G``), here taken by central differences on random bins."""
+    from lcmr_xr.kernels.closed_loop import indirect_first_row
+
+    rng = np.random.default_rng(3)
+    m, nr, ny = 3, 3, 2
+    nz = nr + ny
+    G = rng.standard_normal((m, nz, nr)) + 1j * rng.standard_normal((m, nz, nr))
+    A = rng.standard_normal((m, nz * nr, nz * nr)) + 1j * rng.standard_normal((m, nz * nr, nz * nr))
+    C = A @ A.conj().transpose(0, 2, 1)
+    got = indirect_first_row(G, nr, C).first_row_cov
+    h = 1e-6
+    for b in range(m):
+        J = np.empty((ny * nr, nz * nr), complex)
+        for x in range(nz * nr):
+            dG = np.zeros(nz * nr, complex)
+            dG[x] = h
+            dG = dG.reshape(nz, nr)
+            plus = indirect_first_row(G[b] + dG, nr).first_row
+            minus = indirect_first_row(G[b] - dG, nr).first_row
+            J[:, x] = ((plus - minus) / (2 * h)).ravel()
+        want = J @ C[b] @ J.conj().T
+        assert np.abs(got[b] - want).max() <= 1e-7 * np.abs(want).max()
+
+
+def test_s_condition_on_mirrored_bins_equals_every_bin():
+    """The condition of ``S`` taken on half of an exactly mirrored estimate is that of
+    every bin; an estimate that is not mirrored takes every bin."""
+    from lcmr_xr.kernels.closed_loop import indirect_first_row
+
+    rng = np.random.default_rng(4)
+    m, nr = 9, 2
+    G = rng.standard_normal((m, nr + 1, nr)) + 1j * rng.standard_normal((m, nr + 1, nr))
+    G[0] = G[0].real
+    G[m // 2 + 1:] = np.conj(G[1: (m + 1) // 2][::-1])
+    want = np.linalg.cond(G[:, :nr])
+    np.testing.assert_allclose(indirect_first_row(G, nr).s_condition, want, rtol=1e-13)
+    G[-1, 0, 0] += 0.5
+    np.testing.assert_allclose(indirect_first_row(G, nr).s_condition, np.linalg.cond(G[:, :nr]),
+                               rtol=1e-13)
+
+
+def test_weak_direction_on_mirrored_bins_equals_every_bin():
+    """``recover_frf`` takes the weakest direction of ``S`` on half of an exactly
+    mirrored estimate; it equals the one taken on every bin."""
+    from lcmr_xr.kernels.adaptive import weak_direction
+    from lcmr_xr.kernels.identification import recover_frf
+
+    rng = np.random.default_rng(5)
+    m, nu, factor = 10, 1, 2
+    nr, nz = factor * nu, factor * nu + 1
+    G = rng.standard_normal((m, nz, nr)) + 1j * rng.standard_normal((m, nz, nr))
+    A = rng.standard_normal((m, nz * nr, nz * nr)) + 1j * rng.standard_normal((m, nz * nr, nz * nr))
+    C = A @ A.conj().transpose(0, 2, 1) * 1e-3
+    for x in (G, C):
+        x[0] = x[0].real
+        x[m // 2] = x[m // 2].real
+        x[m // 2 + 1:] = np.conj(x[1: m // 2][::-1])
+    from lcmr_xr.kernels.closed_loop import mirror_source
+
+    np.testing.assert_array_equal(mirror_source(G), [0, 1, 2, 3, 4, 5, 4, 3, 2, 1])
+    assert mirror_source(C) is not None and mirror_source(G[:-1]) is None
+    got = recover_frf(G, C, n_fast=m * factor, factor=factor, nu=nu, ny=1)["s_weak_rel_std"]
+    want, _ = weak_direction(G[:, :nr], C[:, : nr * nr, : nr * nr])
+    np.testing.assert_allclose(got, want, rtol=1e-12)

@@ -97,9 +97,9 @@ def test_archive_refuses_different_lengths_with_the_lengths(tmp_path):
     with pytest.raises(ValueError, match=r"N=480: 1 \(short\); N=960: 1 \(long\).*own archive"):
         save_archive(mixed, tmp_path / "a")
     # files written by separate calls into one directory: refused on the second write...
-    save_archive([mixed[0]], tmp_path / "b")
+    save_archive([mixed[0]], tmp_path / "b", layout="files")
     with pytest.raises(ValueError, match=r"another shape.*short\.nc \(N=480"):
-        save_archive([mixed[1]], tmp_path / "b")
+        save_archive([mixed[1]], tmp_path / "b", layout="files")
     # ...and on open when they got there some other way
     save(mixed[1].assign_attrs(), tmp_path / "b" / "long.nc")
     with pytest.raises(ValueError, match=r"different lengths \(N=480: 1 \(short\.nc\); N=960: 1 \(long\.nc\)"):
@@ -130,7 +130,7 @@ def test_archive_errors(tmp_path):
     with pytest.raises(ValueError, match="not an lcmr-xr-1 experiment file"):
         open_archive(tmp_path)
     with pytest.raises(ValueError, match="same file names"):
-        save_archive(_stack(["a b", "a_b"]), tmp_path / "dupes")
+        save_archive(_stack(["a b", "a_b"]), tmp_path / "dupes", layout="files")
 
 
 @given(st.text(max_size=30))
@@ -161,6 +161,8 @@ def test_sweep_is_lazy_and_equals_in_memory_on_the_cluster(cluster_client):
                 got = computed.sel({"method": m, "degrees": label, "window": w}, drop=True)
                 want = _in_memory(exps, m, deg if m == "lrm" else deg[:2] + (0,), w)
                 got = got.drop_vars(SETTING_COORDS, errors="ignore")
+                assert got.experiment_error.values.tolist() == ["", "", ""]  # none failed
+                got = got.drop_vars("experiment_error")
                 got.attrs = want.attrs
                 xr.testing.assert_allclose(got, want, rtol=1e-12, atol=0)
 
@@ -243,6 +245,13 @@ def test_sweep_pools_groups_of_experiments_from_an_archive(tmp_path):
     np.testing.assert_allclose(lazy.P.values, identify(exps, window=15, degrees=(2, 2, 2),
                                                        combine="experiment", errors="ignore").P.values,
                                rtol=1e-9)
+    # and a consolidated archive (one file) the same way
+    from lcmr_xr.scaleout import consolidate_archive
+
+    one_file = consolidate_archive(tmp_path, tmp_path.parent / f"{tmp_path.name}-all.nc")
+    lazy_c = identify(open_archive(one_file), window=15, degrees=(2, 2, 2), combine="experiment",
+                      errors="ignore")
+    np.testing.assert_allclose(lazy_c.P.values, lazy.P.values, rtol=1e-12)
     with pytest.raises(ValueError, match="more than the 5 experiments"):
         sweep(arc, window=[15], pool=[8])
 

@@ -235,7 +235,9 @@ def open_dataset(path, chunks=None) -> xr.Dataset:
             f"cannot read {path}: not a valid NetCDF-4 file (truncated, corrupt, or another "
             f"format): {err}. Re-create it with lcmr_xr.save."
         ) from err
-    return _map_attrs(ds, lambda owner, attrs: _restore_attrs(attrs))
+    out = _map_attrs(ds, lambda owner, attrs: _restore_attrs(attrs))
+    out.set_close(ds.close)  # the copy's close() releases the file (lazy reads keep it open)
+    return out
 
 
 def _check_conventions(ds: xr.Dataset, path, kind: str) -> None:

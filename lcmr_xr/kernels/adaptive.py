@@ -110,10 +110,15 @@ def weak_direction(S: np.ndarray, S_cov: np.ndarray):
     u, sv, vh = np.linalg.svd(S_safe)
     um, vm, smin = u[..., :, -1], vh[..., -1, :].conj(), sv[..., -1]
     C = np.asarray(S_cov).reshape(S_cov.shape[:-2] + (nr, nr, nr, nr))
-    # u^H dS v = sum_ib conj(u_i) v_b dS_ib
-    var = np.einsum("...i,...b,...ibjc,...j,...c->...", um.conj(), vm, C, um, vm.conj()).real
+    # u^H dS v = sum_ib conj(u_i) v_b dS_ib; one vector at a time (a single einsum over
+    # all operands loops over every index combination at once, several times slower)
+    x = np.einsum("...ibjc,...c->...ibj", C, vm.conj())
+    x = np.einsum("...ibj,...j->...ib", x, um)
+    x = np.einsum("...ib,...b->...i", x, vm)
+    var = np.einsum("...i,...i->...", x, um.conj()).real
     # ||dS v||^2 = sum_i |sum_b v_b dS_ib|^2
-    var_v = np.einsum("...b,...ibic,...c->...", vm, C, vm.conj()).real
+    x = np.einsum("...bc,...c->...b", np.einsum("...ibic->...bc", C), vm.conj())
+    var_v = np.einsum("...b,...b->...", x, vm).real
     with np.errstate(divide="ignore", invalid="ignore"):
         rho = np.sqrt(np.maximum(var, 0.0)) / smin
         rho_v = np.sqrt(np.maximum(var_v, 0.0)) / smin

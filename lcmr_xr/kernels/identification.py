@@ -14,6 +14,7 @@ from lcmr_xr.kernels.adaptive import (nonlinearity_factor, select_windows, small
 from lcmr_xr.kernels.closed_loop import (
     frf_variance_from_first_row,
     indirect_first_row,
+    mirror_source,
 )
 from lcmr_xr.kernels.lifting import frf_from_first_block_row, lift
 from lcmr_xr.kernels.local_models import local_model, parameters_per_row
@@ -123,7 +124,14 @@ def recover_frf(G, G_cov, *, n_fast: int, factor: int, nu: int, ny: int,
         P_var_lin = frf_variance_from_first_row(P1_cov, n_fast, f_, bins, ny, nu)
         if closed_loop == "indirect":
             S_cov = G_cov[..., : nr * nr, : nr * nr]
-            rho, rho_v = weak_direction(G[..., :nr, :], S_cov)
+            src = mirror_source(G)
+            if src is not None and mirror_source(S_cov) is not None:
+                # conjugation leaves rho unchanged: half the SVDs (about 10 us each)
+                half = slice(0, G.shape[-3] // 2 + 1)
+                rho, rho_v = (np.take(x, src, axis=-1) for x in
+                              weak_direction(G[..., half, :nr, :], S_cov[..., half, :, :]))
+            else:
+                rho, rho_v = weak_direction(G[..., :nr, :], S_cov)
             nl, undetermined = nonlinearity_factor(rho, rho_v)
             undetermined = undetermined & ~s_sing
             slow_factor = slow_factor * nl
@@ -199,13 +207,15 @@ def finish_packed(packed, *, nz: int, nr: int, n_fast: int, factor: int, nu: int
     packed = np.asarray(packed)
     lead_m = packed.shape[:-1]
     g = nz * nr
-    G = packed[..., :g].reshape(lead_m + (nz, nr))
+    # copies, not views: a view would keep all of ``packed`` (with the (nz nr)^2 covariance
+    # columns, ~12 MB per HDD experiment) alive for as long as the small results live
+    G = packed[..., :g].reshape(lead_m + (nz, nr)).copy()
     ne = 1 if n_exp is None else n_exp
-    T = packed[..., g: g + ne * nz]
+    T = packed[..., g: g + ne * nz].copy()
     T = T if n_exp is None else T.reshape(lead_m + (n_exp, nz))
     o = g + ne * nz  # the remaining columns follow the transients
-    noise_variance = packed[..., o: o + nz].real
-    condition = packed[..., o + nz].real
+    noise_variance = packed[..., o: o + nz].real.copy()
+    condition = packed[..., o + nz].real.copy()
     ill_posed = packed[..., o + nz + 1].real != 0
     G_cov = packed[..., o + nz + 2:].reshape(lead_m + (g, g)) if covariance else None
     out = recover_frf(G, G_cov, n_fast=n_fast, factor=factor, nu=nu, ny=ny,

@@ -51,10 +51,8 @@ import threading
 from concurrent.futures import ThreadPoolExecutor
 from typing import NamedTuple
 
-import numba
 import numpy as np
 
-from lcmr_xr.kernels import local_model_bins as bins
 
 __all__ = ["CONDITION_LIMIT", "LocalModelFit", "local_model", "parameters_per_row"]
 
@@ -483,6 +481,7 @@ def local_model(R, Z, *, half_width, degrees=(3, 3, 3), circular: bool = True,
         mirror = False
 
     out = _allocate(n_batch, m, nz, nr, covariance, n_exp)
+    bins = _bins()
     mode = {None: bins.COV_NONE, "diag": bins.COV_DIAG, "full": bins.COV_FULL}[covariance]
     elements = _chunk_elements(nr, nz, covariance)
     chunk = max(1, min(m, round(elements / (n_batch * n_exp))))
@@ -562,11 +561,21 @@ def _experiments_last(R, Z, axis):
     return R, Z, R.shape[-3]
 
 
+def _bins():
+    """The compiled module, imported on first use: numba takes about 0.4 s to import,
+    which ``import lcmr_xr`` need not pay."""
+    from lcmr_xr.kernels import local_model_bins
+
+    return local_model_bins
+
+
 def _threads() -> int:
     """Threads for one call: numba's setting in the main thread, one inside worker
     threads (dask's schedulers already run one task per core)."""
     if threading.current_thread() is not threading.main_thread():
         return 1
+    import numba
+
     return max(1, numba.get_num_threads())
 
 
@@ -612,7 +621,7 @@ def _fit_chunk(rt, zt, n, degrees, mode, sel, out_offset, m, dof, out, n_exp=1):
     slots = _slot_pairs(nr, nz, degrees)
     lay = _power_major_layout(nr, nz, degrees)
     mean_pow = _analytic_moments(n, 2 * rd) / (2 * n + 1)
-    bins.fit_bins(np.ascontiguousarray(rt), np.ascontiguousarray(zt), n, np.ascontiguousarray(sel),
+    _bins().fit_bins(np.ascontiguousarray(rt), np.ascontiguousarray(zt), n, np.ascontiguousarray(sel),
                   out_offset, m, _restart_interval(n), *slots, lay.aug_index, lay.zz_index,
                   lay.a_base, lay.a_pow, np.ascontiguousarray(mean_pow), float(dof), mode,
                   DROP_TOLERANCE, CONDITION_LIMIT, G_SENSITIVITY_LIMIT,

@@ -1,15 +1,29 @@
-"""Archives: a directory with one NetCDF file per experiment, opened as one lazy dataset.
+"""Archives of experiments: one consolidated NetCDF file (default) or a directory of files.
 
-Why one file per experiment: experiments arrive one at a time (a measurement campaign, a
-batch of simulations), each file is written atomically on its own, and a single broken or
-re-measured experiment is replaced without rewriting the rest.  Opened, the directory
-becomes one dataset with a leading ``experiment`` dim, chunked one experiment per chunk,
-which is exactly what :func:`lcmr_xr.identify` maps over in parallel.
+Two layouts, opened alike by :func:`open_archive` as one lazy dataset with a leading
+``experiment`` dim:
+
+consolidated (default)
+    One NetCDF-4 file, every experiment along an unlimited ``experiment`` dim in chunks of
+    one experiment, labels and metadata (seed, case, date, drive id, scalar coordinates) as
+    coordinates along ``experiment``.  Opens in a fraction of a second whatever it holds;
+    :func:`append_to_archive` adds one experiment without rewriting the others.  Layout and
+    the choice of NetCDF over Zarr: :mod:`lcmr_xr.scaleout.consolidated`.
+files
+    A directory with one NetCDF file per experiment (the first layout; still read and
+    written).  Each file is written atomically on its own and a re-measured experiment is
+    replaced alone, but every file costs an HDF5 open (tens of ms): thousands of them take
+    minutes to open.  ``lcmr-xr archive consolidate DIR -o ARCHIVE.nc`` (or
+    :func:`consolidate_archive`) turns one into a consolidated file.
 
 Experiments of different lengths are refused (not grouped): their FRFs live on different
 frequency grids, so they cannot share one dataset without NaN padding that the
 identification would choke on, and grouping would hand back several datasets where
 callers expect one.  The error lists the lengths and which files have them.
+
+Opening reads metadata only.  The NaN/inf check that has to read the data runs inside the
+identify tasks of :func:`lcmr_xr.scaleout.sweep`, where a bad experiment becomes a flagged
+result (``experiment_error`` names its file and the reason) instead of failing the sweep.
 """
 
 from __future__ import annotations
@@ -21,13 +35,14 @@ import numpy as np
 import xarray as xr
 
 from lcmr_xr import conventions as cv
+from lcmr_xr.scaleout import consolidated as con
 from lcmr_xr.transforms._coords import even_spacing
 
-__all__ = ["save_archive", "open_archive", "archive_files"]
+__all__ = ["save_archive", "open_archive", "append_to_archive", "consolidate_archive", "archive_files"]
 
 SUFFIX = ".nc"
 #: Dataset attribute that keeps the order of the experiments across save/open; dropped on open.
-ORDER_ATTR = "lcmr_archive_index"
+ORDER_ATTR = cv.ARCHIVE_ORDER_ATTR
 _UNSAFE = re.compile(r"[^A-Za-z0-9._-]+")
 
 
@@ -46,7 +61,7 @@ def _split(experiments) -> list[tuple[object, xr.Dataset]]:
             return [(label, experiments)]
         labels = (experiments[cv.EXPERIMENT].values if cv.EXPERIMENT in experiments.coords
                   else np.arange(experiments.sizes[cv.EXPERIMENT]))
-        return [(lab, experiments.isel({cv.EXPERIMENT: i})) for i, lab in enumerate(labels)]
+        return [(lab, experiments.isel({cv.EXPERIMENT: i})) for i, lab in enumerate(labels.tolist())]
     try:
         items = list(experiments)
     except TypeError:
@@ -126,16 +141,27 @@ def archive_files(directory) -> list[Path]:
     for path in sorted(directory.glob(f"*{SUFFIX}")):
         if path.name.startswith("."):  # temporary files of an interrupted atomic write
             continue
-        try:
-            with xr.open_dataset(path, engine="netcdf4", decode_cf=False) as ds:  # metadata only
-                index = ds.attrs.get(ORDER_ATTR)
-        except (OSError, ValueError, RuntimeError, KeyError, IndexError) as err:
-            raise ValueError(
-                f"{path} in archive {directory} is not a readable NetCDF file (truncated, "
-                f"corrupt, or another format: {err}); move it out of the archive directory."
-            ) from err
+        index = _order_index(path, directory)
         keyed.append((0 if index is not None else 1, int(index) if index is not None else 0, path.name, path))
     return [k[-1] for k in sorted(keyed)]
+
+
+def _order_index(path: Path, directory: Path):
+    """The ``lcmr_archive_index`` attribute of a file (None without it), read with h5py.
+
+    h5py reads one attribute without the ~260 HDF5 lookups of a netCDF/xarray open.
+    """
+    import h5py
+
+    try:
+        with h5py.File(path, "r") as f:
+            index = f.attrs.get(ORDER_ATTR)
+    except OSError as err:
+        raise ValueError(
+            f"{path} in archive {directory} is not a readable NetCDF file (truncated, corrupt, "
+            f"or another format: {err}); move it out of the archive directory."
+        ) from err
+    return None if index is None else int(np.asarray(index).item())
 
 
 def _existing_shapes(files) -> dict:
@@ -146,67 +172,39 @@ def _existing_shapes(files) -> dict:
     return shapes
 
 
-def save_archive(experiments, directory, *, overwrite: bool = False) -> list[Path]:
-    """Write experiments to an archive directory, one NetCDF file per experiment.
+LAYOUTS = ("consolidated", "files")
 
-    Parameters
-    ----------
-    experiments : xarray.Dataset or sequence of xarray.Dataset
-        A stacked experiment dataset with an ``experiment`` dim, or single experiments.
-        Every one is validated (:func:`lcmr_xr.experiment.validate_experiment`).
-    directory : str or os.PathLike
-        Target directory; created if missing.
-    overwrite : bool, default False
-        Replace existing files even when their content has a different shape.  Without it
-        an existing file is only replaced by an experiment of the same shape (length,
-        factor, sample time, channel labels), e.g. a re-measurement.
 
-    Returns
-    -------
-    list of pathlib.Path
-        The files written, in order.
+def _layout(path: Path, layout) -> str:
+    """``layout`` checked; by default a directory that exists is a files archive."""
+    if layout is None:
+        return "files" if path.is_dir() else "consolidated"
+    if layout not in LAYOUTS:
+        raise ValueError(f"layout must be one of {LAYOUTS} (or None: 'files' for an existing "
+                         f"directory, else 'consolidated'), got {layout!r}.")
+    if layout == "consolidated" and path.is_dir():
+        raise ValueError(f"{path} is a directory; a consolidated archive is one file: give a file "
+                         "path such as archive.nc, or layout='files' to add files to the directory.")
+    if layout == "files" and path.is_file():
+        raise ValueError(f"{path} is a file; an archive of layout='files' is a directory: give a "
+                         "directory path, or leave layout=None to append to the consolidated archive.")
+    return layout
 
-    Notes
-    -----
-    File names come from the ``experiment`` coordinate (its position when there is none),
-    with every character other than letters, digits, ``.``, ``_``, ``-`` replaced by ``_``.
-    Each file is written atomically with :func:`lcmr_xr.io.save`.  The position of each
-    experiment is recorded in the file attribute ``lcmr_archive_index`` so
-    :func:`open_archive` returns them in the order given (new files are appended after
-    those already in the directory).  All experiments of an archive must have the same
-    shape; a mismatch with the files already there is refused before anything is written.
 
-    Examples
-    --------
-    >>> import numpy as np, tempfile
-    >>> from lcmr_xr.experiment import experiment
-    >>> ds = experiment(np.ones((2, 8, 1)), np.ones((2, 8, 1)), np.ones((2, 4, 1)), factor=2,
-    ...                 sampling_period=0.5)
-    >>> with tempfile.TemporaryDirectory() as d:
-    ...     [p.name for p in save_archive(ds, d)]
-    ['0.nc', '1.nc']
-    """
+def _validated(experiments):
+    """``[(label, ds)]`` and their shapes, every experiment valid and of one shape."""
     from lcmr_xr.experiment import validate_experiment
-    from lcmr_xr.io import save
 
     items = _split(experiments)
     if not items:
         raise ValueError("experiments is empty: nothing to archive.")
-    names, shapes = [], []
+    shapes = []
     for label, ds in items:
         try:
             validate_experiment(ds)
         except ValueError as err:
             raise ValueError(f"experiment {label!r}: {err}") from err
-        names.append(_file_stem(label) + SUFFIX)
         shapes.append(_shape(ds))
-    dupes = sorted({n for n in names if names.count(n) > 1})
-    if dupes:
-        raise ValueError(
-            f"experiment labels map to the same file names {dupes} (after replacing unsafe "
-            "characters); give the experiments unique labels, e.g. "
-            "ds.assign_coords(experiment=[f'run{i}' for i in range(n)])."
-        )
     first = shapes[0]
     lengths = {}
     for (label, _), shape in zip(items, shapes):
@@ -215,12 +213,261 @@ def save_archive(experiments, directory, *, overwrite: bool = False) -> list[Pat
             raise ValueError(
                 f"experiment {label!r} ({_describe(shape)}) does not match the first one "
                 f"({_describe(first)}); an archive holds experiments of one shape. Save it to "
-                "another directory."
+                "another archive."
             )
     if len(lengths) > 1:
         raise ValueError(_length_message(lengths, "the experiments to archive"))
+    return items, first
 
-    directory = Path(directory)
+
+def save_archive(experiments, path, *, overwrite: bool = False, layout: str | None = None) -> list[Path]:
+    """Write experiments to an archive: one consolidated NetCDF file, or one file each.
+
+    Parameters
+    ----------
+    experiments : xarray.Dataset or sequence of xarray.Dataset
+        A stacked experiment dataset with an ``experiment`` dim, or single experiments.
+        Every one is validated (:func:`lcmr_xr.experiment.validate_experiment`).
+    path : str or os.PathLike
+        The archive: a file (consolidated) or a directory (files; created if missing).
+    overwrite : bool, default False
+        Consolidated: replace an existing archive file instead of appending to it.
+        Files: replace existing files even when their content has a different shape.
+        Without it an existing file is only replaced by an experiment of the same shape
+        (length, factor, sample time, channel labels), e.g. a re-measurement.
+    layout : {"consolidated", "files"}, optional
+        Default: ``"files"`` when ``path`` is an existing directory, else
+        ``"consolidated"`` (see the module notes).
+
+    Returns
+    -------
+    list of pathlib.Path
+        Consolidated: ``[path]``.  Files: the files written, in order.
+
+    Notes
+    -----
+    Consolidated: a new archive is written to a temporary file and renamed into place; an
+    existing consolidated archive gets the experiments appended (labels must be new, shape
+    and metadata must agree) without rewriting the ones it holds.  The experiments'
+    metadata (:data:`lcmr_xr.scaleout.consolidated.METADATA` attributes and scalar
+    coordinates) become coordinates along ``experiment``; attributes that differ between
+    experiments are dropped.
+
+    Files: file names come from the ``experiment`` coordinate (its position when there is
+    none), with every character other than letters, digits, ``.``, ``_``, ``-`` replaced
+    by ``_``.  Each file is written atomically with :func:`lcmr_xr.io.save`.  The position
+    of each experiment is recorded in the file attribute ``lcmr_archive_index`` so
+    :func:`open_archive` returns them in the order given (new files are appended after
+    those already in the directory).
+
+    All experiments of an archive must have the same shape; a mismatch with the
+    experiments already there is refused before anything is written.
+
+    Examples
+    --------
+    >>> import numpy as np, tempfile, os
+    >>> from lcmr_xr.experiment import experiment
+    >>> ds = experiment(np.ones((2, 8, 1)), np.ones((2, 8, 1)), np.ones((2, 4, 1)), factor=2,
+    ...                 sampling_period=0.5)
+    >>> with tempfile.TemporaryDirectory() as d:
+    ...     [p.name for p in save_archive(ds, os.path.join(d, "arc.nc"))]
+    ...     [p.name for p in save_archive(ds, d)]  # an existing directory: one file each
+    ['arc.nc']
+    ['0.nc', '1.nc']
+    """
+    path = Path(path)
+    layout = _layout(path, layout)
+    items, first = _validated(experiments)
+    if layout == "files":
+        return _save_files(items, first, path, overwrite)
+    return [_save_consolidated(items, first, path, overwrite)]
+
+
+def _save_consolidated(items, first, path: Path, overwrite: bool) -> Path:
+    from lcmr_xr.io._atomic import atomic_write
+
+    labels = [str(label) for label, _ in items]
+    dupes = sorted({lab for lab in labels if labels.count(lab) > 1})
+    if dupes:
+        raise ValueError(f"experiment labels {dupes} occur more than once; give the experiments "
+                         "unique labels, e.g. ds.assign_coords(experiment=[f'run{i}' for i in range(n)]).")
+    if path.exists() and not overwrite:
+        _append_consolidated(items, first, path)
+        return path
+    attrs = con.common_attrs([ds for _, ds in items])
+    return atomic_write(path, lambda tmp: con.write_consolidated(items, tmp, attrs))
+
+
+def _header(path: Path) -> dict:
+    try:
+        return con.read_header(path)
+    except OSError as err:
+        raise ValueError(f"{path} exists but is not a readable NetCDF-4 archive ({err}); pass "
+                         "overwrite=True to replace it, or choose another path.") from err
+
+
+def _append_consolidated(items, first, path: Path) -> None:
+    header = _header(path)
+    if not _same_shape(header, first):
+        raise ValueError(
+            f"{path} holds experiments of another shape ({_describe(header)}) than the new ones "
+            f"({_describe(first)}); an archive holds experiments of one shape: write them to "
+            "another archive, or pass overwrite=True to replace the file."
+        )
+    existing = set(map(str, header["labels"]))
+    taken = [str(label) for label, _ in items if str(label) in existing]
+    if taken:
+        raise ValueError(f"experiment(s) {taken[:5]} are already in {path}; give new labels, or "
+                         "write a new archive with overwrite=True.")
+    kind = "U" if not header["labels"] or isinstance(header["labels"][0], str) else "i"
+    if kind == "i" and not all(isinstance(lab, (int, np.integer)) for lab, _ in items):
+        raise ValueError(f"{path} has integer experiment labels; label the new experiments with "
+                         "integers too (or rewrite the archive with string labels).")
+    metas = [con.metadata_of(label, ds) for label, ds in items]
+    con.check_metadata([(label, m) for (label, _), m in zip(items, metas)], header["metadata"])
+    count = header["count"]
+    for start in range(0, len(items), con.BATCH):
+        count = con.append_rows(path, items[start:start + con.BATCH], metas[start:start + con.BATCH],
+                                expected_count=count)
+
+
+def append_to_archive(experiment, path) -> Path:
+    """Add one experiment to an archive without rewriting the experiments it holds.
+
+    Parameters
+    ----------
+    experiment : xarray.Dataset
+        One experiment (``lcmr-xr-1``, validated), labelled by a scalar ``experiment``
+        coordinate (default: its position in the archive).  Several stacked along
+        ``experiment`` are appended in order.
+    path : str or os.PathLike
+        A consolidated archive file (created when missing) or an archive directory.
+
+    Returns
+    -------
+    pathlib.Path
+        The archive file (consolidated) or the file written (directory).
+
+    Raises
+    ------
+    ValueError
+        The experiment is invalid, of another shape than the archive, carries other
+        metadata, or its label is taken.
+
+    Notes
+    -----
+    Consolidated: the new rows are written after the complete experiments and the
+    archive's count is raised last, so an interrupted append leaves the archive as it was
+    (the partial row is ignored and overwritten by the next append).  Cost: one open of
+    the file and the new experiment's data, not a pass over the archive.
+
+    Examples
+    --------
+    >>> import numpy as np, tempfile, os
+    >>> from lcmr_xr.experiment import experiment
+    >>> one = experiment(np.ones((8, 1)), np.ones((8, 1)), np.ones((4, 1)), factor=2,
+    ...                  sampling_period=0.5)
+    >>> with tempfile.TemporaryDirectory() as d:
+    ...     p = os.path.join(d, "arc.nc")
+    ...     _ = append_to_archive(one.assign_coords(experiment="a"), p)
+    ...     _ = append_to_archive(one.assign_coords(experiment="b"), p)
+    ...     open_archive(p).experiment.values.tolist()
+    ['a', 'b']
+    """
+    path = Path(path)
+    if path.is_dir():
+        return save_archive(experiment, path, layout="files")[-1]
+    if not path.exists():
+        return save_archive(experiment, path, layout="consolidated")[0]
+    if isinstance(experiment, xr.Dataset) and cv.EXPERIMENT not in experiment.coords:
+        experiment = experiment.assign_coords({cv.EXPERIMENT: _header(path)["count"]})
+    items, first = _validated(experiment)
+    _append_consolidated(items, first, path)
+    return path
+
+
+def consolidate_archive(directory, path, *, overwrite: bool = False, progress=None) -> Path:
+    """Copy a directory archive (one file per experiment) into one consolidated archive file.
+
+    Parameters
+    ----------
+    directory : str or os.PathLike
+        Archive directory (``*.nc`` experiment files).
+    path : str or os.PathLike
+        The consolidated archive to write (atomically: temporary file, then rename).
+    overwrite : bool, default False
+        Replace ``path`` if it exists (otherwise an existing ``path`` is refused).
+    progress : callable, optional
+        Called as ``progress(done, total)`` after each batch of experiments.
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``.
+
+    Notes
+    -----
+    The files are read one batch at a time in archive order (memory: one batch), checked
+    like :func:`open_archive` checks them before anything is written, and the directory is
+    left as it was.  The values are copied as they are: NaN in an experiment is reported by
+    the sweep that identifies it.
+
+    Examples
+    --------
+    >>> import numpy as np, tempfile, os
+    >>> from lcmr_xr.experiment import experiment
+    >>> ds = experiment(np.ones((3, 8, 1)), np.ones((3, 8, 1)), np.ones((3, 4, 1)), factor=2,
+    ...                 sampling_period=0.5)
+    >>> with tempfile.TemporaryDirectory() as d:
+    ...     _ = save_archive(ds, os.path.join(d, "runs"), layout="files")
+    ...     p = consolidate_archive(os.path.join(d, "runs"), os.path.join(d, "runs.nc"))
+    ...     open_archive(p).sizes["experiment"]
+    3
+    """
+    from lcmr_xr.io import open_dataset
+    from lcmr_xr.io._atomic import atomic_write
+
+    directory, path = Path(directory), Path(path)
+    if path.exists() and not overwrite:
+        raise FileExistsError(f"{path} exists; pass overwrite=True (--overwrite) to replace it, "
+                              "or choose another path.")
+    lazy = open_archive(directory)  # checks every file's metadata; reads no data
+    files = archive_files(directory)  # the order open_archive used
+    attrs = dict(lazy.attrs)
+    lazy.close()
+
+    def write(tmp):
+        for start in range(0, len(files), con.BATCH):
+            rows = []
+            for name in files[start:start + con.BATCH]:
+                ds = open_dataset(name)
+                ds.attrs.pop(ORDER_ATTR, None)
+                label = ds.coords[cv.EXPERIMENT].item() if cv.EXPERIMENT in ds.coords else name.stem
+                rows.append((label, ds))
+            if start == 0:
+                con.write_consolidated(rows, tmp, attrs)
+            else:
+                header = con.read_header(tmp)
+                metas = [con.metadata_of(label, ds) for label, ds in rows]
+                con.check_metadata([(label, m) for (label, _), m in zip(rows, metas)], header["metadata"])
+                con.append_rows(tmp, rows, metas, expected_count=start)
+            if progress is not None:
+                progress(min(start + con.BATCH, len(files)), len(files))
+
+    return atomic_write(path, write)
+
+
+def _save_files(items, first, directory: Path, overwrite: bool) -> list[Path]:
+    from lcmr_xr.io import save
+
+    names = [_file_stem(label) + SUFFIX for label, _ in items]
+    dupes = sorted({n for n in names if names.count(n) > 1})
+    if dupes:
+        raise ValueError(
+            f"experiment labels map to the same file names {dupes} (after replacing unsafe "
+            "characters); give the experiments unique labels, e.g. "
+            "ds.assign_coords(experiment=[f'run{i}' for i in range(n)])."
+        )
     directory.mkdir(parents=True, exist_ok=True)
     existing = _existing_shapes(archive_files(directory))
     targets = {directory / n for n in names}
@@ -260,56 +507,108 @@ def _length_message(lengths: dict, where: str) -> str:
     )
 
 
-def open_archive(directory, chunks=None) -> xr.Dataset:
-    """Open an archive directory as one lazy experiment dataset with an ``experiment`` dim.
+#: Experiments per dask chunk of a consolidated archive opened with ``chunks=None``:
+#: 16 x 170 kB (N = 3600) is a few MB per chunk, read in one task.
+EXPERIMENTS_PER_CHUNK = 16
+
+
+def open_archive(path, chunks=None) -> xr.Dataset:
+    """Open an archive (consolidated file or directory) as one lazy experiment dataset.
 
     Parameters
     ----------
-    directory : str or os.PathLike
-        Directory written by :func:`save_archive` (``*.nc`` experiment files).
+    path : str or os.PathLike
+        A consolidated archive file or an archive directory (``*.nc`` experiment files),
+        as written by :func:`save_archive`.
     chunks : dict, optional
-        Dask chunks per file.  Default ``None``: each file is one chunk (one experiment per
-        chunk along ``experiment``, whole records along ``time``), which is what
-        :func:`lcmr_xr.identify` needs; ``time``/``slow_time`` must stay in one chunk.
+        Dask chunks.  Default ``None``: consolidated, :data:`EXPERIMENTS_PER_CHUNK`
+        experiments per chunk; directory, one file (experiment) per chunk; whole records
+        along ``time``, which :func:`lcmr_xr.identify` needs.  For a consolidated archive
+        only the ``experiment`` entry is used (``{"experiment": 64}``).
 
     Returns
     -------
     xarray.Dataset
-        Dask-backed experiment dataset (``lcmr-xr-1``), ``experiment`` coordinate from the
-        files (their labels), in archive order; validated with
-        :func:`lcmr_xr.experiment.validate_experiment`.
+        Dask-backed experiment dataset (``lcmr-xr-1``), ``experiment`` coordinate (the
+        labels) in archive order, the experiments' metadata as coordinates along
+        ``experiment``; ``encoding["source"]`` is the archive's path.  Checked with
+        :func:`lcmr_xr.experiment.validate_experiment` on metadata only.
 
     Raises
     ------
     FileNotFoundError
-        The directory does not exist or holds no ``*.nc`` file.
+        The path does not exist, or the directory holds no ``*.nc`` file.
     ValueError
-        A file is not an experiment file, or the experiments differ in length, factor,
-        sample time or channel labels (the message lists them and says what to do).
+        ``path`` is a file but not a consolidated archive (not NetCDF-4, or without the
+        file attribute ``lcmr_archive = "consolidated-1"``), a file of the directory is not
+        a readable experiment file (the message names it), or the experiments differ in
+        length, factor, sample time or channel labels (the message lists them and says
+        what to do).
 
     Notes
     -----
-    This is :func:`xarray.open_mfdataset` with ``combine="nested"`` and
-    ``concat_dim="experiment"`` spelled out: each file is opened lazily with
-    :func:`lcmr_xr.io.open_dataset` (which restores the attribute types that
-    :func:`lcmr_xr.io.save` flattened) and the files are combined with
-    :func:`xarray.combine_nested` and ``join="exact"``.  The metadata of every file is read
-    first, so a mismatch is reported before any data are read.  The NaN/inf check of the
-    validation reads the data once, streaming one chunk at a time on the current dask
-    scheduler.
+    Nothing but metadata (and the small label and metadata coordinates) is read: the
+    NaN/inf check of the data runs inside the tasks that identify them
+    (:func:`lcmr_xr.scaleout.sweep` flags a bad experiment with ``experiment_error``;
+    :func:`lcmr_xr.identify` on the lazy data raises when computed).  A directory archive
+    costs one lazy HDF5 open per file (tens of ms each): consolidate large ones
+    (:func:`consolidate_archive`).
 
     Examples
     --------
-    >>> import numpy as np, tempfile
+    >>> import numpy as np, tempfile, os
     >>> from lcmr_xr.experiment import experiment
     >>> ds = experiment(np.ones((3, 8, 1)), np.ones((3, 8, 1)), np.ones((3, 4, 1)), factor=2,
     ...                 sampling_period=0.5)
     >>> with tempfile.TemporaryDirectory() as d:
-    ...     _ = save_archive(ds, d)
-    ...     arc = open_archive(d)
+    ...     _ = save_archive(ds, os.path.join(d, "arc.nc"))
+    ...     arc = open_archive(os.path.join(d, "arc.nc"))
     ...     dict(arc.r.sizes), arc.r.chunks is not None
     ({'experiment': 3, 'time': 8, 'input': 1}, True)
     """
+    from lcmr_xr.experiment import validate_experiment
+
+    path = Path(path)
+    if path.is_file():
+        _check_consolidated(path)
+        per_chunk = (chunks or {}).get(cv.EXPERIMENT, EXPERIMENTS_PER_CHUNK)
+        try:
+            ds = con.open_consolidated(path, per_chunk)
+        except (OSError, KeyError) as err:
+            raise ValueError(f"{path} is not a readable consolidated archive ({err}); write one "
+                             "with lcmr_xr.scaleout.save_archive.") from err
+        ds.encoding["source"] = str(path)
+        try:
+            return validate_experiment(ds, check_values=False)
+        except ValueError as err:
+            raise ValueError(f"archive {path}: {err}") from err
+    return _open_directory(path, chunks)
+
+
+#: What an archive is, for the messages that refuse something else.
+ARCHIVE_KINDS = ("an archive is one NetCDF file written by lcmr_xr.scaleout.save_archive (file "
+                 f"attribute {con.KIND_ATTR}={con.KIND!r}) or a directory of experiment .nc files")
+
+
+def _check_consolidated(path: Path) -> None:
+    """Refuse a file that is not a consolidated archive: name it, say why and what an archive is."""
+    if con.is_consolidated(path):
+        return
+    import h5py
+
+    try:
+        with h5py.File(path, "r"):
+            reason = f"a NetCDF-4 file without the archive attribute {con.KIND_ATTR}={con.KIND!r}"
+    except OSError:
+        reason = "not a NetCDF-4 file"
+    raise ValueError(
+        f"archive {path} is a file but not a consolidated archive ({reason}); {ARCHIVE_KINDS}. "
+        "Open a single experiment file with lcmr_xr.open_experiment, or turn a directory into "
+        "an archive file with lcmr-xr archive consolidate."
+    )
+
+
+def _open_directory(directory: Path, chunks) -> xr.Dataset:
     from lcmr_xr.experiment import validate_experiment
     from lcmr_xr.io import open_dataset
 
@@ -322,7 +621,7 @@ def open_archive(directory, chunks=None) -> xr.Dataset:
     # Every file is opened once, lazily (metadata only), and these handles are both checked
     # and combined: opening the same HDF5 file again with a second handle while the first
     # is alive has crashed netCDF4/HDF5 in this environment (segfault on a second open).
-    parts, shapes = [], {}
+    parts, shapes, metas = [], {}, []
     for path in files:
         ds = open_dataset(path, chunks={} if chunks is None else chunks)
         if ds.attrs.get("conventions") != cv.CONVENTIONS or any(v not in ds for v in ("r", "u", "y")):
@@ -335,6 +634,11 @@ def open_archive(directory, chunks=None) -> xr.Dataset:
         ds.attrs.pop(ORDER_ATTR, None)
         if cv.EXPERIMENT not in ds.coords:  # a file written by another tool
             ds = ds.assign_coords({cv.EXPERIMENT: ((), path.stem, cv.label_attrs("experiment"))})
+        label = ds.coords[cv.EXPERIMENT].item()
+        metas.append((label, con.metadata_of(label, ds)))
+        scalars = [c for c in ds.coords if ds[c].ndim == 0 and c != cv.EXPERIMENT]
+        ds = ds.drop_vars(scalars)
+        ds.attrs = {k: v for k, v in ds.attrs.items() if k not in con.METADATA}
         parts.append(ds)
     lengths = {}
     for path, shape in shapes.items():
@@ -358,6 +662,17 @@ def open_archive(directory, chunks=None) -> xr.Dataset:
         compat="override", join="exact", combine_attrs="drop_conflicts",
     )
     try:
-        return validate_experiment(combined)
+        con.check_metadata(metas)
+    except ValueError as err:
+        raise ValueError(f"archive {directory}: {err}") from err
+    coords = {}
+    for name in (metas[0][1] if metas else {}):
+        coords[name] = (cv.EXPERIMENT, np.asarray([m[name] for _, m in metas]),
+                        {"long_name": name.replace("_", " ")})
+    combined = combined.assign_coords(coords)
+    combined.encoding["source"] = str(directory)
+    combined.set_close(lambda: [part.close() for part in parts])
+    try:
+        return validate_experiment(combined, check_values=False)
     except ValueError as err:
         raise ValueError(f"archive {directory}: {err}") from err

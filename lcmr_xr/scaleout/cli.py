@@ -1,8 +1,18 @@
 """``lcmr-xr sweep``: identify an archive for every combination of settings, in parallel.
 
-    lcmr-xr sweep ARCHIVE_DIR -o RESULT.nc [--window 10 20 30] [--degrees 3-3-3 2-2-2 ...]
+    lcmr-xr sweep ARCHIVE -o RESULT.nc [--window 10 20 30] [--degrees 3-3-3 2-2-2 ...]
                   [--method lrm lpm] [--closed-loop indirect|direct]
                   [--scheduler threads|processes|synchronous|ADDRESS] [--select CHOICE.nc]
+                  [--overwrite]
+
+``ARCHIVE`` is a consolidated archive file or an archive directory
+(:func:`lcmr_xr.scaleout.open_archive`).  An archive with an ``experiment`` dim is swept
+by :func:`lcmr_xr.scaleout.sweep_to_disk`: each finished task is written at once to a part
+file in the hidden directory ``.RESULT.nc.parts/`` next to ``RESULT.nc`` (so never inside
+the archive, where ``-o`` may not lie), and rerunning the same command after a crash
+computes only the missing parts; the parts are removed once ``RESULT.nc`` is written.
+An experiment that cannot be identified is flagged (``experiment_error``, one line per
+experiment on stderr), not fatal.
 
 ``ADDRESS`` (e.g. ``tcp://127.0.0.1:8786``) connects a ``distributed.Client`` to a running
 scheduler; when nothing, or something that is not a dask scheduler, answers there, the
@@ -23,6 +33,7 @@ from urllib.parse import urlsplit
 from lcmr_xr._cli_support import (NETCDF_SUFFIXES, HelpFormatter, add_overwrite,
                                   check_outputs, error_line, futures_progress, progress)
 
+from lcmr_xr import conventions as cv
 from lcmr_xr.settings import CLOSED_LOOP, METHODS, window_argument
 
 LOCAL_SCHEDULERS = ("threads", "processes", "synchronous")
@@ -64,13 +75,18 @@ def add_sweep_parser(subparsers) -> argparse.ArgumentParser:
     sw = subparsers.add_parser(
         "sweep", help="identify an archive of experiments for every combination of settings",
         formatter_class=HelpFormatter,
-        description="Identify every experiment of an archive directory for every combination "
+        description="Identify every experiment of an archive for every combination "
                     "of --window, --degrees and --method, in parallel with dask, and write "
-                    "one FRF NetCDF file with a dim per setting. With --select, also write "
-                    f"the best settings per experiment by a validation criterion. {criteria}")
-    sw.add_argument("archive", type=Path, help="archive directory (one experiment .nc per file)")
+                    "one FRF NetCDF file with a dim per setting. Finished tasks are kept in "
+                    "the hidden directory .OUTPUT.parts/ next to OUTPUT until it is written, "
+                    "so the same command resumes after a crash. An experiment that cannot be "
+                    "identified is flagged (experiment_error), not fatal. With --select, also "
+                    f"write the best settings per experiment by a validation criterion. {criteria}")
+    sw.add_argument("archive", type=Path,
+                    help="consolidated archive file, or archive directory (one experiment .nc per file)")
     sw.add_argument("-o", "--output", type=Path, required=True,
-                    help="result NetCDF file to write (.nc; not inside the archive)")
+                    help="result NetCDF file to write (.nc; not inside the archive; its parts "
+                         "are kept in .OUTPUT.parts/ next to it while the sweep runs)")
     # the settings' parser: every token reaches the sweep's validator ('auto' is refused there)
     sw.add_argument("--window", type=window_argument, nargs="+", default=[30],
                     help="window half-widths n (fixed: a sweep compares windows)")
@@ -218,6 +234,18 @@ def _compute(ds, scheduler: str, timeout: float = CONNECT_TIMEOUT):
         return persisted.compute()
 
 
+def _stream(experiments, output, settings, args) -> None:
+    """``sweep_to_disk`` on the scheduler named on the command line (outputs checked already)."""
+    from lcmr_xr.scaleout.stream import sweep_to_disk
+
+    overwrite = getattr(args, "overwrite", False)
+    if args.scheduler in LOCAL_SCHEDULERS:
+        sweep_to_disk(experiments, output, **settings, scheduler=args.scheduler, overwrite=overwrite)
+        return
+    with connect(args.scheduler, getattr(args, "connect_timeout", CONNECT_TIMEOUT)) as client:
+        sweep_to_disk(experiments, output, **settings, client=client, overwrite=overwrite)
+
+
 def run_sweep(args) -> int:
     """Run ``lcmr-xr sweep`` with parsed arguments; returns the exit status.
 
@@ -241,7 +269,9 @@ def run_sweep(args) -> int:
     >>> run_sweep(args)
     2
     """
-    from lcmr_xr.io import save
+    import numpy as np
+
+    from lcmr_xr.io import open_dataset, save
     from lcmr_xr.scaleout.archive import open_archive
     from lcmr_xr.scaleout.select import select_settings
     from lcmr_xr.scaleout.sweep import sweep, sweep_settings
@@ -264,8 +294,17 @@ def run_sweep(args) -> int:
         sizes = {d: lazy.sizes[d] for d in ("method", "degrees", "window", "experiment", "pool",
                                             "pool_group") if d in lazy.dims}
         print(f"sweeping {sizes} on scheduler {args.scheduler}", file=sys.stderr)
-        result = _compute(lazy, args.scheduler, getattr(args, "connect_timeout", CONNECT_TIMEOUT))
-        save(result, args.output)
+        if "experiment" in lazy.dims:
+            # results stream to disk as tasks finish (parts next to the output, never in the
+            # archive: the output was checked to lie outside it); a rerun after a crash resumes
+            _stream(experiments, args.output, settings, args)
+            result = open_dataset(args.output)
+        else:
+            result = _compute(lazy, args.scheduler, getattr(args, "connect_timeout", CONNECT_TIMEOUT))
+            save(result, args.output)
+        failed = [str(e) for e in np.unique(result[cv.EXPERIMENT_ERROR].values) if str(e)]
+        for message in failed:
+            print(f"lcmr-xr sweep: flagged {message}", file=sys.stderr)
         flagged = int(result["P_flag"].sum())
         print(f"wrote {args.output}: P {dict(result.P.sizes)}, {flagged} flagged bins")
         if args.select is not None:

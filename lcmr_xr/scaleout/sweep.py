@@ -6,6 +6,10 @@ in-memory block.  Why blocks and not ``identify`` on the dask dataset directly: 
 validates its input, and on dask data that validation computes a pass over the data, once
 per setting.  Per block, the validation runs inside the task on data already in memory, so
 building the sweep reads nothing and computing it reads every experiment once per setting.
+A task holds several experiments (:data:`EXPERIMENTS_PER_TASK`, so a sweep of 10 000
+experiments is not 10 000 tiny tasks per setting) and identifies them one at a time (its
+memory is that of one ``identify``); an experiment that cannot be identified becomes a
+flagged result with the reason in ``experiment_error``, not a failed sweep.
 
 Every setting is checked by :func:`lcmr_xr.settings.estimator_settings` (the rules of
 ``identify``) and against the experiment's size before anything is computed, and the
@@ -18,6 +22,7 @@ from __future__ import annotations
 import itertools
 from collections.abc import Iterable
 
+import dask.array as dsa
 import numpy as np
 import xarray as xr
 
@@ -79,16 +84,33 @@ def _leading_dims(ds: xr.Dataset) -> list[str]:
     return [d for d in ds["r"].dims if d not in _CORE_DIMS]
 
 
-def _chunked(ds: xr.Dataset) -> xr.Dataset:
-    """Dask-backed copy with one chunk per experiment and whole records per chunk.
+#: Experiments per task when the sweep chunks numpy data itself: a task of several
+#: experiments is worth scheduling (dask's overhead is ~1 ms per task, and a sweep of
+#: 10 000 experiments x 3 settings would otherwise be 30 000 map tasks, each with one
+#: extraction task per output variable).  Memory does not grow with it: a task identifies
+#: its experiments one at a time.
+EXPERIMENTS_PER_TASK = 8
+#: Output variable of a sweep: why an experiment failed ("" when it did not).
+ERROR_VAR = cv.EXPERIMENT_ERROR
+ERROR_ATTRS = {"units": "1", "long_name": "why the experiment could not be identified ('' if it was)"}
 
-    ``identify`` needs the time and channel dims in one chunk; along the leading dims a
-    chunk per experiment is the natural unit of parallel work (and of memory).
+
+def _chunked(ds: xr.Dataset, per_task: int | None = None) -> xr.Dataset:
+    """Dask-backed copy with whole records per chunk and several experiments per chunk.
+
+    ``identify`` needs the time and channel dims in one chunk.  Along ``experiment``,
+    numpy data get ``per_task`` (default :data:`EXPERIMENTS_PER_TASK`) experiments per
+    chunk; dask data keep their chunks unless ``per_task`` is given.  Other leading dims
+    are kept whole (or as chunked).
     """
     chunks = {d: -1 for d in _CORE_DIMS if d in ds.dims}
     for d in _leading_dims(ds):
-        if ds["r"].chunks is None:
-            chunks[d] = 1 if d == cv.EXPERIMENT else -1
+        if d == cv.EXPERIMENT and (per_task is not None or ds["r"].chunks is None):
+            chunks[d] = per_task or EXPERIMENTS_PER_TASK
+        elif ds["r"].chunks is None:
+            chunks[d] = -1
+        else:  # spelled out, so that numpy coords along d (metadata) get the same chunks
+            chunks[d] = ds["r"].chunks[ds["r"].get_axis_num(d)]
     return ds.chunk(chunks)
 
 
@@ -134,10 +156,94 @@ def _pooled(ds: xr.Dataset, pools, settings) -> xr.Dataset:
     return out
 
 
-def _identify_block(block: xr.Dataset, **settings) -> xr.Dataset:
+def _identify_block(block: xr.Dataset, source: str | None = None, drop=(), **settings) -> xr.Dataset:
+    """``identify`` one block, one experiment at a time; a bad experiment becomes a flagged result.
+
+    One at a time: the temporaries of ``identify`` (moment table, covariance) then exist
+    for one experiment, not for the whole block, so a task's peak memory does not grow
+    with the experiments per task.  An experiment whose data ``identify`` refuses (NaN,
+    an excitation that does not excite every lifted channel) gets NaN estimates, every
+    flag set, and ``experiment_error`` naming its archive (file) and the reason.
+    ``drop``: coordinates left out of the block's result (see :func:`_new_indexes`).
+    """
+    lead = _leading_dims(block)
+    if not lead:
+        return _identify_or_flag(block, source, settings).drop_vars(list(drop))
+    dim = lead[0]
+    parts = [_identify_or_flag(block.isel({dim: slice(i, i + 1)}), source, settings)
+             for i in range(block.sizes[dim])]
+    if len(parts) == 1:
+        return parts[0].drop_vars(list(drop))
+    return xr.concat(parts, dim, data_vars="all", coords="minimal", compat="override",
+                     join="exact", combine_attrs="override").drop_vars(list(drop))
+
+
+def _new_indexes(template: xr.Dataset, ds: xr.Dataset) -> list:
+    """Index coordinates of the result that the experiments do not have (``frequency``, ...).
+
+    Why they are left out of the blocks and put back on the whole result: ``map_blocks``
+    tokenizes (pickles) every new index once per block, which for a sweep of 10 000
+    experiments (625 blocks x 5 indexes x 3 settings) was 4 of its 5 s of graph building.
+    The values are the template's; ``identify`` in the blocks computes the same ones.
+    """
+    return [name for name in template.xindexes if name not in ds.xindexes]
+
+
+def _identify_or_flag(one: xr.Dataset, source, settings) -> xr.Dataset:
     from lcmr_xr.identification import identify
 
-    return identify(block, errors="ignore", **settings)
+    lead = _leading_dims(one)
+    shape = tuple(one.sizes[d] for d in lead)
+    try:
+        res = identify(one, errors="ignore", **settings)
+        message = ""
+    except ValueError as err:
+        message = f"{_where(one, source)}: {err}"
+        res = _failed_result(one, settings)
+    return res.assign({ERROR_VAR: (tuple(lead), np.full(shape, message, dtype=object), ERROR_ATTRS)})
+
+
+def _where(one: xr.Dataset, source) -> str:
+    """'experiment 'e7' of archive.nc' (the file itself for a directory archive)."""
+    label = (one[cv.EXPERIMENT].values.ravel()[0].item() if cv.EXPERIMENT in one.coords
+             and one[cv.EXPERIMENT].size == 1 else None)
+    if label is None:
+        return "experiment"
+    if source:
+        from pathlib import Path
+
+        from lcmr_xr.scaleout.archive import SUFFIX, _file_stem
+
+        file = Path(source) / (_file_stem(label) + SUFFIX)
+        if Path(source).is_dir() and file.is_file():
+            return f"experiment {label!r} (file {file})"
+        return f"experiment {label!r} of {source}"
+    return f"experiment {label!r}"
+
+
+def _failed_result(one: xr.Dataset, settings) -> xr.Dataset:
+    """The result structure of ``identify`` for ``one``, every estimate NaN, every flag set.
+
+    Derived from :func:`~lcmr_xr.identification.identify.result_template` (the layout of
+    ``identify``'s result), so no estimate is computed for an experiment that failed.
+    """
+    from lcmr_xr.identification.identify import result_template
+
+    res = result_template(one, estimator_settings(**settings, errors="ignore")).compute()
+    filled = {}
+    for name, var in res.data_vars.items():
+        if var.dtype.kind == "b":
+            filled[name] = var.copy(data=np.ones(var.shape, bool))
+        elif var.dtype.kind in "fc":
+            filled[name] = var.copy(data=np.full(var.shape, np.nan, var.dtype))
+    return res.assign(filled)
+
+
+def _with_error(template: xr.Dataset, ds: xr.Dataset, lead: list[str]) -> xr.Dataset:
+    """The template plus the lazy ``experiment_error`` (str) variable along the leading dims."""
+    chunks = tuple(ds["r"].chunks[ds["r"].get_axis_num(d)] for d in lead)
+    data = dsa.full(tuple(ds.sizes[d] for d in lead), "", dtype=object, chunks=chunks)
+    return template.assign({ERROR_VAR: (tuple(lead), data, ERROR_ATTRS)})
 
 
 def sweep_settings(*, window=(30,), degrees=None, method=("lrm",), closed_loop="indirect",
@@ -213,16 +319,17 @@ def sweep_settings(*, window=(30,), degrees=None, method=("lrm",), closed_loop="
 
 
 def sweep(experiments: xr.Dataset, *, window=(30,), degrees=None, method=("lrm",),
-          closed_loop: str = "indirect", covariance: bool = True, pool=None) -> xr.Dataset:
+          closed_loop: str = "indirect", covariance: bool = True,
+          experiments_per_task: int | None = None, pool=None) -> xr.Dataset:
     """Identify experiments for every combination of settings; one lazy FRF dataset.
 
     Parameters
     ----------
     experiments : xarray.Dataset
         Experiment dataset (``lcmr-xr-1``), typically with a leading ``experiment`` dim,
-        e.g. from :func:`lcmr_xr.scaleout.open_archive`.  numpy-backed data are chunked one
-        experiment per chunk; dask-backed data keep their leading chunks (time and channel
-        dims are merged into one chunk).
+        e.g. from :func:`lcmr_xr.scaleout.open_archive`.  numpy-backed data are chunked
+        :data:`EXPERIMENTS_PER_TASK` experiments per chunk; dask-backed data keep their
+        leading chunks (time and channel dims are merged into one chunk).
     window : int or sequence of int, default (30,)
         Local window half-widths ``n`` (``2 n + 1`` slow bins each).
     degrees : str, (int, int, int) or sequence of them, optional
@@ -239,6 +346,11 @@ def sweep(experiments: xr.Dataset, *, window=(30,), degrees=None, method=("lrm",
         Passed to :func:`lcmr_xr.identify` (not swept).
     covariance : bool, default True
         Passed to :func:`lcmr_xr.identify`: compute ``P_std`` and the lifted std's.
+    experiments_per_task : int, optional
+        Experiments per chunk along ``experiment`` (one task per chunk and setting);
+        default: the chunks of dask data, :data:`EXPERIMENTS_PER_TASK` for numpy data.
+        A task identifies its experiments one at a time, so its peak memory is that of
+        one experiment plus the block's data and results.
     pool : int or sequence of int, optional
         Pool ``k`` experiments at a time (``identify(..., combine="experiment")``: one local
         model over ``k`` experiments with different excitations, or their average with the
@@ -259,16 +371,20 @@ def sweep(experiments: xr.Dataset, *, window=(30,), degrees=None, method=("lrm",
         ``parameters_per_row`` on (``method``, ``degrees``).  Computing it runs every
         (setting, experiment chunk) as one task on the current dask scheduler.
         Bins that cannot be estimated are NaN with the flags ``P_flag``, ``s_singular``,
-        ``ill_posed`` (``identify(..., errors="ignore")``): a failed bin is data.
+        ``ill_posed`` (``identify(..., errors="ignore")``): a failed bin is data.  An
+        experiment whose data cannot be identified (NaN or inf, an excitation that does
+        not excite every lifted channel) is NaN with every flag set, and
+        ``experiment_error`` (str; ``""`` for the others) says which experiment (its
+        archive file) and why: the rest of the sweep is unaffected.
 
     Raises
     ------
     ValueError
         Before anything is computed, listing every invalid combination: a window too small
         for the number of local parameters, a window wider than the spectrum, ``Rd != 0``
-        with the LPM; or unknown methods, malformed degrees or non-integer windows (see
-        :func:`sweep_settings`).  Data errors (NaN in the data, an excitation that does not
-        excite every lifted channel) are raised by the tasks when computed.
+        with the LPM; or unknown methods, malformed degrees, non-integer windows (see
+        :func:`sweep_settings`) or a bad ``experiments_per_task``.  Data errors are not
+        raised: see ``experiment_error``.
 
     Examples
     --------
@@ -289,15 +405,21 @@ def sweep(experiments: xr.Dataset, *, window=(30,), degrees=None, method=("lrm",
         raise TypeError(f"sweep expects an experiment Dataset, got {type(experiments).__name__}; "
                         "open an archive with lcmr_xr.scaleout.open_archive.")
     ds = experiments
-    if ds["r"].chunks is None:
-        validate_experiment(ds)  # in memory: cheap, and errors surface here, not in a task
+    lead = _leading_dims(ds)
+    # metadata only: bad values become flagged experiments in the tasks, not a failed sweep
+    validate_experiment(ds, check_values=False)
+    if experiments_per_task is not None and (isinstance(experiments_per_task, bool)
+                                             or int(experiments_per_task) != experiments_per_task
+                                             or experiments_per_task < 1):
+        raise ValueError(f"experiments_per_task must be a positive integer, got {experiments_per_task!r}.")
     checked = sweep_settings(window=window, degrees=degrees, method=method,
                              closed_loop=closed_loop, covariance=covariance, experiments=ds)
     methods = list(dict.fromkeys(m for m, _, _ in checked))
     degrees_list = list(dict.fromkeys(d for _, d, _ in checked))
     windows = list(dict.fromkeys(w for _, _, w in checked))
     pools = _pools(pool, ds)
-    ds = _chunked(ds)
+    source = experiments.encoding.get("source")
+    ds = _chunked(ds, experiments_per_task)
 
     nested = []
     for m in methods:
@@ -309,8 +431,12 @@ def sweep(experiments: xr.Dataset, *, window=(30,), degrees=None, method=("lrm",
                 settings = dict(method=m, window=s.window, degrees=s.degrees,
                                 closed_loop=s.closed_loop, covariance=s.covariance)
                 if pools is None:
-                    res = xr.map_blocks(_identify_block, ds, kwargs=settings,
-                                        template=result_template(ds, s))
+                    template = _with_error(result_template(ds, s), ds, lead)
+                    drop = _new_indexes(template, ds)
+                    res = xr.map_blocks(_identify_block, ds,
+                                        kwargs={**settings, "source": source, "drop": drop},
+                                        template=template.drop_vars(drop))
+                    res = res.assign_coords({name: template[name].variable for name in drop})
                 else:
                     res = _pooled(ds, pools, settings)
                 res = res.expand_dims({"method": [m], "degrees": [degrees_label(deg)], "window": [w]})

@@ -9,7 +9,6 @@ from __future__ import annotations
 from typing import Sequence
 
 import numpy as np
-import scipy.linalg
 
 from lcmr_xr.kernels.lti.statespace import StateSpace, same_period, static_gain
 
@@ -82,7 +81,7 @@ def block_diagonal(*systems: StateSpace) -> StateSpace:
     if not systems:
         raise ValueError("block_diagonal needs at least one system.")
     dt = _same_dt(systems)
-    bd = scipy.linalg.block_diag
+    from scipy.linalg import block_diag as bd  # lazy: scipy.linalg takes ~0.3 s to import
     return StateSpace(bd(*[s.A for s in systems]), bd(*[s.B for s in systems]),
                       bd(*[s.C for s in systems]), bd(*[s.D for s in systems]), dt)
 

@@ -10,8 +10,6 @@ from __future__ import annotations
 from typing import Sequence
 
 import numpy as np
-import scipy.linalg
-import scipy.signal
 
 from lcmr_xr.kernels.lti.interconnect import series
 from lcmr_xr.kernels.lti.statespace import StateSpace, static_gain
@@ -46,6 +44,10 @@ def continuous_zoh(A, B, C, D, dt: float) -> StateSpace:
     """
     a = np.atleast_2d(np.asarray(A, dtype=float))
     b = np.atleast_2d(np.asarray(B, dtype=float))
+    # imported here: scipy.signal (and the scipy.stats it pulls in) takes about a second
+    # to import, most of `import lcmr_xr`, and only building continuous models needs it
+    import scipy.signal
+
     ad, bd, _, _, _ = scipy.signal.cont2discrete((a, b, C, D), dt, method="zoh")
     return StateSpace(ad, bd, C, D, dt)
 
@@ -101,7 +103,9 @@ def modal_zoh(gains, freqs_hz, dampings, dt: float) -> StateSpace:
         blocks_a.append(mode.A)
         blocks_b.append(mode.B)
         c.append(mode.C)
-    return StateSpace(scipy.linalg.block_diag(*blocks_a), np.vstack(blocks_b), np.hstack(c),
+    from scipy.linalg import block_diag  # lazy: scipy.linalg takes ~0.3 s to import
+
+    return StateSpace(block_diag(*blocks_a), np.vstack(blocks_b), np.hstack(c),
                       [[0.0]], dt)
 
 

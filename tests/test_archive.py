@@ -1,0 +1,231 @@
+"""Consolidated archives, append, consolidation, flagged experiments, streamed sweeps, clusters."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import dask
+import netCDF4
+import numpy as np
+import pytest
+import xarray as xr
+
+from lcmr_xr.cli import main as cli_main
+from lcmr_xr.identification import identify
+from lcmr_xr.io import open_dataset
+from lcmr_xr.scaleout import (append_to_archive, consolidate_archive, local_cluster, open_archive,
+                              save_archive, sweep, sweep_to_disk)
+from lcmr_xr.scaleout.consolidated import COUNT_ATTR, append_rows, metadata_of
+from lcmr_xr.scaleout.stream import parts_directory
+from test_scaleout import _experiment, _forbid, _stack
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _labelled(i, **attrs):
+    return _experiment(i).assign_coords(experiment=f"run{i}").assign_attrs(seed=i, case=2, **attrs)
+
+
+# ------------------------------------------------------------------------------- archive
+def test_consolidated_round_trip_is_lazy_and_selectable(tmp_path):
+    items = [_labelled(i, drive_id=f"D{i % 2}") for i in range(3)]
+    assert save_archive(items, tmp_path / "a.nc") == [tmp_path / "a.nc"]
+    with dask.config.set(scheduler=_forbid):  # opening (and building a sweep) reads no data
+        arc = open_archive(tmp_path / "a.nc")
+        assert sweep(arc, window=[12]).P.chunks[3] == (3,)  # metadata coords chunked alike
+    assert arc.r.chunks is not None and arc.encoding["source"] == str(tmp_path / "a.nc")
+    assert arc.experiment.values.tolist() == ["run0", "run1", "run2"]
+    assert arc.seed.values.tolist() == [0, 1, 2] and arc.case.values.tolist() == [2, 2, 2]
+    assert "seed" not in arc.attrs and arc.attrs["factor"] == 2
+    on_d1 = arc.sel(experiment=arc.drive_id == "D1")
+    np.testing.assert_array_equal(on_d1.r.values[0], items[1].r.values)
+    for i, exp in enumerate(items):
+        for name in ("r", "u", "y"):
+            np.testing.assert_array_equal(arc[name].values[i], exp[name].values)
+    # the directory form of the same experiments opens to the same dataset
+    save_archive(items, tmp_path / "dir", layout="files")
+    xr.testing.assert_identical(open_archive(tmp_path / "dir").compute(), arc.compute())
+    arc.close()
+
+
+def test_append_adds_one_experiment_and_an_interrupted_append_is_ignored(tmp_path):
+    path = tmp_path / "a.nc"
+    append_to_archive(_labelled(0), path)  # creates the archive
+    append_to_archive(_labelled(1), path)
+    # an append that died after writing its rows but before raising the count
+    exp = _labelled(2)
+    append_rows(path, [("half", exp)], [metadata_of("half", exp)])
+    with netCDF4.Dataset(path, "a") as nc:
+        nc.setncattr(COUNT_ATTR, np.int64(2))
+    arc = open_archive(path)
+    assert arc.experiment.values.tolist() == ["run0", "run1"]
+    arc.close()
+    append_to_archive(_labelled(3), path)  # overwrites the partial row
+    arc = open_archive(path)
+    assert arc.experiment.values.tolist() == ["run0", "run1", "run3"]
+    np.testing.assert_array_equal(arc.u.values[2], _labelled(3).u.values)
+    assert arc.seed.values.tolist() == [0, 1, 3]
+    # refused: a label already there, another length, other metadata, while open
+    with pytest.raises(OSError, match="open elsewhere.*arc.close"):
+        append_to_archive(_labelled(4), path)
+    arc.close()
+    with pytest.raises(ValueError, match=r"\['run1'\] are already in"):
+        append_to_archive(_labelled(1), path)
+    longer = _experiment(5, n=960).assign_coords(experiment="x").assign_attrs(seed=5, case=2)
+    with pytest.raises(ValueError, match="another shape.*N=480.*N=960"):
+        append_to_archive(longer, path)
+    with pytest.raises(ValueError, match=r"missing \['case'\].*assign_attrs\(case=\.\.\.\)"):
+        append_to_archive(_experiment(6).assign_coords(experiment="y").assign_attrs(seed=6), path)
+    assert open_archive(path).sizes["experiment"] == 3  # nothing was added by the refusals
+
+
+def test_save_archive_layouts_and_overwrite(tmp_path):
+    save_archive([_labelled(0)], tmp_path / "a.nc")
+    save_archive([_labelled(1)], tmp_path / "a.nc")  # an existing archive: appended
+    assert open_archive(tmp_path / "a.nc").experiment.values.tolist() == ["run0", "run1"]
+    save_archive([_labelled(2)], tmp_path / "a.nc", overwrite=True)  # replaced
+    assert open_archive(tmp_path / "a.nc").experiment.values.tolist() == ["run2"]
+    (tmp_path / "junk.nc").write_text("not netcdf")
+    with pytest.raises(ValueError, match="not a readable NetCDF-4 archive.*overwrite=True"):
+        save_archive([_labelled(0)], tmp_path / "junk.nc")
+    with pytest.raises(ValueError, match="is a directory.*layout='files'"):
+        save_archive([_labelled(0)], tmp_path, layout="consolidated")
+    with pytest.raises(ValueError, match="layout must be one of"):
+        save_archive([_labelled(0)], tmp_path / "b.nc", layout="zarr")
+    with pytest.raises(ValueError, match=r"labels \['run0'\] occur more than once"):
+        save_archive([_labelled(0), _labelled(0)], tmp_path / "c.nc")
+
+
+def test_consolidate_directory_command(tmp_path, capsys):
+    items = [_labelled(i) for i in range(3)]
+    save_archive(items, tmp_path / "dir", layout="files")
+    before = sorted(p.name for p in (tmp_path / "dir").iterdir())
+    assert cli_main(["archive", "consolidate", str(tmp_path / "dir"), "-o", str(tmp_path / "a.nc")]) == 0
+    assert sorted(p.name for p in (tmp_path / "dir").iterdir()) == before  # input untouched
+    xr.testing.assert_identical(open_archive(tmp_path / "a.nc").compute(),
+                                open_archive(tmp_path / "dir").compute())
+    assert cli_main(["archive", "consolidate", str(tmp_path / "dir"), "-o", str(tmp_path / "a.nc")]) == 2
+    assert "already exists; pass --overwrite" in capsys.readouterr().err
+    with pytest.raises(FileExistsError):
+        consolidate_archive(tmp_path / "dir", tmp_path / "a.nc")
+
+
+# ------------------------------------------------------------------------------- flagged data
+def test_a_bad_experiment_is_flagged_not_fatal(tmp_path):
+    save_archive([_labelled(i) for i in range(3)], tmp_path / "dir", layout="files")
+    with netCDF4.Dataset(tmp_path / "dir" / "run1.nc", "a") as nc:  # a sample lost on disk
+        nc["y"][7, 0] = np.nan
+    arc = open_archive(tmp_path / "dir")  # opens: the values are checked in the tasks
+    res = sweep(arc, window=[12], experiments_per_task=2).compute(scheduler="synchronous")
+    errors = res.experiment_error.isel(method=0, degrees=0, window=0).values.tolist()
+    assert errors[0] == errors[2] == ""
+    assert "run1.nc" in errors[1] and "NaN or inf" in errors[1]
+    bad = res.isel(method=0, degrees=0, window=0, experiment=1)
+    assert bool(np.isnan(bad.P).all()) and bool(bad.P_flag.all())
+    good = identify(arc.isel(experiment=[2]).compute(), window=12, errors="ignore")
+    np.testing.assert_allclose(res.P.isel(method=0, degrees=0, window=0, experiment=[2]).values,
+                               good.P.values, rtol=1e-12)
+
+
+# ------------------------------------------------------------------------------- streaming
+class _Crash(Exception):
+    pass
+
+
+def test_sweep_to_disk_survives_a_crash_and_resumes(tmp_path):
+    exps = _stack([f"e{i}" for i in range(4)])
+    out = tmp_path / "sweep.nc"
+    settings = dict(window=[12, 20], experiments_per_task=2)
+
+    def crash(done, total, rate):
+        raise _Crash
+
+    with pytest.raises(_Crash):
+        sweep_to_disk(exps, out, **settings, workers=1, progress=crash)
+    kept = sorted(p.name for p in parts_directory(out).glob("*.nc"))
+    assert kept and not out.exists()
+    seen = []
+    sweep_to_disk(exps, out, **settings, progress=lambda d, t, r: seen.append((d, t, r)))
+    assert seen[0][1] == 8 and seen[0][0] == 2 * len(kept) + 2  # the kept parts were skipped
+    assert seen[-1][0] == 8 and seen[-1][2] > 0
+    assert not parts_directory(out).exists()
+    want = sweep(exps, **settings).compute(scheduler="synchronous")
+    xr.testing.assert_identical(open_dataset(out), want)
+    with pytest.raises(FileExistsError):
+        sweep_to_disk(exps, out, **settings)
+    # parts of another sweep in the way are refused, not mixed in
+    with pytest.raises(_Crash):
+        sweep_to_disk(exps, tmp_path / "b.nc", window=[12], workers=1, progress=crash)
+    with pytest.raises(ValueError, match=r"another sweep \(different \['window'\]\)"):
+        sweep_to_disk(exps, tmp_path / "b.nc", window=[20])
+
+
+def test_sweep_to_disk_never_writes_into_or_over_its_archive(tmp_path):
+    save_archive([_labelled(i) for i in range(2)], tmp_path / "dir", layout="files")
+    save_archive([_labelled(i) for i in range(2)], tmp_path / "a.nc")
+    before = sorted(p.name for p in tmp_path.rglob("*"))
+    with pytest.raises(ValueError, match="inside the input directory"):
+        sweep_to_disk(open_archive(tmp_path / "dir"), tmp_path / "dir" / "r.nc", window=[12])
+    with pytest.raises(ValueError, match="the input file"):
+        sweep_to_disk(open_archive(tmp_path / "a.nc"), tmp_path / "a.nc", window=[12], overwrite=True)
+    assert sorted(p.name for p in tmp_path.rglob("*")) == before  # no parts directory either
+
+
+def test_sweep_to_disk_prints_experiments_per_second(tmp_path, capsys):
+    sweep_to_disk(_stack(["a", "b"]), tmp_path / "s.nc", window=[12], scheduler="synchronous")
+    err = capsys.readouterr().err
+    assert "100% Completed | 2/2 experiment-settings" in err and "experiments/s" in err
+    assert "\r" not in err  # stderr is no terminal here: plain lines
+
+
+# ------------------------------------------------------------------------------- clusters
+def test_local_cluster_workers_get_the_allocator_settings():
+    from distributed import Client
+
+    with local_cluster(1, silence_logs=50) as cluster, Client(cluster) as client:
+        env = next(iter(client.run(lambda: dict(os.environ)).values()))
+    assert env["MALLOC_TRIM_THRESHOLD_"] == str(64 * 2**20)
+    assert env["MALLOC_MMAP_THRESHOLD_"] == str(32 * 2**20)
+    assert env["OPENBLAS_NUM_THREADS"] == "1"  # distributed's own defaults are kept
+
+
+@pytest.mark.slow
+def test_sweep_runs_unchanged_on_a_remote_scheduler(tmp_path):
+    """Scheduler and worker as separate processes on 127.0.0.1; the same streamed sweep."""
+    from distributed import Client
+
+    env = {**os.environ, "PYTHONPATH": f"{ROOT}{os.pathsep}{os.environ.get('PYTHONPATH', '')}"}
+    sched_file = tmp_path / "scheduler.json"
+    procs = [subprocess.Popen([sys.executable, "-m", "distributed.cli.dask_scheduler",
+                               "--host", "127.0.0.1", "--port", "0", "--no-dashboard",
+                               "--scheduler-file", str(sched_file)], env=env,
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)]
+    try:
+        deadline = time.monotonic() + 60
+        while not sched_file.exists() and time.monotonic() < deadline:
+            time.sleep(0.1)
+        procs.append(subprocess.Popen([sys.executable, "-m", "distributed.cli.dask_worker",
+                                       "--scheduler-file", str(sched_file), "--host", "127.0.0.1",
+                                       "--nthreads", "1", "--no-dashboard"], env=env,
+                                      stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
+        save_archive([_labelled(i) for i in range(3)], tmp_path / "a.nc")
+        arc = open_archive(tmp_path / "a.nc")
+        with Client(scheduler_file=str(sched_file), timeout="30s") as client:
+            client.wait_for_workers(1, timeout=60)
+            out = sweep_to_disk(arc, tmp_path / "s.nc", window=[12], client=client, progress=False)
+            assert all(pid != os.getpid() for pid in client.run(os.getpid).values())
+        want = sweep(arc, window=[12]).compute(scheduler="synchronous")
+        xr.testing.assert_identical(open_dataset(out), want)
+    finally:
+        for proc in reversed(procs):
+            proc.terminate()
+        for proc in reversed(procs):
+            try:
+                proc.wait(timeout=20)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
