@@ -378,3 +378,15 @@ def test_cli_errors_exit_2_and_write_nothing(tmp_path, capsys):
                  "--scheduler", "gpu"]) == 2
     assert "neither threads" in capsys.readouterr().err
     assert not (tmp_path / "r.nc").exists()
+
+
+def test_cli_sweep_pools_experiments(tmp_path):
+    exps = _stack(["e0", "e1", "e2"])
+    save_archive(exps, tmp_path / "arc")
+    status = _cli(["sweep", str(tmp_path / "arc"), "-o", str(tmp_path / "res.nc"), "--window", "15",
+                   "--degrees", "2-2-2", "--pool", "1", "2", "--scheduler", "synchronous"])
+    assert status == 0
+    got = open_dataset(tmp_path / "res.nc")
+    want = sweep(exps, window=[15], degrees=["2-2-2"], pool=[1, 2]).compute(scheduler="synchronous")
+    assert got.P.sizes["pool"] == 2 and got.P.sizes["pool_group"] == 3
+    np.testing.assert_allclose(got.P.values, want.P.values, rtol=1e-12)

@@ -302,7 +302,8 @@ def run_sweep(args) -> int:
         else:
             result = _compute(lazy, args.scheduler, getattr(args, "connect_timeout", CONNECT_TIMEOUT))
             save(result, args.output)
-        failed = [str(e) for e in np.unique(result[cv.EXPERIMENT_ERROR].values) if str(e)]
+        failed = [str(e) for e in np.unique(result[cv.EXPERIMENT_ERROR].values) if str(e)] \
+            if cv.EXPERIMENT_ERROR in result else []  # (pooled: no per-experiment results)
         for message in failed:
             print(f"lcmr-xr sweep: flagged {message}", file=sys.stderr)
         flagged = int(result["P_flag"].sum())
