@@ -111,6 +111,9 @@ NOISE_ESTIMATE = "noise_estimate"
 NOISE_DOF = "noise_dof"
 POOLED_ATTRS = (COMBINE, PERIODS, TRANSIENT_PERIODS, STEADY_PERIODS, RECORDS_AVERAGED,
                 NOISE_ESTIMATE, NOISE_DOF)
+# Added by combine="experiment" with a local window over different excitations (one local
+# model, G shared, a transient per experiment): the number of experiments pooled.
+POOLED_EXPERIMENTS = "pooled_experiments"
 
 
 # ---- archives (lcmr_xr.scaleout): docs/conventions.md, "Files and archives"

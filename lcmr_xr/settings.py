@@ -137,7 +137,8 @@ def as_integer(value, name: str, *, minimum: int | None = None, example=None) ->
     return out
 
 
-def parse_degrees(value, method: str | None = None) -> tuple[int, int, int]:
+def parse_degrees(value, method: str | None = None, *,
+                  no_transient: bool = False) -> tuple[int, int, int]:
     """``(Rn, Rm, Rd)`` from ``"Rn-Rm-Rd"`` (or ``"Rn,Rm,Rd"``, ``"Rn Rm Rd"``) or integers.
 
     Parameters
@@ -148,6 +149,9 @@ def parse_degrees(value, method: str | None = None) -> tuple[int, int, int]:
         0 is refused: the local polynomial model has no denominator.
     method : {"lrm", "lpm"}, optional
         Apply that method's rule for ``Rd``; ``None``: any three non-negative integers.
+    no_transient : bool, default False
+        Also accept ``Rm = -1`` (no transient term), given as integers (e.g. ``(3, -1, 3)``):
+        only for steady-state periodic data (:func:`lcmr_xr.identify` checks the data).
 
     Returns
     -------
@@ -180,6 +184,15 @@ def parse_degrees(value, method: str | None = None) -> tuple[int, int, int]:
         and len(out) == 2
     if lpm_pair:
         out = out + (0,)
+    if out is None and no_transient and parts is not None and len(parts) in (2, 3) \
+            and not isinstance(value, str):
+        try:  # Rm = -1: the transient term left out (periodic data); the others >= 0
+            out = tuple(as_integer(p, "degree", minimum=-1 if i == 1 else 0)
+                        for i, p in enumerate(parts))
+        except (TypeError, ValueError):
+            out = None
+        if out is not None and len(out) == 2:
+            out = out + (0,) if lpm_pair_ok(method) else None
     if out is None or len(out) != 3:
         pair = " (or the pair Rn-Rm for method='lpm')" if method != "lrm" else ""
         raise ValueError(
@@ -254,9 +267,15 @@ def window_argument(text: str):
     return text
 
 
+def lpm_pair_ok(method) -> bool:
+    """Whether ``method`` takes the degrees pair ``(Rn, Rm)`` (no denominator)."""
+    return method is not None and not METHODS[method].has_denominator
+
+
 def estimator_settings(*, method="lrm", window=DEFAULT_WINDOW, degrees=None,
                        closed_loop="indirect",
-                       covariance=True, errors="raise", frequency_chunks=None) -> EstimatorSettings:
+                       covariance=True, errors="raise", frequency_chunks=None,
+                       no_transient: bool = False) -> EstimatorSettings:
     """Check and normalise every setting of a local-model estimate, before any data is read.
 
     Parameters
@@ -265,6 +284,9 @@ def estimator_settings(*, method="lrm", window=DEFAULT_WINDOW, degrees=None,
         As in :func:`lcmr_xr.identify`.  ``degrees=None`` is the method's default
         (:data:`METHODS`); ``window`` a half-width or ``"auto"`` (default
         :data:`DEFAULT_WINDOW`), which needs ``covariance=True`` and no ``frequency_chunks``.
+    no_transient : bool, default False
+        Accept ``Rm = -1`` in ``degrees`` (see :func:`parse_degrees`); the caller checks that
+        the data are steady-state periodic.
 
     Returns
     -------
@@ -285,7 +307,8 @@ def estimator_settings(*, method="lrm", window=DEFAULT_WINDOW, degrees=None,
     (3, 3, 0)
     """
     method = as_choice(method, "method", METHODS)
-    degrees = METHODS[method].default_degrees if degrees is None else parse_degrees(degrees, method)
+    degrees = METHODS[method].default_degrees if degrees is None else \
+        parse_degrees(degrees, method, no_transient=no_transient)
     window = as_window(window)
     closed_loop = as_choice(closed_loop, "closed_loop", CLOSED_LOOP)
     covariance = as_bool(covariance, "covariance")

@@ -114,6 +114,70 @@ def oracle_local_model(R, Z, half_width, degrees, circular=True, bins=None, cova
     return out
 
 
+def oracle_pooled_local_model(R, Z, half_width, degrees, bins=None):
+    """Per-bin ``lstsq`` fit of ``E`` experiments stacked: shared ``G``, numerator and
+    denominator, one transient term per experiment (block columns), written literally.
+
+    ``R`` (E, M, nr), ``Z`` (E, M, nz), circular windows.  Returns ``G`` (M, nz, nr), ``T``
+    (E, M, nz), ``noise_covariance`` (M, nz, nz), ``G_cov`` (M, nz nr, nz nr) and ``dof``
+    ``E (2n + 1) - p`` with the same first-order formulas as :func:`oracle_local_model`
+    over the stacked windows.
+    """
+    R = np.asarray(R, dtype=complex)
+    Z = np.asarray(Z, dtype=complex)
+    n_exp, m, nr = R.shape
+    nz = Z.shape[2]
+    rn, rm, rd = degrees
+    n = half_width
+    r = np.arange(-n, n + 1)
+    rho = r / n
+    w = 2 * n + 1
+    p = nr * (rn + 1) + n_exp * (rm + 1) + rd
+    dof = n_exp * w - p
+    nan_c = complex(np.nan, np.nan)
+    out = {"G": np.full((m, nz, nr), nan_c), "T": np.full((n_exp, m, nz), nan_c),
+           "noise_covariance": np.full((m, nz, nz), nan_c),
+           "G_cov": np.full((m, nz * nr, nz * nr), nan_c), "dof": dof}
+    for k in range(m) if bins is None else bins:
+        idx = (k + r) % m
+        resid, gain, proj, dwin = [], [], [], []
+        for i in range(nz):
+            blocks = []
+            for e in range(n_exp):
+                cols = [R[e, idx, q] * rho**b for q in range(nr) for b in range(rn + 1)]
+                for e2 in range(n_exp):  # experiment e2's transient: zero outside its rows
+                    cols += [(rho**c + 0j) * (e2 == e) for c in range(rm + 1)]
+                cols += [-(rho**s) * Z[e, idx, i] for s in range(1, rd + 1)]
+                blocks.append(np.stack(cols, axis=1))
+            K = np.concatenate(blocks, axis=0)
+            zi = np.concatenate([Z[e, idx, i] for e in range(n_exp)])
+            theta, *_ = np.linalg.lstsq(K, zi, rcond=None)
+            out["G"][k, i] = theta[0: nr * (rn + 1): rn + 1]
+            if rm >= 0:
+                out["T"][:, k, i] = theta[nr * (rn + 1): nr * (rn + 1) + n_exp * (rm + 1)] \
+                    .reshape(n_exp, rm + 1)[:, 0]
+            resid.append(zi - K @ theta)
+            pinv = np.linalg.pinv(K)
+            gain.append(pinv[0: nr * (rn + 1): rn + 1])
+            proj.append(np.eye(n_exp * w) - K @ pinv)
+            d_r = np.ones(w, dtype=complex)
+            for s in range(1, rd + 1):
+                d_r = d_r + theta[p - rd + s - 1] * rho**s
+            dwin.append(np.diag(np.tile(d_r, n_exp)))
+        resid = np.array(resid)
+        raw = resid @ resid.conj().T
+        pd = [proj[i] @ dwin[i] for i in range(nz)]
+        tau = np.array([[np.sum(np.conj(pd[j]) * pd[i]) for j in range(nz)] for i in range(nz)])
+        sc = raw / tau
+        out["noise_covariance"][k] = sc
+        gd = [gain[i] @ dwin[i] for i in range(nz)]
+        for i in range(nz):
+            for j in range(nz):
+                out["G_cov"][k, i * nr:(i + 1) * nr, j * nr:(j + 1) * nr] = \
+                    sc[i, j] * gd[i] @ gd[j].conj().T
+    return out
+
+
 def resonant_system(m, nz, nr, *, damping=0.01, seed=0, noise=1e-3, bins_per_pole=None):
     """Spectra of a lightly damped, rational, MIMO system with a transient, on ``m`` bins.
 

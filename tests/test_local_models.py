@@ -743,3 +743,64 @@ def test_no_transient_term_is_exact_for_periodic_data():
     assert fit.dof == 2 * n + 1 - 2 * (rn + 1) == 2 * n + 1 - parameters_per_row(2, (rn, -1, 0))
     assert _max_rel(fit.G[inner], G[inner]) < 1e-10
     assert np.all(fit.T[inner] == 0)
+
+
+# ---------------------------------------------------------------- pooled experiments
+from _lrm_oracle import oracle_pooled_local_model  # noqa: E402
+
+
+def _pooled_data(m, n_exp, nz, nr, noise=1e-2):
+    """``E`` experiments of one system (shared G) with their own excitation, transient
+    and noise."""
+    R, Z = [], []
+    G0 = resonant_system(m, nz, nr, seed=0, noise=noise)[2]
+    for e in range(n_exp):
+        Re, Ze, Ge, _ = resonant_system(m, nz, nr, seed=e, noise=noise)
+        R.append(Re)
+        Z.append(Ze + np.einsum("kip,kp->ki", G0 - Ge, Re))  # the same G, own T and noise
+    return np.array(R), np.array(Z), G0
+
+
+@pytest.mark.parametrize("degrees,covariance", [((2, 2, 2), "full"), ((2, 1, 0), None),
+                                                ((1, 2, 1), "diag")])
+def test_pooled_experiments_agree_with_stacked_oracle(degrees, covariance):
+    R, Z, _ = _pooled_data(48, 3, 2, 2)
+    fit = local_model(R, Z, half_width=8, degrees=degrees, experiment_axis=0,
+                      covariance=covariance)
+    ref = oracle_pooled_local_model(R, Z, 8, degrees)
+    rel = lambda a, b: np.max(abs(a - b)) / np.max(abs(b))  # noqa: E731
+    assert fit.G.shape == (48, 2, 2) and fit.T.shape == (3, 48, 2)
+    assert fit.dof == ref["dof"] == 3 * 17 - (2 * (degrees[0] + 1) + 3 * (degrees[1] + 1)
+                                              + degrees[2])
+    assert rel(fit.G, ref["G"]) < 1e-9
+    assert rel(fit.T, ref["T"]) < 1e-9
+    if covariance == "full":
+        assert rel(fit.noise_covariance, ref["noise_covariance"]) < 1e-9
+        assert rel(fit.G_cov, ref["G_cov"]) < 1e-9
+    elif covariance == "diag":
+        assert rel(fit.G_cov, np.real(np.diagonal(ref["G_cov"], axis1=-2, axis2=-1))
+                   .reshape(48, 2, 2)) < 1e-9
+    if degrees[2] == 0:  # LPM: tau = dof exactly, also without the covariance
+        assert rel(fit.noise_covariance, ref["noise_covariance"]) < 1e-9
+
+
+def test_pooled_one_experiment_is_the_single_record_fit_bit_for_bit():
+    R, Z, _ = _pooled_data(48, 2, 2, 2)
+    one = local_model(R[:1], Z[:1], half_width=8, degrees=(2, 2, 2), experiment_axis=0)
+    ref = local_model(R[0], Z[0], half_width=8, degrees=(2, 2, 2))
+    for name in ("G", "noise_covariance", "G_cov", "condition", "ill_posed", "dropped"):
+        assert np.array_equal(getattr(one, name), getattr(ref, name), equal_nan=True), name
+    assert np.array_equal(one.T[0], ref.T, equal_nan=True)
+
+
+def test_pooled_experiment_axis_anywhere_in_the_leading_dims():
+    R, Z, _ = _pooled_data(48, 2, 1, 1)
+    batch = np.stack([R, 2 * R], axis=1)  # (E, batch, M, nr)
+    zb = np.stack([Z, 2 * Z], axis=1)
+    fit = local_model(batch, zb, half_width=8, degrees=(2, 2, 0), experiment_axis=0)
+    ref = local_model(R, Z, half_width=8, degrees=(2, 2, 0), experiment_axis=-3)
+    assert fit.G.shape == (2, 48, 1, 1) and fit.T.shape == (2, 2, 48, 1)
+    np.testing.assert_allclose(fit.G[0], ref.G, rtol=1e-12)
+    np.testing.assert_allclose(fit.G[1], ref.G, rtol=1e-12)  # G R scaled like Z
+    with pytest.raises(ValueError, match="experiment_axis must be a leading axis"):
+        local_model(R, Z, half_width=8, degrees=(2, 2, 0), experiment_axis=-1)

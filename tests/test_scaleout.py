@@ -221,6 +221,41 @@ def test_sweep_of_one_experiment_without_experiment_dim():
     np.testing.assert_allclose(res.P.isel(method=0, degrees=0, window=0).values, want.P.values, rtol=1e-12)
 
 
+def test_sweep_pools_groups_of_experiments_from_an_archive(tmp_path):
+    exps = _stack([f"e{i}" for i in range(5)])
+    save_archive(exps, tmp_path)
+    arc = open_archive(tmp_path)
+    res = sweep(arc, window=[15], degrees=["2-2-2"], pool=[1, 2])
+    assert dict(res.P.sizes) == {"method": 1, "degrees": 1, "window": 1, "pool": 2,
+                                 "pool_group": 5, "frequency": 241, "output": 1, "input": 1}
+    res = res.compute(scheduler="synchronous")
+    got = res.P.isel(method=0, degrees=0, window=0)
+    # pool 2: groups (e0, e1), (e2, e3); e4 left over, group slots 2..4 NaN
+    for g in range(2):
+        want = identify(exps.isel(experiment=[2 * g, 2 * g + 1]), window=15, degrees=(2, 2, 2),
+                        combine="experiment", errors="ignore")
+        np.testing.assert_allclose(got.sel(pool=2).isel(pool_group=g).values, want.P.values,
+                                   rtol=1e-9)
+    assert np.isnan(got.sel(pool=2).isel(pool_group=slice(2, None)).values).all()
+    one = identify(exps.isel(experiment=4), window=15, degrees=(2, 2, 2), errors="ignore")
+    np.testing.assert_allclose(got.sel(pool=1).isel(pool_group=4).values, one.P.values, rtol=1e-9)
+    # identify pools the lazily opened archive itself (one local model over its experiments)
+    lazy = identify(arc, window=15, degrees=(2, 2, 2), combine="experiment", errors="ignore")
+    assert lazy.P.chunks is not None
+    np.testing.assert_allclose(lazy.P.values, identify(exps, window=15, degrees=(2, 2, 2),
+                                                       combine="experiment", errors="ignore").P.values,
+                               rtol=1e-9)
+    # and a consolidated archive (one file) the same way
+    from lcmr_xr.scaleout import consolidate_archive
+
+    one_file = consolidate_archive(tmp_path, tmp_path.parent / f"{tmp_path.name}-all.nc")
+    lazy_c = identify(open_archive(one_file), window=15, degrees=(2, 2, 2), combine="experiment",
+                      errors="ignore")
+    np.testing.assert_allclose(lazy_c.P.values, lazy.P.values, rtol=1e-12)
+    with pytest.raises(ValueError, match="more than the 5 experiments"):
+        sweep(arc, window=[15], pool=[8])
+
+
 # ------------------------------------------------------------------------------- selection
 def _true_error(res):
     truth = tf_frf(*PLANT, 480)[: 241]
@@ -343,3 +378,15 @@ def test_cli_errors_exit_2_and_write_nothing(tmp_path, capsys):
                  "--scheduler", "gpu"]) == 2
     assert "neither threads" in capsys.readouterr().err
     assert not (tmp_path / "r.nc").exists()
+
+
+def test_cli_sweep_pools_experiments(tmp_path):
+    exps = _stack(["e0", "e1", "e2"])
+    save_archive(exps, tmp_path / "arc")
+    status = _cli(["sweep", str(tmp_path / "arc"), "-o", str(tmp_path / "res.nc"), "--window", "15",
+                   "--degrees", "2-2-2", "--pool", "1", "2", "--scheduler", "synchronous"])
+    assert status == 0
+    got = open_dataset(tmp_path / "res.nc")
+    want = sweep(exps, window=[15], degrees=["2-2-2"], pool=[1, 2]).compute(scheduler="synchronous")
+    assert got.P.sizes["pool"] == 2 and got.P.sizes["pool_group"] == 3
+    np.testing.assert_allclose(got.P.values, want.P.values, rtol=1e-12)

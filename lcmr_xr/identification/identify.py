@@ -136,8 +136,14 @@ def identify(experiment: xr.Dataset, *, method: str = "lrm", window=DEFAULT_WIND
         ``G(k) = Z(k) R(k)^+`` at every slow bin, no local model, with the band from the
         nonparametric noise (bins where the experiments' lifted excitations are not of full
         rank, e.g. the slow bin 0 of multisines without DC, are NaN and flagged
-        ``ill_posed``); with a local window they need a pooled local-model kernel that does
-        not exist yet (refused with a message).
+        ``ill_posed``); with a local window (fixed or ``"auto"``) they are fitted as ONE
+        local model: ``G`` and the denominator shared, a transient term per experiment
+        (``transient_y``/``transient_u`` keep the ``experiment`` dim), one noise
+        covariance with ``E (2n + 1) - p`` degrees of freedom; attribute
+        ``pooled_experiments``.  Lazy data work along the other leading dims (not with
+        ``frequency_chunks``).  ``degrees`` with ``Rm = -1`` (no transient term) is
+        accepted only for steady-state periodic records (a ``period`` dim, transient
+        periods dropped).
 
 Returns
     -------
@@ -192,15 +198,14 @@ Returns
                            degrees=degrees)
     s = estimator_settings(method=method, window=1 if window0 else window, degrees=degrees,
                            closed_loop=closed_loop, covariance=covariance, errors=errors,
-                           frequency_chunks=None if window0 else frequency_chunks)
+                           frequency_chunks=None if window0 else frequency_chunks,
+                           no_transient=True)
     stacked = as_bool(stacked, "stacked")
     ds = _validate(experiment)
     factor = int(ds.attrs[cv.FACTOR])
     th = even_spacing(ds[cv.TIME].values, cv.TIME)[1]
     # ---- pooling hook: periods / experiments (lcmr_xr.identification.pooling).  Rm = -1
-    # (no transient term) plugs in here once the local-model kernel accepts it: steady-state
-    # averaged records (plan.attrs["transient_periods"] > 0) may then be fitted with
-    # degrees (Rn, -1, Rd); the settings validator must let Rm = -1 through for them only.
+    # (no transient term) only for steady-state averaged records (checked below).
     plan = None
     if window0 or pooling.requested(ds, transient_periods, combine):
         plan = pooling.plan(ds, window=0 if window0 else s.window,
@@ -208,6 +213,13 @@ Returns
                             closed_loop=s.closed_loop, covariance=s.covariance,
                             frequency_chunks=frequency_chunks)
         s = s._replace(window=0) if window0 else s
+    if s.degrees[1] < 0 and (plan is None or plan.attrs[cv.TRANSIENT_PERIODS] < 1):
+        raise ValueError(
+            f"degrees={s.degrees} leaves the transient term out (Rm = -1), which is right only "
+            "for steady-state periodic data: records with a 'period' dim whose transient "
+            "period(s) are dropped (transient_periods >= 1, the default with a 'period' dim). "
+            "These data are not: use non-negative degrees (Rm >= 0, e.g. degrees=(3, 3, 3))."
+        )
     fit = ds if plan is None else plan.dataset
     if not window0:
         check_window_fits(s.window, s.degrees, factor * ds.sizes[cv.INPUT], ds.sizes[cv.SLOW_TIME])
@@ -272,7 +284,7 @@ RESPONSE, EXCITATION = "response", "excitation"
 
 
 def output_specs(closed_loop: str, stacked: bool = False,
-                 auto: bool = False) -> list[tuple[str, list[str], type]]:
+                 auto: bool = False, pooled: bool = False) -> list[tuple[str, list[str], type]]:
     """``(name, core dims, dtype)`` of every variable :func:`identify` returns.
 
     The one description of the result's layout: :func:`identify` fills it, and
@@ -286,6 +298,8 @@ def output_specs(closed_loop: str, stacked: bool = False,
         Include the stacked local model ``G``, ``G_std``, ``noise_variance``.
     auto : bool, default False
         ``window="auto"``: include ``P_bias`` and ``local_window``.
+    pooled : bool, default False
+        Experiments pooled in one local model: the transients keep the ``experiment`` dim.
 
     Returns
     -------
@@ -293,13 +307,14 @@ def output_specs(closed_loop: str, stacked: bool = False,
         Variable name, its core dims (leading dims such as ``experiment`` come in front),
         its dtype.
     """
+    ex = [cv.EXPERIMENT] if pooled else []
     specs = [
         ("P", [FQ, cv.OUTPUT, cv.INPUT], complex),
         ("P_std", [FQ, cv.OUTPUT, cv.INPUT], float),
         ("P_flag", [FQ], bool),
         ("PS", [SF, cv.OUTPUT, LP2, IN2], complex),
         ("PS_std", [SF, cv.OUTPUT, LP2, IN2], float),
-        ("transient_y", [SF, cv.OUTPUT], complex),
+        ("transient_y", [SF] + ex + [cv.OUTPUT], complex),
         ("noise_variance_y", [SF, cv.OUTPUT], float),
         ("condition", [SF], float),
         ("ill_posed", [SF], bool),
@@ -312,7 +327,7 @@ def output_specs(closed_loop: str, stacked: bool = False,
         specs += [
             ("S", [SF, LP, cv.INPUT, LP2, IN2], complex),
             ("S_std", [SF, LP, cv.INPUT, LP2, IN2], float),
-            ("transient_u", [SF, LP, cv.INPUT], complex),
+            ("transient_u", [SF] + ex + [LP, cv.INPUT], complex),
             ("noise_variance_u", [SF, LP, cv.INPUT], float),
             ("s_condition", [SF], float),
             ("s_singular", [SF], bool),
@@ -378,7 +393,7 @@ def _split(out: dict, specs, *, factor: int, nu: int, ny: int, closed_loop: str)
         shape_s = lead_m + (factor, nu, factor, nu)
         pieces["S"] = G[..., :fnu, :].reshape(shape_s)
         pieces["S_std"] = G_sd[..., :fnu, :].reshape(shape_s)
-        pieces["transient_u"] = out["T"][..., :fnu].reshape(lead_m + (factor, nu))
+        pieces["transient_u"] = out["T"][..., :fnu].reshape(out["T"].shape[:-1] + (factor, nu))
         pieces["noise_variance_u"] = out["noise_variance"][..., :fnu].reshape(lead_m + (factor, nu))
         pieces["s_condition"] = out["s_condition"]
         pieces["s_singular"] = out["s_singular"]
@@ -402,9 +417,14 @@ def _estimate(r: xr.DataArray, u: xr.DataArray, y: xr.DataArray, s, *, factor: i
     n, nu = r.sizes[cv.TIME], r.sizes[cv.INPUT]
     ny = y.sizes[cv.OUTPUT]
     auto = s.window == AUTO_WINDOW
-    specs = output_specs(s.closed_loop, stacked, auto)
-    core_in = [[cv.TIME, cv.INPUT], [cv.TIME, cv.INPUT], [cv.SLOW_TIME, cv.OUTPUT]]
+    pooled = plan is not None and plan.experiments  # one local model over the experiments
+    specs = output_specs(s.closed_loop, stacked, auto, pooled)
+    ex = [cv.EXPERIMENT] if pooled else []
+    core_in = [ex + [cv.TIME, cv.INPUT], ex + [cv.TIME, cv.INPUT], ex + [cv.SLOW_TIME, cv.OUTPUT]]
     sizes = output_sizes(factor=factor, n=n, nu=nu, ny=ny, closed_loop=s.closed_loop)
+    if pooled:
+        sizes[cv.EXPERIMENT] = r.sizes[cv.EXPERIMENT]
+    exp_axis = -3 if pooled else None  # R, Z (..., E, M, channels)
     used = {d for _, dims, _ in specs for d in dims}
     gufunc_kwargs = {"output_sizes": {d: k for d, k in sizes.items() if d in used},
                      "allow_rechunk": False}
@@ -430,16 +450,20 @@ def _estimate(r: xr.DataArray, u: xr.DataArray, y: xr.DataArray, s, *, factor: i
 
         def fit(r_, u_, y_, noise_covariance=None):
             R, Z = experiment_spectra(r_, u_, y_, factor=factor, closed_loop=s.closed_loop)
-            if check_rank and not lazy:  # lazy: the local model's condition numbers flag it
+            # lazy: the local model's condition numbers flag it; pooled: only the
+            # experiments together need to excite every lifted channel (flagged likewise)
+            if check_rank and not lazy and not pooled:
                 _check_excitation_rank(R, "r" if s.closed_loop == "indirect" else "u")
             if auto:  # a window per slow bin (kernels.adaptive), same guards as below
                 return identify_spectra_auto(R, Z, n_fast=n, factor=factor, nu=nu,
                                              windows=windows, degrees=s.degrees,
                                              closed_loop=s.closed_loop,
-                                             noise_covariance=noise_covariance)
+                                             noise_covariance=noise_covariance,
+                                             experiment_axis=exp_axis)
             return identify_spectra(R, Z, n_fast=n, factor=factor, nu=nu, half_width=s.window,
                                     degrees=s.degrees, closed_loop=s.closed_loop,
-                                    covariance=s.covariance, noise_covariance=noise_covariance)
+                                    covariance=s.covariance, noise_covariance=noise_covariance,
+                                    experiment_axis=exp_axis)
 
         def kernel(r_, u_, y_, *noise_cov):
             # lazy data were not checked by the validation: name the variable and time range

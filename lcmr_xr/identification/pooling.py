@@ -12,18 +12,19 @@ What :func:`lcmr_xr.identify` does with a ``period`` dim or ``combine="experimen
   robust LPM).  The local model then runs on the averaged record and its band uses the
   nonparametric covariance (averaged over the local window) instead of the residual one.
   The local model still carries its transient term (degrees ``Rm`` as given): what is
-  left of the transient after dropping periods is absorbed by it.
-  WHERE Rm = -1 PLUGS IN: once the local-model kernel accepts ``Rm = -1`` (no transient
-  term), steady-state averaged data can be fitted without it (``degrees=(Rn, -1, Rd)``,
-  one parameter less per row and no transient/FRF trade-off); only
-  ``identify._resolve_degrees`` has to let ``Rm = -1`` through for records that went
-  through :func:`plan` with a ``period`` dim.
+  left of the transient after dropping periods is absorbed by it.  On these steady-state
+  averaged records ``degrees=(Rn, -1, Rd)`` leaves the transient term out (one parameter
+  less per row, no transient/FRF trade-off); ``identify`` refuses ``Rm = -1`` for any
+  record that did not go through :func:`plan` with a ``period`` dim and at least one
+  dropped period.
 * **Experiments** (``combine="experiment"``): experiments with the SAME excitation are
   pooled by averaging, like periods (the deterministic response is the same in each).
   With different excitations and ``window=0`` (``E >= F nu`` periodic experiments),
   ``G(k) = Z(k) R(k)^+`` at every slow bin, no local model.  Different excitations with
-  a local window need the pooled local-model kernel (shared ``G`` and ``D``, a transient
-  per experiment), which does not exist yet: refused with a message saying so.
+  a local window are fitted as ONE local model (``local_model(..., experiment_axis=)``:
+  ``G`` and ``D`` shared, a transient per experiment, noise dof ``E (2n + 1) - p``), each
+  experiment's periods averaged first; lazy data are always fitted this way (they are
+  not read to compare the excitations).
 """
 
 from __future__ import annotations
@@ -58,12 +59,16 @@ class Plan(NamedTuple):
         spectra ``Z`` from the spread over the records; None when not estimated.
     attrs : dict
         Settings and counts recorded on the result.
+    experiments : bool
+        ``dataset`` keeps an ``experiment`` dim whose experiments (different
+        excitations) are fitted as one local model (shared ``G``, a transient each).
     """
 
     dataset: xr.Dataset
     window0: bool
     noise_covariance: xr.DataArray | None
     attrs: dict
+    experiments: bool = False
 
 
 def requested(ds: xr.Dataset, transient_periods, combine) -> bool:
@@ -240,16 +245,27 @@ def plan(ds: xr.Dataset, *, window, transient_periods, combine, closed_loop: str
 
     pool = ([cv.PERIOD] if has_period else []) + ([cv.EXPERIMENT] if combine == "experiment" else [])
     if combine == "experiment" and ds.sizes[cv.EXPERIMENT] > 1 \
-            and not _same_excitation(steady["r"], cv.EXPERIMENT):
-        raise ValueError(
-            f"combine='experiment' with window={window}: these {n_exp} experiments have "
-            "different excitations, and pooling them in one local model needs the pooled "
-            "local-model kernel (one G and denominator shared by all experiments, a transient "
-            "term per experiment), which lcmr_xr does not have yet. Either use window=0 "
-            "(periodic experiments, a 'period' dim, E >= F nu with different excitations), "
-            "or apply the same excitation in every experiment (then they are averaged), or "
-            "identify them one by one (combine=None)."
-        )
+            and (steady["r"].chunks is not None
+                 or not _same_excitation(steady["r"], cv.EXPERIMENT)):
+        # different excitations (or lazy data, not read to compare them): ONE local model
+        # over the experiments, G and D shared, a transient each (pooled kernel)
+        noise_cov = None
+        if has_period and p_steady > 1:  # per experiment over its periods, then the mean
+            noise_cov = _spread_covariance(steady, [cv.PERIOD], closed_loop).mean(cv.EXPERIMENT)
+        if frequency_chunks is not None:
+            raise ValueError(
+                "combine='experiment' over different excitations fits one local model per "
+                "bin from all experiments; it runs lazily along the leading dims but not in "
+                "frequency chunks yet: leave frequency_chunks out (chunk other dims instead)."
+            )
+        fitted = _average(steady, [cv.PERIOD]) if has_period else steady
+        if fitted["u"].chunks is not None:  # one local model needs every experiment
+            fitted = fitted.chunk({cv.EXPERIMENT: -1})
+        attrs.update({cv.RECORDS_AVERAGED: int(p_steady), cv.POOLED_EXPERIMENTS: int(n_exp),
+                      cv.NOISE_ESTIMATE: "periods" if noise_cov is not None else "residual",
+                      cv.NOISE_DOF: int(n_exp * (p_steady - 1)) if noise_cov is not None
+                      else -1})
+        return Plan(fitted, False, noise_cov, attrs, True)
     k = p_steady * n_exp
     noise_cov = None
     if has_period and k > 1:

@@ -154,13 +154,14 @@ def recover_frf(G, G_cov, *, n_fast: int, factor: int, nu: int, ny: int,
     }
 
 
-def packed_width(nz: int, nr: int, covariance: bool) -> int:
-    """Length of the last axis of :func:`fit_packed`'s output."""
-    return nz * nr + 2 * nz + 2 + ((nz * nr) ** 2 if covariance else 0)
+def packed_width(nz: int, nr: int, covariance: bool, n_exp: int = 1) -> int:
+    """Length of the last axis of :func:`fit_packed`'s output (``n_exp`` transients)."""
+    return nz * nr + (n_exp + 1) * nz + 2 + ((nz * nr) ** 2 if covariance else 0)
 
 
 def fit_packed(R, Z, *, half_width: int, degrees=(3, 3, 3), circular: bool = True,
-               covariance: bool = True, noise_covariance=None) -> np.ndarray:
+               covariance: bool = True, noise_covariance=None,
+               experiment_axis: int | None = None) -> np.ndarray:
     """Local model per bin, packed into one complex array ``(..., M, K)``.
 
     One array (rather than a tuple) so that a frequency-chunked dask computation can run
@@ -173,11 +174,16 @@ def fit_packed(R, Z, *, half_width: int, degrees=(3, 3, 3), circular: bool = Tru
     ``G_cov`` is then built from its mean over the local window (the local model assumes
     the noise constant over the window, as its residual estimate does) instead of the
     residual estimate; the residual noise variances are still returned.
+
+    ``experiment_axis``: pool that leading axis of ``R``, ``Z`` into one model (see
+    :func:`lcmr_xr.kernels.local_models.local_model`); the ``E`` transients are packed
+    experiment-major (``E nz`` columns).
     """
     fit = local_model(R, Z, half_width=half_width, degrees=tuple(degrees), circular=circular,
-                      covariance="full" if covariance else None)
+                      covariance="full" if covariance else None, experiment_axis=experiment_axis)
     lead_m = fit.G.shape[:-2]
-    parts = [fit.G.reshape(lead_m + (-1,)), fit.T, fit.noise_variance,
+    T = fit.T if experiment_axis is None else np.moveaxis(fit.T, -3, -2).reshape(lead_m + (-1,))
+    parts = [fit.G.reshape(lead_m + (-1,)), T, fit.noise_variance,
              fit.condition[..., None], fit.ill_posed[..., None]]
     if covariance:
         G_cov = fit.G_cov
@@ -190,11 +196,13 @@ def fit_packed(R, Z, *, half_width: int, degrees=(3, 3, 3), circular: bool = Tru
 
 
 def finish_packed(packed, *, nz: int, nr: int, n_fast: int, factor: int, nu: int, ny: int,
-                  closed_loop: str = "indirect", covariance: bool = True, dof=None) -> dict:
+                  closed_loop: str = "indirect", covariance: bool = True, dof=None,
+                  n_exp: int | None = None) -> dict:
     """Unpack :func:`fit_packed` and recover the fast FRF (see :func:`identify_arrays`).
 
     ``dof``: degrees of freedom per row of the local model (scalar or per slow bin), for the
-    small-sample factor of ``P_var``; None leaves it out.
+    small-sample factor of ``P_var``; None leaves it out.  ``n_exp``: the number of pooled
+    experiments (``T`` is then (..., M, E, nz)); None: not pooled.
     """
     packed = np.asarray(packed)
     lead_m = packed.shape[:-1]
@@ -202,11 +210,14 @@ def finish_packed(packed, *, nz: int, nr: int, n_fast: int, factor: int, nu: int
     # copies, not views: a view would keep all of ``packed`` (with the (nz nr)^2 covariance
     # columns, ~12 MB per HDD experiment) alive for as long as the small results live
     G = packed[..., :g].reshape(lead_m + (nz, nr)).copy()
-    T = packed[..., g: g + nz].copy()
-    noise_variance = packed[..., g + nz: g + 2 * nz].real.copy()
-    condition = packed[..., g + 2 * nz].real.copy()
-    ill_posed = packed[..., g + 2 * nz + 1].real != 0
-    G_cov = packed[..., g + 2 * nz + 2:].reshape(lead_m + (g, g)) if covariance else None
+    ne = 1 if n_exp is None else n_exp
+    T = packed[..., g: g + ne * nz].copy()
+    T = T if n_exp is None else T.reshape(lead_m + (n_exp, nz))
+    o = g + ne * nz  # the remaining columns follow the transients
+    noise_variance = packed[..., o: o + nz].real.copy()
+    condition = packed[..., o + nz].real.copy()
+    ill_posed = packed[..., o + nz + 1].real != 0
+    G_cov = packed[..., o + nz + 2:].reshape(lead_m + (g, g)) if covariance else None
     out = recover_frf(G, G_cov, n_fast=n_fast, factor=factor, nu=nu, ny=ny,
                       closed_loop=closed_loop, ill_posed=ill_posed, dof=dof)
     if covariance:
@@ -262,25 +273,39 @@ def identify_arrays(r, u, y, *, factor: int, half_width: int, degrees=(3, 3, 3),
 
 def identify_spectra(R, Z, *, n_fast: int, factor: int, nu: int, half_width: int,
                      degrees=(3, 3, 3), closed_loop: str = "indirect",
-                     covariance: bool = True, noise_covariance=None) -> dict:
+                     covariance: bool = True, noise_covariance=None,
+                     experiment_axis: int | None = None) -> dict:
     """:func:`identify_arrays` from the spectra of :func:`experiment_spectra` (computed once).
 
     ``R`` (..., M, nr) and ``Z`` (..., M, nz); ``n_fast`` is ``N``, ``nu`` the number of
     plant inputs; ``noise_covariance`` as in :func:`identify_arrays`.  Returns the dict of
-    :func:`identify_arrays`.
+    :func:`identify_arrays`.  ``experiment_axis``: pool that leading axis (``E``
+    experiments, shared ``G``, a transient each; ``T`` is then (..., M, E, nz)).
     """
     nz, nr = Z.shape[-1], R.shape[-1]
     ny = nz - nr if closed_loop == "indirect" else nz
+    n_exp = _n_experiments(R, Z, experiment_axis)
     packed = fit_packed(R, Z, half_width=half_width, degrees=degrees, covariance=covariance,
-                        noise_covariance=noise_covariance)
+                        noise_covariance=noise_covariance, experiment_axis=experiment_axis)
     return finish_packed(packed, nz=nz, nr=nr, n_fast=n_fast, factor=factor, nu=nu, ny=ny,
                          closed_loop=closed_loop, covariance=covariance,
-                         dof=window_dof(half_width, nr, degrees))
+                         dof=window_dof(half_width, nr, degrees, n_exp or 1), n_exp=n_exp)
 
 
-def window_dof(half_width, nr: int, degrees) -> np.ndarray:
-    """Degrees of freedom per row of the local model: ``2 n + 1 - parameters_per_row``."""
-    return 2 * np.asarray(half_width) + 1 - parameters_per_row(nr, tuple(degrees))
+def _n_experiments(R, Z, experiment_axis):
+    """``E`` of a pooled fit (None: not pooled)."""
+    if experiment_axis is None:
+        return None
+    lead = np.broadcast_shapes(np.shape(R)[:-2], np.shape(Z)[:-2])
+    return (lead + (0, 0))[experiment_axis]
+
+
+def window_dof(half_width, nr: int, degrees, n_exp: int = 1) -> np.ndarray:
+    """Degrees of freedom per row of the local model: ``2 n + 1 - parameters_per_row``;
+    pooling ``n_exp`` experiments (a transient each): ``E (2 n + 1) - p``."""
+    rm = tuple(degrees)[1]
+    return n_exp * (2 * np.asarray(half_width) + 1) - parameters_per_row(nr, tuple(degrees)) \
+        - (n_exp - 1) * (rm + 1)
 
 
 def identify_arrays_auto(r, u, y, *, factor: int, windows, degrees=(3, 3, 3),
@@ -297,7 +322,7 @@ def identify_arrays_auto(r, u, y, *, factor: int, windows, degrees=(3, 3, 3),
 
 def identify_spectra_auto(R, Z, *, n_fast: int, factor: int, nu: int, windows,
                           degrees=(3, 3, 3), closed_loop: str = "indirect",
-                          noise_covariance=None) -> dict:
+                          noise_covariance=None, experiment_axis: int | None = None) -> dict:
     """:func:`identify_spectra` with a window chosen per slow bin among ``windows``.
 
     Every candidate half-width (ascending) is fitted with its covariance, its fast FRF and
@@ -321,9 +346,11 @@ def identify_spectra_auto(R, Z, *, n_fast: int, factor: int, nu: int, windows,
                  closed_loop=closed_loop, covariance=True)
     # Emulates a per-bin window: one fit per candidate.  A kernel taking half_width per
     # bin replaces the gather below by a single fit at the chosen windows.
+    n_exp = _n_experiments(R, Z, experiment_axis)
     packed = np.stack([fit_packed(R, Z, half_width=int(w), degrees=degrees,
-                                  noise_covariance=noise_covariance) for w in windows])
-    outs = [finish_packed(p, dof=window_dof(w, nr, degrees), **shape)
+                                  noise_covariance=noise_covariance,
+                                  experiment_axis=experiment_axis) for w in windows])
+    outs = [finish_packed(p, dof=window_dof(w, nr, degrees, n_exp or 1), n_exp=n_exp, **shape)
             for p, w in zip(packed, windows)]
     P = np.stack([o["P"] for o in outs])
     P_var = np.stack([o["P_var"] for o in outs])

@@ -323,7 +323,7 @@ def _advance(rt, zt, b, k, valid, sel_b, restart, k_base, n, slot_i, slot_j, rho
 def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
              aug_index, zz_index, a_base, a_pow, mean_pow, dof, mode, drop_tol,
              pivot_limit, sens_limit, out_g, out_t, out_ncov, out_cond, out_ill,
-             out_reduced, out_gcov, out_gvar):
+             out_reduced, out_gcov, out_gvar, n_exp=1):
     """Fit the local model at the selected bins of one chunk (see the module notes).
 
     ``rt``, ``zt`` (nbat, K + 2n, nr / nz): the chunk with its ``n``-bin halo on each
@@ -336,6 +336,17 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
     nr), ``T`` (., nz), noise covariance (., nz, nz), condition estimate, ill-posed flag,
     number of dropped denominator columns, ``G`` covariance (., nz nr, nz nr; mode full)
     or variances (., nz, nr; mode diag).
+
+    Pooled experiments (``n_exp = E > 1``): rows ``b E .. b E + E - 1`` of ``rt``, ``zt``
+    are the ``E`` experiments of output group ``b`` (``sel`` has ``nbat / E`` rows), fitted
+    with ``G`` and ``D`` shared and a transient per experiment.  Each experiment keeps its
+    own moment vector (same recurrence); per bin its Gram and right-hand sides are
+    projected off its transient columns (whose Gram ``sum_r rho^(c+c')`` is the same for
+    every experiment and bin: inverted once) and summed into the shared block, which then
+    goes through the unchanged solve (as a model without transient).  Each experiment's
+    ``T`` is back-substituted from its own projected moments (``out_t`` (., E, nz)); the
+    covariance stacks the experiments' windows (``E W`` rows, transient leverage added).
+    ``E = 1`` is the single-record path, unchanged.
     """
     q = aug_index.shape[0]
     nx = aug_index.shape[1] - q
@@ -348,6 +359,57 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
     has_t = q > nr and a_base[q - nr - 1] == nr
     nt = nr + 1 if has_t else nr
     width = 2 * n + 1
+    # ---- pooled experiments: the transient columns (base nr) are eliminated per
+    # experiment; the shared solve below sees the other qs columns only (indices sh)
+    pooled = n_exp > 1
+    q_all = q
+    qt = 0
+    for a in range(q):
+        if a_base[a] == nr:
+            qt += 1
+    sh = np.empty(q - qt, dtype=np.int64)
+    tr = np.empty(qt, dtype=np.int64)
+    c = 0
+    for a in range(q):
+        if a_base[a] == nr:
+            tr[a - c] = a
+        else:
+            sh[c] = a
+            c += 1
+    rho_pow0, _s0, _l0 = _recurrence(n, p1)
+    # inverse of the transient basis Gram sum_r rho^(c+c') (every experiment, every bin)
+    tinv = np.zeros((qt, qt))
+    if pooled and qt > 0:
+        tg = np.zeros((qt, 2 * qt), dtype=np.complex128)
+        for t1 in range(qt):
+            for t2 in range(qt):
+                acc = 0.0
+                for r in range(width):
+                    acc += rho_pow0[r, a_pow[tr[t1]]] * rho_pow0[r, a_pow[tr[t2]]]
+                tg[t1, t2] = acc
+            tg[t1, qt + t1] = 1.0
+        cholesky_augmented(tg, qt)  # rows [L^H | L^-1]: inverse = L^-H L^-1
+        for t1 in range(qt):
+            for t2 in range(qt):
+                acc = 0.0
+                for t3 in range(qt):
+                    acc += (tg[t3, qt + t1].conjugate() * tg[t3, qt + t2]).real
+                tinv[t1, t2] = acc
+    ge = np.empty((q_all, q_all + nx), dtype=np.complex128)  # one experiment's [Gaa | A^H X]
+    wtx = np.empty((max(n_exp, 1), qt, q_all + nx), dtype=np.complex128)  # Winv T^H [A | X]
+    txe = np.empty((max(n_exp, 1), qt, q_all + nx), dtype=np.complex128)  # T^H [A | X]
+    xxe = np.empty((nz, nz, zz_index.shape[2], zz_index.shape[2]), dtype=np.complex128)
+    tpow = np.empty(qt, dtype=np.int64)
+    for t1 in range(qt):
+        tpow[t1] = a_pow[tr[t1]]
+    if pooled:
+        q = q_all - qt
+        a_base = a_base[sh].copy()
+        a_pow = a_pow[sh].copy()
+        has_t = False
+        nt = nr
+        width = n_exp * (2 * n + 1)
+    wn = 2 * n + 1  # one experiment's window
     nan_c = complex(np.nan, np.nan)
     m = np.empty((q, q + nx), dtype=np.complex128)
     ds = np.empty(q)
@@ -381,23 +443,40 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
 
     n_flat = slot_i.shape[0] * p1
     rho_pow, shift, lead = _recurrence(n, p1)
-    mom = np.empty(n_flat, dtype=np.complex128)
+    moms = np.empty((n_exp, n_flat), dtype=np.complex128)
+    mom = moms[0]
+    floors = np.empty((n_exp, nr))
     floor = np.empty(nr)
     scratch = np.empty((4, max(slot_i.shape[0], nr + 1 + nz)), dtype=np.complex128)
     for b in range(sel.shape[0]):
       valid = False
       for k in range(sel.shape[1]):
-        valid = _advance(rt, zt, b, k, valid, sel[b], restart, out_offset % m_out, n, slot_i,
-                         slot_j, rho_pow, shift, lead, mom, floor, scratch)
+        v_all = valid
+        for e in range(n_exp):  # one moment vector per experiment, same recurrence
+            v_all = _advance(rt, zt, b * n_exp + e, k, valid, sel[b], restart,
+                             out_offset % m_out, n, slot_i, slot_j, rho_pow, shift, lead,
+                             moms[e], floors[e], scratch)
+        valid = v_all
         if not sel[b, k]:
             continue
         o = out_offset + b * m_out + k
         # ---- gather [Gaa | A^H X]; an R column within FFT rounding of zero energy is
         # unexcited: the bin fails (NaN, flagged)
         dead = False
+        if not pooled:
+            for a in range(q):
+                for c in range(a, q + nx):
+                    m[a, c] = _moment(mom, n_flat, aug_index[a, c])
+            floor[:] = floors[0]
+        else:
+            _gather_pooled(moms, n_flat, aug_index, zz_index, sh, tr, tinv, ge, txe, wtx,
+                           xxe, m, xx, q, nx)
+            for p in range(nr):
+                acc_f = 0.0
+                for e in range(n_exp):
+                    acc_f += floors[e, p]
+                floor[p] = acc_f
         for a in range(q):
-            for c in range(a, q + nx):
-                m[a, c] = _moment(mom, n_flat, aug_index[a, c])
             dia = m[a, a].real
             if a_base[a] < nr and not dia > floor[a_base[a]]:
                 dead = True
@@ -423,11 +502,12 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
             out_ill[o] = True
             continue
         min_piv = min_a
-        for i in range(nz):
-            for j in range(nz):
-                for s in range(rd1):
-                    for t in range(rd1):
-                        xx[i, j, s, t] = _moment(mom, n_flat, zz_index[i, j, s, t])
+        if not pooled:  # (pooled: xx already holds the projected sums)
+            for i in range(nz):
+                for j in range(nz):
+                    for s in range(rd1):
+                        for t in range(rd1):
+                            xx[i, j, s, t] = _moment(mom, n_flat, zz_index[i, j, s, t])
 
         # ---- per row: Schur complement of the D columns, pivoted and rank revealing
         ill = False
@@ -499,9 +579,12 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
                     acc += m[a, q + i * rd1 + s] * delta[i, s]
                 v[i, a] = acc
             _tail_solve(m, q, nt, v[i], tail)
-            out_t[o, i] = tail[0] * ds[q - nt] if has_t else 0j
+            out_t[o, 0, i] = tail[0] * ds[q - nt] if has_t else 0j
             for p in range(nr):
                 out_g[o, i, p] = tail[nt - nr + p] * ds[q - nr + p]
+            if pooled:
+                _pooled_transients(m, q, nx, ds, delta[i], i, rd1, sh, tr, wtx, out_t[o],
+                                   v[i], wa)
 
         # ---- residual cross products e_i^H e_j = delta_i^H X_i^H X_j delta_j - v_i^H v_j
         for i in range(nz):
@@ -536,7 +619,10 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
         for a in range(q):
             sc = ds[a]
             pw = a_pow[a]
-            if a_base[a] < nr:
+            if pooled:  # stacked windows, each projected off its experiment's transient
+                _pooled_columns(rt, b, k, a_base[a], pw, sh[a], sc, rho_pow, tpow, wtx,
+                                qh[a])
+            elif a_base[a] < nr:
                 col = a_base[a]
                 for r in range(width):
                     qh[a, r] = rt[b, k + r, col].conjugate() * (sc * rho_pow[r, pw])
@@ -555,11 +641,19 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
         for a in range(q):
             for r in range(width):
                 lev[r] += qh[a, r].real ** 2 + qh[a, r].imag ** 2
+        if pooled:  # the eliminated transient columns' leverage, the same in every window
+            for r in range(wn):
+                lt = 0.0
+                for t1 in range(qt):
+                    for t2 in range(qt):
+                        lt += rho_pow[r, tpow[t1]] * tinv[t1, t2] * rho_pow[r, tpow[t2]]
+                for e in range(n_exp):
+                    lev[e * wn + r] += lt
         for i in range(nz):
             for r in range(width):
                 acc = delta[i, 0]
                 for s in range(1, rd1):
-                    acc += delta[i, s] * rho_pow[r, s]
+                    acc += delta[i, s] * rho_pow[r % wn, s]
                 dwin[i, r] = acc
             rk = rank[i]
             c0 = i * rd1
@@ -572,8 +666,12 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
             for j in range(rk):
                 s = perm[i, j]
                 f = -tsc[i, s]
-                for r in range(width):
-                    um[i, j, r] = f * rho_pow[r, s + 1] * zt[b, k + r, i]
+                if pooled:
+                    _pooled_d_column(zt, b, k, i, s + 1, q_all + c0 + s + 1, f, rho_pow,
+                                     tpow, wtx, um[i, j])
+                else:
+                    for r in range(width):
+                        um[i, j, r] = f * rho_pow[r, s + 1] * zt[b, k + r, i]
                 for a in range(q):  # - Q_A Y~_B: Q_A(r, a) = conj(qh[a, r])
                     f = ybk[a, j]
                     for r in range(width):
@@ -666,3 +764,109 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
                 out_gcov[o, x, y] = acc
                 out_gcov[o, y, x] = acc.conjugate()
     return 0
+
+
+@numba.njit(**_JIT)
+def _gather_pooled(moms, n_flat, aug_index, zz_index, sh, tr, tinv, ge, txe, wtx, xxe, m, xx,
+                   qs, nx):
+    """Pooled ``[Gaa | A^H X]`` (shared columns ``sh``, upper triangle) and ``X^H X`` in
+    ``m``, ``xx``: every experiment's moments projected off its transient columns ``tr``
+    (``Winv = tinv``) and summed.  Keeps ``txe = T^H [A | X]`` and ``wtx = Winv txe`` per
+    experiment for the transients and the covariance."""
+    q_all = aug_index.shape[0]
+    qt = tr.shape[0]
+    nz = zz_index.shape[0]
+    rd1 = zz_index.shape[2]
+    for a in range(qs):
+        for c in range(qs + nx):
+            m[a, c] = 0j
+    for i in range(nz):
+        for j in range(nz):
+            for s in range(rd1):
+                for t in range(rd1):
+                    xx[i, j, s, t] = 0j
+    for e in range(moms.shape[0]):
+        mom = moms[e]
+        for a in range(q_all):
+            for c in range(a, q_all + nx):
+                ge[a, c] = _moment(mom, n_flat, aug_index[a, c])
+            for c in range(a):
+                ge[a, c] = ge[c, a].conjugate()
+        for t1 in range(qt):
+            for c in range(q_all + nx):
+                txe[e, t1, c] = ge[tr[t1], c]
+        for t1 in range(qt):
+            for c in range(q_all + nx):
+                acc = 0j
+                for t2 in range(qt):
+                    acc += tinv[t1, t2] * txe[e, t2, c]
+                wtx[e, t1, c] = acc
+        for a in range(qs):
+            ra = sh[a]
+            for c in range(a, qs + nx):
+                oc = sh[c] if c < qs else q_all + c - qs
+                acc = ge[ra, oc]
+                for t1 in range(qt):
+                    acc -= txe[e, t1, ra].conjugate() * wtx[e, t1, oc]
+                m[a, c] += acc
+        for i in range(nz):
+            for j in range(nz):
+                for s in range(rd1):
+                    ci = q_all + i * rd1 + s
+                    for t in range(rd1):
+                        cj = q_all + j * rd1 + t
+                        acc = _moment(mom, n_flat, zz_index[i, j, s, t])
+                        for t1 in range(qt):
+                            acc -= txe[e, t1, ci].conjugate() * wtx[e, t1, cj]
+                        xx[i, j, s, t] += acc
+
+
+@numba.njit(**_JIT)
+def _pooled_transients(m, qs, nx, ds, delta_i, i, rd1, sh, tr, wtx, out_t_o, v_i, x):
+    """Every experiment's transient ``T`` (the ``rho^0`` coefficient) of row ``i``:
+    ``theta_T,e = Winv T^H (X_e delta_i - A_e theta_S)`` from the shared coefficients
+    ``theta_S`` (full back substitution of ``v_i``) and the experiment's own moments."""
+    _tail_solve(m, qs, qs, v_i, x)  # x = L^-H v_i: all scaled shared coefficients
+    for a in range(qs):
+        x[a] *= ds[a]
+    q_all = wtx.shape[2] - (m.shape[1] - qs)
+    qt = tr.shape[0]
+    t0 = qt - 1  # the transient columns run rho^Rm .. rho^0
+    for e in range(wtx.shape[0]):
+        acc = 0j
+        for s in range(rd1):
+            acc += wtx[e, t0, q_all + i * rd1 + s] * delta_i[s]
+        for a in range(qs):
+            acc -= wtx[e, t0, sh[a]] * x[a]
+        out_t_o[e, i] = acc
+
+
+@numba.njit(**_JIT)
+def _pooled_columns(rt, b, k, base, pw, orig, sc, rho_pow, tpow, wtx, out):
+    """``out`` (E W): ``sc`` times the conjugate of shared column ``orig`` (base ``base``,
+    power ``pw``) over the stacked windows, each projected off its transient columns."""
+    n_exp = wtx.shape[0]
+    nr = rt.shape[2]
+    wn = rho_pow.shape[0]
+    for e in range(n_exp):
+        row = b * n_exp + e
+        for r in range(wn):
+            val = rho_pow[r, pw] * (rt[row, k + r, base].conjugate() if base < nr else 1.0)
+            for t1 in range(tpow.shape[0]):
+                val -= rho_pow[r, tpow[t1]] * wtx[e, t1, orig].conjugate()
+            out[e * wn + r] = sc * val
+
+
+@numba.njit(**_JIT)
+def _pooled_d_column(zt, b, k, i, pw, orig, f, rho_pow, tpow, wtx, out):
+    """``out`` (E W): ``f`` times ``rho^pw Z_i`` over the stacked windows, each projected
+    off its experiment's transient columns (``orig``: the column's index in ``wtx``)."""
+    n_exp = wtx.shape[0]
+    wn = rho_pow.shape[0]
+    for e in range(n_exp):
+        row = b * n_exp + e
+        for r in range(wn):
+            val = rho_pow[r, pw] * zt[row, k + r, i]
+            for t1 in range(tpow.shape[0]):
+                val -= rho_pow[r, tpow[t1]] * wtx[e, t1, orig]
+            out[e * wn + r] = f * val

@@ -315,7 +315,8 @@ def _check_half_width(half_width, batch, m, nr, degrees):
 
 
 def local_model(R, Z, *, half_width, degrees=(3, 3, 3), circular: bool = True,
-                covariance: str | None = "full") -> LocalModelFit:
+                covariance: str | None = "full", experiment_axis: int | None = None
+                ) -> LocalModelFit:
     """Fit the local rational (LRM) or polynomial (LPM, ``Rd = 0``) model at every bin.
 
     Parameters
@@ -345,6 +346,12 @@ def local_model(R, Z, *, half_width, degrees=(3, 3, 3), circular: bool = True,
         What to return in ``G_cov``: the full cross-row covariance of the vectorised ``G``,
         only its variances, or nothing (saves time: the fit alone does not depend on the
         window width, the covariance costs ``O(2 n + 1)`` per bin).
+    experiment_axis : int, optional
+        A leading axis of ``R`` and ``Z`` (after broadcasting) holding ``E`` experiments
+        fitted as ONE model: ``G`` and the denominator ``D`` shared, a transient term per
+        experiment, one noise covariance (the windows of all experiments stacked:
+        ``dof = E (2 n + 1) - p``).  The outputs lose that axis, except ``T``
+        (..., E, M, nz).  Default: every leading index is fitted on its own.
 
     Returns
     -------
@@ -425,9 +432,12 @@ def local_model(R, Z, *, half_width, degrees=(3, 3, 3), circular: bool = True,
         raise ValueError(
             f"R has {m} bins and Z has {Z.shape[-2]} (axis -2); pass spectra on the same bins."
         )
+    R, Z, n_exp = _experiments_last(R, Z, experiment_axis)
+    pooled = experiment_axis is not None
     hw_lead = np.shape(half_width)[:-1]
+    lead_r, lead_z = (R.shape[:-3], Z.shape[:-3]) if pooled else (R.shape[:-2], Z.shape[:-2])
     try:
-        batch = np.broadcast_shapes(R.shape[:-2], Z.shape[:-2], hw_lead)
+        batch = np.broadcast_shapes(lead_r, lead_z, hw_lead)
     except ValueError:
         raise ValueError(
             f"leading dims of R {R.shape[:-2]}, Z {Z.shape[:-2]} (and half_width "
@@ -446,11 +456,14 @@ def local_model(R, Z, *, half_width, degrees=(3, 3, 3), circular: bool = True,
             "before fitting."
         )
     p_row = parameters_per_row(nr, degrees)
+    # pooled: the shared G, N, D plus one transient term (Rm + 1 parameters) per experiment
+    p_pool = p_row + (n_exp - 1) * (rm + 1)
 
     # Bins-first layout (batch, bins, channel), padded with the widest halo on both ends
     n_batch = int(np.prod(batch, dtype=int))
-    rt = np.broadcast_to(R, batch + (m, nr)).reshape(n_batch, m, nr).astype(complex)
-    zt = np.broadcast_to(Z, batch + (m, nz)).reshape(n_batch, m, nz).astype(complex)
+    ex = (n_exp,) if pooled else ()
+    rt = np.broadcast_to(R, batch + ex + (m, nr)).reshape(n_batch * n_exp, m, nr).astype(complex)
+    zt = np.broadcast_to(Z, batch + ex + (m, nz)).reshape(n_batch * n_exp, m, nz).astype(complex)
     n_max = int(widths.max())
     k = np.arange(m)
     if circular:
@@ -467,11 +480,11 @@ def local_model(R, Z, *, half_width, degrees=(3, 3, 3), circular: bool = True,
         todo = (k - widths >= 0) & (k + widths <= m - 1)
         mirror = False
 
-    out = _allocate(n_batch, m, nz, nr, covariance)
+    out = _allocate(n_batch, m, nz, nr, covariance, n_exp)
     bins = _bins()
     mode = {None: bins.COV_NONE, "diag": bins.COV_DIAG, "full": bins.COV_FULL}[covariance]
     elements = _chunk_elements(nr, nz, covariance)
-    chunk = max(1, min(m, round(elements / n_batch)))
+    chunk = max(1, min(m, round(elements / (n_batch * n_exp))))
     batch_group = max(1, elements // chunk)
     threads = _threads()
     if threads > 1:  # enough chunks to keep every thread busy
@@ -492,9 +505,10 @@ def local_model(R, Z, *, half_width, degrees=(3, 3, 3), circular: bool = True,
     def run(task):
         g, c0, c1, n = task
         sel = todo[g, c0:c1] & (widths[g, c0:c1] == n)
-        _fit_chunk(rt_p[g, c0 + n_max - n: c1 + n_max + n],
-                   zt_p[g, c0 + n_max - n: c1 + n_max + n], n, degrees, mode, sel,
-                   g.start * m + c0, m, 2 * n + 1 - p_row, out)
+        rows = slice(g.start * n_exp, g.stop * n_exp)  # the group's experiments, consecutive
+        _fit_chunk(rt_p[rows, c0 + n_max - n: c1 + n_max + n],
+                   zt_p[rows, c0 + n_max - n: c1 + n_max + n], n, degrees, mode, sel,
+                   g.start * m + c0, m, n_exp * (2 * n + 1) - p_pool, out, n_exp)
 
     with np.errstate(all="ignore"):
         if threads > 1 and len(tasks) > 1:
@@ -511,9 +525,11 @@ def local_model(R, Z, *, half_width, degrees=(3, 3, 3), circular: bool = True,
                 v[:, m // 2 + 1:] = np.conj(v[:, src]) if v.dtype.kind == "c" else v[:, src]
     shaped = {name: (v.reshape(batch + (m,) + v.shape[1:]) if v.shape[0] else None)
               for name, v in out.items()}
+    # T: (..., M, E, nz) -> (..., E, M, nz) pooled, (..., M, nz) otherwise
+    shaped["T"] = np.moveaxis(shaped["T"], -2, -3) if pooled else shaped["T"][..., 0, :]
     cond = shaped["condition"]
-    dof = (2 * scalar_n + 1 - p_row if scalar_n is not None
-           else (2 * widths + 1 - p_row).reshape(batch + (m,)))
+    dof = (n_exp * (2 * scalar_n + 1) - p_pool if scalar_n is not None
+           else (n_exp * (2 * widths + 1) - p_pool).reshape(batch + (m,)))
     noise_var = np.maximum(np.real(np.diagonal(shaped["noise_covariance"], axis1=-2, axis2=-1)),
                            0.0)
     noise_var = np.where(np.isnan(np.real(np.diagonal(shaped["noise_covariance"], axis1=-2,
@@ -524,6 +540,25 @@ def local_model(R, Z, *, half_width, degrees=(3, 3, 3), circular: bool = True,
         G_cov=shaped["G_cov"] if covariance == "full" else shaped["G_var"],
         condition=cond, ill_posed=shaped["ill_posed"], dropped=shaped["dropped"],
     )
+
+
+def _experiments_last(R, Z, axis):
+    """``R``, ``Z`` with the experiments axis moved to just before the bins, and ``E``
+    (1 without one)."""
+    if axis is None:
+        return R, Z, 1
+    lead = np.broadcast_shapes(R.shape[:-2], Z.shape[:-2])
+    if isinstance(axis, (bool, np.bool_)) or not isinstance(axis, (int, np.integer)) \
+            or not -len(lead) - 2 <= axis < len(lead) or -2 <= axis < 0:
+        raise ValueError(
+            f"experiment_axis must be a leading axis of R and Z (not the bins or channels, "
+            f"the last two), an integer in [{-len(lead) - 2}, {len(lead) - 1}] excluding -1 "
+            f"and -2; got {axis!r} for leading shape {lead}."
+        )
+    ax = axis if axis >= 0 else axis + len(lead) + 2
+    R = np.moveaxis(np.broadcast_to(R, lead + R.shape[-2:]), ax, -3)
+    Z = np.moveaxis(np.broadcast_to(Z, lead + Z.shape[-2:]), ax, -3)
+    return R, Z, R.shape[-3]
 
 
 def _bins():
@@ -561,13 +596,13 @@ def _chunk_elements(nr, nz, covariance):
     return max(1, int(_CHUNK_BYTES // (16 * per_bin)))
 
 
-def _allocate(n_batch, m, nz, nr, covariance):
+def _allocate(n_batch, m, nz, nr, covariance, n_exp=1):
     nan_c = complex(np.nan, np.nan)
     size = n_batch * m
     ng = nz * nr
     return {
         "G": np.full((size, nz, nr), nan_c),
-        "T": np.full((size, nz), nan_c),
+        "T": np.full((size, n_exp, nz), nan_c),
         "noise_covariance": np.full((size, nz, nz), nan_c),
         "condition": np.full(size, np.inf),
         "ill_posed": np.ones(size, dtype=bool),
@@ -577,7 +612,7 @@ def _allocate(n_batch, m, nz, nr, covariance):
     }
 
 
-def _fit_chunk(rt, zt, n, degrees, mode, sel, out_offset, m, dof, out):
+def _fit_chunk(rt, zt, n, degrees, mode, sel, out_offset, m, dof, out, n_exp=1):
     """Fit the bins ``sel`` (nbat, K) of one chunk; ``rt`` (nbat, K + 2n, nr), ``zt``
     (nbat, K + 2n, nz) the haloed data; flat output row of bin ``(b, k)`` is
     ``out_offset + b M + k``."""
@@ -591,7 +626,7 @@ def _fit_chunk(rt, zt, n, degrees, mode, sel, out_offset, m, dof, out):
                   lay.a_base, lay.a_pow, np.ascontiguousarray(mean_pow), float(dof), mode,
                   DROP_TOLERANCE, CONDITION_LIMIT, G_SENSITIVITY_LIMIT,
                   out["G"], out["T"], out["noise_covariance"], out["condition"],
-                  out["ill_posed"], out["dropped"], out["G_cov"], out["G_var"])
+                  out["ill_posed"], out["dropped"], out["G_cov"], out["G_var"], n_exp)
 
 
 def _restart_interval(half_width: int) -> int:

@@ -106,6 +106,10 @@ def add_sweep_parser(subparsers) -> argparse.ArgumentParser:
                          "dask scheduler, e.g. tcp://127.0.0.1:8786")
     sw.add_argument("--connect-timeout", type=float, default=CONNECT_TIMEOUT, metavar="SECONDS",
                     help="how long to wait for the scheduler at ADDRESS to answer")
+    sw.add_argument("--pool", type=int, nargs="+", default=None, metavar="K",
+                    help="also pool K experiments at a time, one estimate per group of K "
+                         "consecutive experiments (result dims pool, pool_group instead of "
+                         "experiment), e.g. --pool 1 2 4 8 (default: no pooling)")
     sw.add_argument("--select", type=Path, default=None,
                     help="also write the settings with the lowest validation error per "
                          "experiment (default: no selection); criterion 'cross' with two or more "
@@ -278,12 +282,17 @@ def run_sweep(args) -> int:
                         covariance=not args.no_covariance,
                         degrees=None if args.degrees is None else degrees_arguments(args.degrees))
         sweep_settings(**settings)  # before the archive is opened
+        pool = getattr(args, "pool", None)
+        if pool is not None and args.select is not None:
+            raise ValueError("--select compares settings per experiment; with --pool the "
+                             "estimates are per group of experiments: drop one of them.")
         _check_scheduler(args.scheduler)
         check_outputs({"-o": (args.output, NETCDF_SUFFIXES), "--select": (args.select, NETCDF_SUFFIXES)},
                       inputs=[args.archive], overwrite=getattr(args, "overwrite", False))
         experiments = open_archive(args.archive)
-        lazy = sweep(experiments, **settings)
-        sizes = {d: lazy.sizes[d] for d in ("method", "degrees", "window", "experiment") if d in lazy.dims}
+        lazy = sweep(experiments, **settings, pool=pool)
+        sizes = {d: lazy.sizes[d] for d in ("method", "degrees", "window", "experiment", "pool",
+                                            "pool_group") if d in lazy.dims}
         print(f"sweeping {sizes} on scheduler {args.scheduler}", file=sys.stderr)
         if "experiment" in lazy.dims:
             # results stream to disk as tasks finish (parts next to the output, never in the
@@ -293,7 +302,8 @@ def run_sweep(args) -> int:
         else:
             result = _compute(lazy, args.scheduler, getattr(args, "connect_timeout", CONNECT_TIMEOUT))
             save(result, args.output)
-        failed = [str(e) for e in np.unique(result[cv.EXPERIMENT_ERROR].values) if str(e)]
+        failed = [str(e) for e in np.unique(result[cv.EXPERIMENT_ERROR].values) if str(e)] \
+            if cv.EXPERIMENT_ERROR in result else []  # (pooled: no per-experiment results)
         for message in failed:
             print(f"lcmr-xr sweep: flagged {message}", file=sys.stderr)
         flagged = int(result["P_flag"].sum())

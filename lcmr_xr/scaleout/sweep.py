@@ -114,6 +114,48 @@ def _chunked(ds: xr.Dataset, per_task: int | None = None) -> xr.Dataset:
     return ds.chunk(chunks)
 
 
+def _pools(pool, ds: xr.Dataset):
+    """Checked pool sizes (None: no pooling)."""
+    if pool is None:
+        return None
+    if cv.EXPERIMENT not in ds["r"].dims:
+        raise ValueError("pool groups the 'experiment' dim, which these experiments do not have; "
+                         "stack them with xr.concat([...], dim='experiment') or leave pool out.")
+    n_exp = ds.sizes[cv.EXPERIMENT]
+    pools = _unique([as_integer(k, "pool", minimum=1, example=4) for k in _as_list(pool, "pool")],
+                    "pool")
+    too_big = [k for k in pools if k > n_exp]
+    if too_big:
+        raise ValueError(f"pool={too_big} is more than the {n_exp} experiments; use pool <= "
+                         f"{n_exp} or add experiments.")
+    return sorted(pools)
+
+
+def _pooled(ds: xr.Dataset, pools, settings) -> xr.Dataset:
+    """``identify(..., combine="experiment")`` per group of ``k`` experiments, for every
+    ``k``, lazily (dims ``pool``, ``pool_group``; see :func:`sweep`)."""
+    from lcmr_xr.identification import identify
+
+    per_k = []
+    for k in pools:
+        groups = ds.sizes[cv.EXPERIMENT] // k
+        part = ds.isel({cv.EXPERIMENT: slice(0, groups * k)})
+        part = part.drop_vars([c for c in part.coords if cv.EXPERIMENT in part[c].dims])
+        part = part.coarsen({cv.EXPERIMENT: k}).construct(
+            {cv.EXPERIMENT: ("pool_group", cv.EXPERIMENT)})
+        part = part.chunk({"pool_group": 1, cv.EXPERIMENT: -1})
+        res = identify(part, combine="experiment", errors="ignore", **settings)
+        drop = [v for v in res.data_vars if cv.EXPERIMENT in res[v].dims]  # transients: per k
+        res = res.drop_vars(drop).assign_coords(pool_group=np.arange(groups))
+        for key in (cv.POOLED_EXPERIMENTS, cv.RECORDS_AVERAGED, cv.NOISE_DOF):
+            res.attrs.pop(key, None)
+        per_k.append(res.expand_dims(pool=[k]))
+    out = xr.concat(per_k, "pool", join="outer", combine_attrs="drop_conflicts")
+    out["pool"].attrs.update(units="1", long_name="experiments pooled per estimate")
+    out["pool_group"].attrs.update(units="1", long_name="group of pooled experiments")
+    return out
+
+
 def _identify_block(block: xr.Dataset, source: str | None = None, drop=(), **settings) -> xr.Dataset:
     """``identify`` one block, one experiment at a time; a bad experiment becomes a flagged result.
 
@@ -278,7 +320,7 @@ def sweep_settings(*, window=(30,), degrees=None, method=("lrm",), closed_loop="
 
 def sweep(experiments: xr.Dataset, *, window=(30,), degrees=None, method=("lrm",),
           closed_loop: str = "indirect", covariance: bool = True,
-          experiments_per_task: int | None = None) -> xr.Dataset:
+          experiments_per_task: int | None = None, pool=None) -> xr.Dataset:
     """Identify experiments for every combination of settings; one lazy FRF dataset.
 
     Parameters
@@ -309,6 +351,14 @@ def sweep(experiments: xr.Dataset, *, window=(30,), degrees=None, method=("lrm",
         default: the chunks of dask data, :data:`EXPERIMENTS_PER_TASK` for numpy data.
         A task identifies its experiments one at a time, so its peak memory is that of
         one experiment plus the block's data and results.
+    pool : int or sequence of int, optional
+        Pool ``k`` experiments at a time (``identify(..., combine="experiment")``: one local
+        model over ``k`` experiments with different excitations, or their average with the
+        same one), for each ``k`` given: consecutive groups ``[g k, (g + 1) k)`` of the
+        ``experiment`` dim (a trailing remainder of fewer than ``k`` is left out).  The result
+        then has the dims ``pool`` (``k``) and ``pool_group`` (``g``) in place of
+        ``experiment`` (groups a ``k`` does not fill are NaN), so the error and the band can
+        be followed as the data grow.  Default: every experiment on its own.
 
     Returns
     -------
@@ -367,6 +417,7 @@ def sweep(experiments: xr.Dataset, *, window=(30,), degrees=None, method=("lrm",
     methods = list(dict.fromkeys(m for m, _, _ in checked))
     degrees_list = list(dict.fromkeys(d for _, d, _ in checked))
     windows = list(dict.fromkeys(w for _, _, w in checked))
+    pools = _pools(pool, ds)
     source = experiments.encoding.get("source")
     ds = _chunked(ds, experiments_per_task)
 
@@ -379,12 +430,15 @@ def sweep(experiments: xr.Dataset, *, window=(30,), degrees=None, method=("lrm",
                 s = checked[m, deg, w]
                 settings = dict(method=m, window=s.window, degrees=s.degrees,
                                 closed_loop=s.closed_loop, covariance=s.covariance)
-                template = _with_error(result_template(ds, s), ds, lead)
-                drop = _new_indexes(template, ds)
-                res = xr.map_blocks(_identify_block, ds,
-                                    kwargs={**settings, "source": source, "drop": drop},
-                                    template=template.drop_vars(drop))
-                res = res.assign_coords({name: template[name].variable for name in drop})
+                if pools is None:
+                    template = _with_error(result_template(ds, s), ds, lead)
+                    drop = _new_indexes(template, ds)
+                    res = xr.map_blocks(_identify_block, ds,
+                                        kwargs={**settings, "source": source, "drop": drop},
+                                        template=template.drop_vars(drop))
+                    res = res.assign_coords({name: template[name].variable for name in drop})
+                else:
+                    res = _pooled(ds, pools, settings)
                 res = res.expand_dims({"method": [m], "degrees": [degrees_label(deg)], "window": [w]})
                 per_window.append(res)
             per_degree.append(per_window)
