@@ -65,6 +65,59 @@ def relative_error_table(frf: xr.Dataset, truth: xr.DataArray) -> xr.Dataset:
     return out
 
 
+def band_median(x: xr.DataArray, slow_nyquist: float, low: float = 500.0) -> xr.DataArray:
+    """Median of ``x`` over ``frequency`` in three bands, for the first output.
+
+    The bands are ``(0, low)``, ``[low, slow_nyquist)`` and ``(slow_nyquist, fast
+    Nyquist)``; DC and the fast Nyquist bin are left out.  The notebooks use it for
+    quick error summaries; :func:`band_table` adds coverage and flags.
+
+    Parameters
+    ----------
+    x : xarray.DataArray
+        Quantity on ``frequency`` (Hz) and ``output`` (and any other dims, kept).
+    slow_nyquist : float
+        Slow Nyquist frequency in Hz (the FRF's ``slow_nyquist`` attribute).
+    low : float, default 500.0
+        Upper edge of the lowest band in Hz.
+
+    Returns
+    -------
+    xarray.DataArray
+        The medians on a new ``band`` dim (labels name the bands), first output only.
+    """
+    f = x[cv.FREQUENCY]
+    bands = {
+        f"{f[1].item():.0f}-{low:.0f} Hz": (f > 0) & (f < low),
+        f"{low:.0f} Hz-slow Nyquist": (f >= low) & (f < slow_nyquist),
+        "slow-fast Nyquist": (f > slow_nyquist) & (f < f.max()),
+    }
+    out = xr.concat([x.where(sel).median(cv.FREQUENCY) for sel in bands.values()],
+                    dim=xr.DataArray(list(bands), dims="band", name="band"))
+    return out.isel({cv.OUTPUT: 0}, drop=True)
+
+
+def band_errors(frf: xr.Dataset, truth: xr.DataArray, low: float = 500.0) -> xr.DataArray:
+    """Median relative error ``|P_hat - P| / |P|`` per input in the bands of :func:`band_median`.
+
+    Parameters
+    ----------
+    frf : xarray.Dataset
+        Identification result with ``P`` and the attribute ``slow_nyquist``.
+    truth : xarray.DataArray
+        Exact FRF on the same ``frequency``, ``output``, ``input``.
+    low : float, default 500.0
+        Upper edge of the lowest band in Hz.
+
+    Returns
+    -------
+    xarray.DataArray
+        Dimensionless medians on (``band``, ``input``, ...).
+    """
+    out = band_median(abs(frf.P - truth) / abs(truth), frf.attrs["slow_nyquist"], low)
+    return out.assign_attrs(units="1", long_name="median relative error")
+
+
 def band_table(frf: xr.Dataset, truth: xr.DataArray, bands=BANDS_HZ) -> xr.Dataset:
     """Per frequency band: median relative error, coverage of the 95 % disc, flagged fraction.
 

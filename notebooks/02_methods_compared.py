@@ -24,28 +24,10 @@ import pandas as pd
 
 import lcmr_xr
 from lcmr_xr import hdd, plot
-from lcmr_xr.demo import relative_error_table, resonance_peaks
+from lcmr_xr.demo import band_errors, band_median, relative_error_table, resonance_peaks
 
 xr.set_options(display_expand_data=False)
 plt.rcParams["figure.dpi"] = 80
-
-def band_median(x, slow_nyquist, low=500.0):
-    """Median of ``x`` over ``frequency`` in three bands (DC and fast Nyquist left out)."""
-    f = x.frequency
-    bands = {
-        f"{f[1].item():.0f}-{low:.0f} Hz": (f > 0) & (f < low),
-        f"{low:.0f} Hz-slow Nyquist": (f >= low) & (f < slow_nyquist),
-        "slow-fast Nyquist": (f > slow_nyquist) & (f < f.max()),
-    }
-    out = xr.concat([x.where(sel).median("frequency") for sel in bands.values()],
-                    dim=xr.DataArray(list(bands), dims="band", name="band"))
-    return out.isel(output=0, drop=True)
-
-
-def band_errors(frf, truth, low=500.0):
-    """Median relative error |P_hat - P| / |P| per input in three bands."""
-    out = band_median(abs(frf.P - truth) / abs(truth), frf.attrs["slow_nyquist"], low)
-    return out.assign_attrs(units="1", long_name="median relative error")
 
 N = 3600
 exp = hdd.simulate(n_samples=N, case=2, noise=True, seed=0)

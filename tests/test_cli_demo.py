@@ -8,7 +8,14 @@ import xarray as xr
 
 import lcmr_xr
 from lcmr_xr import cli, hdd
-from lcmr_xr.demo import find_bundled_experiment, relative_error_table, resonance_peaks, run_demo
+from lcmr_xr.demo import (
+    band_errors,
+    band_median,
+    find_bundled_experiment,
+    relative_error_table,
+    resonance_peaks,
+    run_demo,
+)
 
 
 @pytest.fixture(scope="module")
@@ -40,6 +47,14 @@ def test_error_table_and_resonance_peaks_against_truth(noiseless_hdd_frf):
     assert float(exact.below.max()) == 0.0 and float(exact.above.max()) == 0.0
     peaks = resonance_peaks(frf, truth)
     assert len(peaks) >= 3
+    # band errors: a 10 % gain error scores 0.1 in every band; the bands split at 500 Hz
+    # and the slow Nyquist frequency, DC and the fast Nyquist bin left out
+    off = band_errors(frf.assign(P=1.1 * truth), truth)
+    assert off.dims == ("band", "input") and off.sizes["band"] == 3
+    np.testing.assert_allclose(off.values, 0.1, rtol=1e-12)
+    f = frf.frequency
+    counts = band_median(xr.ones_like(frf.P.real).where(f > 0), frf.attrs["slow_nyquist"])
+    assert float(counts.min()) == 1.0  # every band holds bins
     df = float(frf.frequency[1])
     for true_hz, est_hz in peaks:
         assert 38000 <= true_hz <= 50400
