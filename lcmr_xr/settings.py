@@ -7,8 +7,10 @@ the same message everywhere, also on lazy (dask) input where nothing would other
 until compute time.  Adding a local-model method means one row in :data:`METHODS` (and, if
 it is not a degrees choice of the local model, one kernel call).
 
-A leaf module (it imports only numpy) like :mod:`lcmr_xr.conventions`, so the kernels may
-read the closed-loop variants from here too.
+A leaf module (it imports only numpy) like :mod:`lcmr_xr.conventions`.  The kernels do not
+import it (they import nothing outside :mod:`lcmr_xr.kernels`); the closed-loop variants
+they implement, ``lcmr_xr.kernels.identification.CLOSED_LOOP_METHODS``, are kept equal to
+:data:`CLOSED_LOOP` by a test.
 """
 
 from __future__ import annotations

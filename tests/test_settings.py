@@ -17,6 +17,7 @@ from lcmr_xr.identification.identify import result_template, stacked_local_model
 from lcmr_xr.kernels.identification import identify_arrays, identify_single_rate_arrays
 from lcmr_xr.scaleout import save_archive, sweep
 from lcmr_xr.settings import (
+    CLOSED_LOOP,
     METHODS,
     degrees_arguments,
     estimator_settings,
@@ -112,6 +113,29 @@ def test_settings_table_defaults_and_lpm_pair():
         parse_degrees((2, 1), "lrm")  # a pair only for the LPM
     assert degrees_arguments(["2", "2", "2"]) == ["2-2-2"]
     assert degrees_arguments(["3-3-3", "2,2,0"]) == ["3-3-3", "2,2,0"]
+
+
+def test_closed_loop_table_matches_what_the_kernels_implement():
+    from lcmr_xr.kernels.identification import CLOSED_LOOP_METHODS
+
+    assert tuple(CLOSED_LOOP) == CLOSED_LOOP_METHODS
+
+
+def test_kernels_import_nothing_outside_the_kernel_layer():
+    """docs/architecture.md: the kernels import nothing outside ``lcmr_xr.kernels``."""
+    import ast
+    from pathlib import Path
+
+    root = Path(lcmr_xr.__file__).parent / "kernels"
+    outside = []
+    for path in root.rglob("*.py"):
+        for node in ast.walk(ast.parse(path.read_text())):
+            names = ([a.name for a in node.names] if isinstance(node, ast.Import)
+                     else [node.module or ""] if isinstance(node, ast.ImportFrom) and not node.level
+                     else [])
+            outside += [f"{path.name}: {n}" for n in names
+                        if n.split(".")[0] == "lcmr_xr" and not n.startswith("lcmr_xr.kernels")]
+    assert outside == []
 
 
 def test_sweep_refuses_lpm_with_a_denominator_and_says_how(exp):

@@ -20,14 +20,15 @@ from lcmr_xr.kernels.lifting import frf_from_first_block_row, lift
 from lcmr_xr.kernels.local_models import local_model, parameters_per_row
 from lcmr_xr.kernels.pooling import (mean_and_covariance, pooled_least_squares,
                                      rescale_covariance, window_mean)
-from lcmr_xr.settings import CLOSED_LOOP
 
 #: The lifted excitation counts as rank deficient when its smallest singular value
 #: (over all bins) is below this fraction of its largest.
 EXCITATION_RANK_TOL = 1e-9
 
-#: The closed-loop variants (the table is :data:`lcmr_xr.settings.CLOSED_LOOP`).
-CLOSED_LOOP_METHODS = tuple(CLOSED_LOOP)
+#: The closed-loop variants these kernels implement (the branches below).  The settings
+#: table :data:`lcmr_xr.settings.CLOSED_LOOP` lists the same ones for users (a test keeps
+#: the two equal); the kernels import nothing outside ``lcmr_xr.kernels``.
+CLOSED_LOOP_METHODS = ("indirect", "direct")
 
 
 def lifted_spectra(x: np.ndarray, factor: int) -> np.ndarray:
@@ -306,18 +307,6 @@ def window_dof(half_width, nr: int, degrees, n_exp: int = 1) -> np.ndarray:
     rm = tuple(degrees)[1]
     return n_exp * (2 * np.asarray(half_width) + 1) - parameters_per_row(nr, tuple(degrees)) \
         - (n_exp - 1) * (rm + 1)
-
-
-def identify_arrays_auto(r, u, y, *, factor: int, windows, degrees=(3, 3, 3),
-                         closed_loop: str = "indirect", noise_covariance=None) -> dict:
-    """:func:`identify_arrays` with a window chosen per slow bin among ``windows``.
-
-    See :func:`identify_spectra_auto` (this computes the spectra first).
-    """
-    R, Z = experiment_spectra(r, u, y, factor=factor, closed_loop=closed_loop)
-    return identify_spectra_auto(R, Z, n_fast=np.shape(r)[-2], factor=factor,
-                                 nu=np.shape(r)[-1], windows=windows, degrees=degrees,
-                                 closed_loop=closed_loop, noise_covariance=noise_covariance)
 
 
 def identify_spectra_auto(R, Z, *, n_fast: int, factor: int, nu: int, windows,
