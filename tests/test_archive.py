@@ -186,11 +186,40 @@ def test_sweep_to_disk_prints_experiments_per_second(tmp_path, capsys):
 def test_local_cluster_workers_get_the_allocator_settings():
     from distributed import Client
 
-    with local_cluster(1, silence_logs=50) as cluster, Client(cluster) as client:
-        env = next(iter(client.run(lambda: dict(os.environ)).values()))
+    from lcmr_xr.scaleout.cluster import _CALLBACK
+
+    def inspect(dask_worker):
+        return (dict(os.environ), dask_worker.memory_manager.memory_pause_fraction,
+                _CALLBACK in dask_worker.periodic_callbacks)
+
+    with local_cluster(1, memory_limit="2GB", silence_logs=50) as cluster, Client(cluster) as client:
+        env, pause, trims = next(iter(client.run(inspect).values()))
     assert env["MALLOC_TRIM_THRESHOLD_"] == str(64 * 2**20)
     assert env["MALLOC_MMAP_THRESHOLD_"] == str(32 * 2**20)
     assert env["OPENBLAS_NUM_THREADS"] == "1"  # distributed's own defaults are kept
+    assert pause == 0.9  # WORKER_MEMORY
+    assert trims == (sys.platform == "linux")  # the preload's heap trimming (glibc)
+
+
+def test_worker_trims_its_heap_only_above_the_fraction_of_its_limit():
+    from types import SimpleNamespace
+
+    from lcmr_xr.scaleout.cluster import TRIM_FRACTION, trim_check
+
+    calls = []
+    rss = {"bytes": 0}
+    worker = SimpleNamespace(memory_manager=SimpleNamespace(memory_limit=1000),
+                             monitor=SimpleNamespace(get_process_memory=lambda: rss["bytes"]))
+    check = trim_check(worker, calls.append)
+    rss["bytes"] = int(TRIM_FRACTION * 1000)  # at the fraction: keep the heap
+    check()
+    assert calls == []
+    rss["bytes"] += 1
+    check()
+    assert calls == [0]  # malloc_trim(0): give back every free page
+    # no limit (memory_limit=0) or no malloc_trim: nothing to check
+    assert trim_check(SimpleNamespace(memory_manager=SimpleNamespace(memory_limit=0)), print) is None
+    assert trim_check(worker, None) is None
 
 
 @pytest.mark.slow

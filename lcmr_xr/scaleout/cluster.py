@@ -47,8 +47,8 @@ from __future__ import annotations
 
 import logging
 
-__all__ = ["WORKER_ENVIRON", "WORKER_MEMORY", "TRIM_FRACTION", "TRIM_INTERVAL", "worker_environ", "local_cluster",
-           "dask_setup"]
+__all__ = ["WORKER_ENVIRON", "WORKER_MEMORY", "TRIM_FRACTION", "TRIM_INTERVAL", "worker_environ",
+           "local_cluster", "dask_setup", "trim_check"]
 
 #: Environment the nanny gives each worker process (on top of distributed's defaults).
 WORKER_ENVIRON = {"MALLOC_TRIM_THRESHOLD_": str(64 * 2**20), "MALLOC_MMAP_THRESHOLD_": str(32 * 2**20)}
@@ -89,18 +89,27 @@ def dask_setup(worker) -> None:
     """
     from tornado.ioloop import PeriodicCallback
 
-    limit = worker.memory_manager.memory_limit
-    trim = _malloc_trim()
-    if not limit or trim is None:
+    check = trim_check(worker, _malloc_trim())
+    if check is None:
         return
+    callback = PeriodicCallback(check, TRIM_INTERVAL * 1000)
+    worker.periodic_callbacks[_CALLBACK] = callback
+    callback.start()
+
+
+def trim_check(worker, trim):
+    """The periodic check of :func:`dask_setup`: ``trim(0)`` when ``worker``'s process
+    memory is above :data:`TRIM_FRACTION` of its limit (None: nothing to check, the worker
+    has no limit or ``trim`` is None)."""
+    limit = worker.memory_manager.memory_limit
+    if not limit or trim is None:
+        return None
 
     def check():
         if worker.monitor.get_process_memory() > TRIM_FRACTION * limit:
             trim(0)
 
-    callback = PeriodicCallback(check, TRIM_INTERVAL * 1000)
-    worker.periodic_callbacks[_CALLBACK] = callback
-    callback.start()
+    return check
 
 
 def worker_environ() -> dict:

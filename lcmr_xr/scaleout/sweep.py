@@ -156,7 +156,8 @@ def _pooled(ds: xr.Dataset, pools, settings) -> xr.Dataset:
     return out
 
 
-def _identify_block(block: xr.Dataset, source: str | None = None, drop=(), **settings) -> xr.Dataset:
+def _identify_block(block: xr.Dataset, source: str | None = None, drop=(), carried=None,
+                    setting=None, **settings) -> xr.Dataset:
     """``identify`` one block, one experiment at a time; a bad experiment becomes a flagged result.
 
     One at a time: the temporaries of ``identify`` (moment table, covariance) then exist
@@ -164,18 +165,30 @@ def _identify_block(block: xr.Dataset, source: str | None = None, drop=(), **set
     with the experiments per task.  An experiment whose data ``identify`` refuses (NaN,
     an excitation that does not excite every lifted channel) gets NaN estimates, every
     flag set, and ``experiment_error`` naming its archive (file) and the reason.
-    ``drop``: coordinates left out of the block's result (see :func:`_new_indexes`).
+    ``drop``: coordinates left out of the block's result (see :func:`_new_indexes`);
+    ``carried``: coordinates of the record put back on the block (see :func:`_carried`);
+    ``setting``: ``{dim: value}`` of the sweep's setting dims, added to the result as
+    leading dims of size one (see :func:`_setting_template`).
     """
+    if carried:
+        block = block.assign_coords(carried)
+    labels = [name for name in block.data_vars if name.startswith(_LABELS)]
+    if labels:  # the leading dims' labels, as dask data (see _labels_as_data)
+        block = block.assign_coords({block[name].dims[0]: block[name].values for name in labels})
+        block = block.drop_vars(labels)
     lead = _leading_dims(block)
     if not lead:
-        return _identify_or_flag(block, source, settings).drop_vars(list(drop))
-    dim = lead[0]
-    parts = [_identify_or_flag(block.isel({dim: slice(i, i + 1)}), source, settings)
-             for i in range(block.sizes[dim])]
-    if len(parts) == 1:
-        return parts[0].drop_vars(list(drop))
-    return xr.concat(parts, dim, data_vars="all", coords="minimal", compat="override",
-                     join="exact", combine_attrs="override").drop_vars(list(drop))
+        res = _identify_or_flag(block, source, settings)
+    else:
+        dim = lead[0]
+        parts = [_identify_or_flag(block.isel({dim: slice(i, i + 1)}), source, settings)
+                 for i in range(block.sizes[dim])]
+        res = parts[0] if len(parts) == 1 else xr.concat(
+            parts, dim, data_vars="all", coords="minimal", compat="override", join="exact",
+            combine_attrs="override")
+    if setting:
+        res = res.expand_dims({d: [v] for d, v in setting.items()})
+    return res.drop_vars(list(drop))
 
 
 def _new_indexes(template: xr.Dataset, ds: xr.Dataset) -> list:
@@ -187,6 +200,60 @@ def _new_indexes(template: xr.Dataset, ds: xr.Dataset) -> list:
     The values are the template's; ``identify`` in the blocks computes the same ones.
     """
     return [name for name in template.xindexes if name not in ds.xindexes]
+
+
+def _setting_template(template: xr.Dataset, setting: dict) -> xr.Dataset:
+    """``template`` with the setting dims (size one, one chunk) in front of every variable.
+
+    Built from new lazy arrays rather than with ``expand_dims``, which slices every dask
+    variable of the template (19 variables x 3 settings: a second of graph building for
+    10 000 experiments); the tasks add the dims to their results themselves.
+    """
+    lead = tuple(setting)
+    variables = {}
+    for name, var in template.data_vars.items():
+        data = dsa.empty((1,) * len(lead) + var.shape, dtype=var.dtype,
+                         chunks=((1,),) * len(lead) + var.chunks)
+        variables[name] = (lead + var.dims, data, var.attrs)
+    out = xr.Dataset(variables, coords=template.coords, attrs=template.attrs)
+    return out.assign_coords({d: [v] for d, v in setting.items()})
+
+
+def _carried(ds: xr.Dataset) -> dict:
+    """Coordinates that do not vary along the leading dims (``time``, ``slow_time``,
+    ``input``, ``output``, scalars): handed to every task whole instead of being cut out
+    of ``ds`` per block.
+
+    Why: ``map_blocks`` subsets every coordinate of its input per block and tokenizes
+    the pieces (an index is converted to a numpy array and hashed: 29 kB for ``time`` of
+    an N = 3600 experiment); for a sweep of 10 000 experiments (625 blocks x 3 settings)
+    that was most of the graph-building time.  Passed as a keyword argument, each is
+    tokenized once per setting and referenced by every task.
+    """
+    lead = set(_leading_dims(ds))
+    return {name: ds[name].variable for name in ds.coords if not lead & set(ds[name].dims)}
+
+
+#: Prefix of the data variables that carry the leading dims' labels into the blocks.
+_LABELS = "_labels_of_"
+
+
+def _labels_as_data(ds: xr.Dataset, lead: list[str]) -> xr.Dataset:
+    """The leading dims' index coordinates as dask data variables chunked like the data.
+
+    Why: ``map_blocks`` converts a string index (the ``experiment`` labels) to a whole
+    numpy array for every block it cuts (10 000 labels x 625 blocks x 3 settings: seconds
+    of graph building); a dask variable is cut by slicing the graph.  The blocks turn
+    them back into coordinates (:func:`_identify_block`), and the labels are put back on
+    the whole result.
+    """
+    out = ds
+    for d in lead:
+        if d in ds.xindexes:
+            chunks = ds["r"].chunks[ds["r"].get_axis_num(d)]
+            data = dsa.from_array(ds[d].values, chunks=(chunks,))
+            out = out.drop_vars(d).assign({_LABELS + d: ((d,), data)})
+    return out
 
 
 def _identify_or_flag(one: xr.Dataset, source, settings) -> xr.Dataset:
@@ -420,6 +487,8 @@ def sweep(experiments: xr.Dataset, *, window=(30,), degrees=None, method=("lrm",
     pools = _pools(pool, ds)
     source = experiments.encoding.get("source")
     ds = _chunked(ds, experiments_per_task)
+    carried = _carried(ds)
+    blocks_in = _labels_as_data(ds.drop_vars(list(carried)), lead)
 
     nested = []
     for m in methods:
@@ -430,16 +499,19 @@ def sweep(experiments: xr.Dataset, *, window=(30,), degrees=None, method=("lrm",
                 s = checked[m, deg, w]
                 settings = dict(method=m, window=s.window, degrees=s.degrees,
                                 closed_loop=s.closed_loop, covariance=s.covariance)
+                setting = {"method": m, "degrees": degrees_label(deg), "window": w}
                 if pools is None:
-                    template = _with_error(result_template(ds, s), ds, lead)
-                    drop = _new_indexes(template, ds)
-                    res = xr.map_blocks(_identify_block, ds,
-                                        kwargs={**settings, "source": source, "drop": drop},
+                    template = _setting_template(_with_error(result_template(ds, s), ds, lead),
+                                                 setting)
+                    drop = _new_indexes(template, blocks_in)
+                    res = xr.map_blocks(_identify_block, blocks_in,
+                                        kwargs={**settings, "source": source, "drop": drop,
+                                                "carried": carried, "setting": setting},
                                         template=template.drop_vars(drop))
                     res = res.assign_coords({name: template[name].variable for name in drop})
                 else:
-                    res = _pooled(ds, pools, settings)
-                res = res.expand_dims({"method": [m], "degrees": [degrees_label(deg)], "window": [w]})
+                    res = _pooled(ds, pools, settings).expand_dims(
+                        {d: [v] for d, v in setting.items()})
                 per_window.append(res)
             per_degree.append(per_window)
         nested.append(per_degree)
