@@ -192,8 +192,20 @@ def test_local_cluster_workers_get_the_allocator_settings():
         return (dict(os.environ), dask_worker.memory_manager.memory_pause_fraction,
                 _CALLBACK in dask_worker.periodic_callbacks)
 
-    with local_cluster(1, memory_limit="2GB", silence_logs=50) as cluster, Client(cluster) as client:
-        env, pause, trims = next(iter(client.run(inspect).values()))
+    # a cluster with distributed's defaults leaves MALLOC_TRIM_THRESHOLD_=65536 in this
+    # process's environment (its nanny writes it there), which nannies prefer to their config
+    before = os.environ.get("MALLOC_TRIM_THRESHOLD_")
+    os.environ["MALLOC_TRIM_THRESHOLD_"] = "65536"
+    try:
+        with local_cluster(1, memory_limit="2GB", silence_logs=50) as cluster, \
+                Client(cluster) as client:
+            env, pause, trims = next(iter(client.run(inspect).values()))
+        assert os.environ["MALLOC_TRIM_THRESHOLD_"] == "65536"  # this process's is restored
+    finally:
+        if before is None:
+            os.environ.pop("MALLOC_TRIM_THRESHOLD_")
+        else:
+            os.environ["MALLOC_TRIM_THRESHOLD_"] = before
     assert env["MALLOC_TRIM_THRESHOLD_"] == str(64 * 2**20)
     assert env["MALLOC_MMAP_THRESHOLD_"] == str(32 * 2**20)
     assert env["OPENBLAS_NUM_THREADS"] == "1"  # distributed's own defaults are kept

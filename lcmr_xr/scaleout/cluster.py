@@ -45,7 +45,9 @@ the dask configuration of the machines that start them::
 
 from __future__ import annotations
 
+import contextlib
 import logging
+import os
 
 __all__ = ["WORKER_ENVIRON", "WORKER_MEMORY", "TRIM_FRACTION", "TRIM_INTERVAL", "worker_environ",
            "local_cluster", "dask_setup", "trim_check"]
@@ -169,7 +171,31 @@ def local_cluster(n_workers: int = 2, *, threads_per_worker: int = 1, memory_lim
 
     preload = list(dask.config.get("distributed.worker.preload", default=[]) or [])
     with dask.config.set({"distributed.nanny.pre-spawn-environ": worker_environ(),
-                          "distributed.worker.preload": preload + [__name__], **WORKER_MEMORY}):
+                          "distributed.worker.preload": preload + [__name__], **WORKER_MEMORY}), \
+            _process_environ(WORKER_ENVIRON):
         return LocalCluster(n_workers=n_workers, threads_per_worker=threads_per_worker,
                             memory_limit=memory_limit, processes=processes,
                             dashboard_address=dashboard_address, silence_logs=silence_logs)
+
+
+@contextlib.contextmanager
+def _process_environ(values: dict):
+    """``values`` in this process's environment while the nannies are made, then restored.
+
+    Why: a nanny takes a ``pre-spawn-environ`` variable from this process's environment
+    when it is set there, ahead of the configuration; and every nanny writes its variables
+    into this environment when it spawns its worker.  So after any cluster with
+    distributed's defaults (``MALLOC_TRIM_THRESHOLD_=65536``) in the same process, the
+    configuration alone was silently ignored (measured: the workers of a later
+    ``local_cluster`` got 65536).
+    """
+    saved = {key: os.environ.get(key) for key in values}
+    os.environ.update(values)
+    try:
+        yield
+    finally:
+        for key, value in saved.items():
+            if value is None:
+                os.environ.pop(key, None)
+            else:
+                os.environ[key] = value
