@@ -345,13 +345,14 @@ def _status_mb(key: str) -> float:
     return float("nan")
 
 
-def task_memory(path: str, per_task: int) -> dict:
-    """Peak memory (MB) of one identify and of one sweep task of ``per_task`` experiments.
+def task_memory(path: str, per_task: int, which: str) -> dict:
+    """Peak memory (MB) of one identify (``which="identify"``) or of one sweep task of
+    ``per_task`` experiments (``"task"``).
 
     Run in a fresh process.  Resident high-water mark: reset (``/proc/self/clear_refs``)
     after the numba kernels are loaded by a tiny fit, so the first real call's growth
     includes everything it allocates (numba's and the allocator's too).  ``tracemalloc``:
-    numpy's allocations (peak minus what was held before) of a later call.
+    numpy's allocations (peak minus what was held before) of a second call.
     """
     import gc
     import tracemalloc
@@ -369,47 +370,50 @@ def task_memory(path: str, per_task: int) -> dict:
     local_model(r, 2 * r + 0.5, half_width=4, degrees=(1, 1, 0))  # loads the compiled kernels
     settings = dict(window=WINDOW, degrees=(3, 3, 3), method="lrm", closed_loop="indirect",
                     covariance=True)
-    out = {"data_mb": one[["r", "u", "y"]].nbytes / 1e6,
-           "block_data_mb": block[["r", "u", "y"]].nbytes / 1e6}
-    runs = (("identify", lambda: identify(one, window=WINDOW, errors="ignore")),
-            ("task", lambda: _identify_block(block, **settings)))
-    for key, run in runs:
-        gc.collect()
-        with open("/proc/self/clear_refs", "w") as f:
-            f.write("5")  # VmHWM := VmRSS
-        before = _status_mb("VmRSS")
-        result = run()
-        out[key + "_hwm_mb"] = _status_mb("VmHWM") - before
-        out[key + "_result_mb"] = result.nbytes / 1e6
-        del result
-        gc.collect()
-        tracemalloc.start()
-        base = tracemalloc.get_traced_memory()[0]
-        result = run()
-        out[key + "_traced_mb"] = (tracemalloc.get_traced_memory()[1] - base) / 1e6
-        tracemalloc.stop()
-        del result
+    if which == "identify":
+        data, run = one, lambda: identify(one, window=WINDOW, errors="ignore")
+    else:
+        data, run = block, lambda: _identify_block(block, **settings)
+    out = {"data_mb": data[["r", "u", "y"]].nbytes / 1e6, "factor": int(one.attrs["factor"]),
+           "nu": one.sizes["input"], "ny": one.sizes["output"]}
+    gc.collect()
+    with open("/proc/self/clear_refs", "w") as f:
+        f.write("5")  # VmHWM := VmRSS
+    before = _status_mb("VmRSS")
+    result = run()
+    out["hwm_mb"] = _status_mb("VmHWM") - before
+    out["result_mb"] = result.nbytes / 1e6
+    del result
+    gc.collect()
+    tracemalloc.start()
+    base = tracemalloc.get_traced_memory()[0]
+    result = run()
+    out["traced_mb"] = (tracemalloc.get_traced_memory()[1] - base) / 1e6
+    tracemalloc.stop()
     out["rss_mb"] = _status_mb("VmRSS")
     return out
 
 
 def memory(path: Path, per_task: int) -> None:
-    """Item 6: peak memory per task, measured in a fresh process, against the data size."""
-    mem = _in_fresh_process(task_memory, str(path), per_task)
-    bound = 10 * mem["data_mb"] + 100
-    m, nz, nr = N // 3, 5, 4  # HDD: F = 3 (slow bins M = N / F), nz = F nu + ny, nr = F nu
+    """Item 6: peak memory per task, measured in fresh processes, against the data size."""
+    one = _in_fresh_process(task_memory, str(path), 1, "identify")
+    task = _in_fresh_process(task_memory, str(path), per_task, "task")
+    bound = 10 * one["data_mb"] + 100
+    m = N // one["factor"]
+    nr = one["factor"] * one["nu"]
+    nz = nr + one["ny"]
     cov = m * (nz * nr) ** 2 * 16 / 1e6
-    print(f"peak memory per task (fresh process; data {mem['data_mb']:.3f} MB per experiment; goal "
+    print(f"peak memory per task (fresh processes; data {one['data_mb']:.3f} MB per experiment; goal "
           f"for one experiment: 10 x data + 100 MB = {bound:.0f} MB):")
-    print(f"  one identify (P_std)           : {mem['identify_traced_mb']:6.1f} MB traced (numpy), "
-          f"{mem['identify_hwm_mb']:6.1f} MB resident high-water growth; result "
-          f"{mem['identify_result_mb']:.2f} MB")
-    print(f"  one sweep task of {per_task:2d} experiments: {mem['task_traced_mb']:6.1f} MB traced, "
-          f"{mem['task_hwm_mb']:6.1f} MB resident growth; data {mem['block_data_mb']:.2f} MB, result "
-          f"{mem['task_result_mb']:.2f} MB")
-    print(f"  where it goes: the local model's full covariance of G, M (nz nr)^2 complex = "
-          f"{cov:.1f} MB, held twice while it is packed with the estimates (fit_packed); the "
-          f"process itself holds {mem['rss_mb']:.0f} MB (numba and its kernels included)")
+    print(f"  one identify (P_std)           : {one['traced_mb']:6.1f} MB traced (numpy), "
+          f"{one['hwm_mb']:6.1f} MB resident high-water growth; result {one['result_mb']:.2f} MB")
+    print(f"  one sweep task of {per_task:2d} experiments: {task['traced_mb']:6.1f} MB traced, "
+          f"{task['hwm_mb']:6.1f} MB resident growth; data {task['data_mb']:.2f} MB, result "
+          f"{task['result_mb']:.2f} MB")
+    print(f"  where it goes: the local model's full covariance of G, M (nz nr)^2 complex "
+          f"(M = {m}, nz = {nz}, nr = {nr}) = {cov:.1f} MB, held twice while it is packed with the "
+          f"estimates (fit_packed); the process itself holds {one['rss_mb']:.0f} MB after the call "
+          "(numba and its kernels included)")
 
 
 # ------------------------------------------------------------------ the big run
