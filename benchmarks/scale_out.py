@@ -272,7 +272,8 @@ def _truth_of(exp):
     from lcmr_xr import hdd
     from lcmr_xr.identification import identify
 
-    f = identify(exp, window=WINDOW, covariance=False, errors="ignore").frequency
+    # the frequency grid alone (not the experiment's scalar metadata coordinates)
+    f = identify(exp, window=WINDOW, covariance=False, errors="ignore").frequency.reset_coords(drop=True)
     return hdd.true_frf(f.values, case=int(exp.attrs.get("case", 2))).assign_coords(frequency=f)
 
 

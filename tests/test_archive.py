@@ -164,6 +164,31 @@ def test_sweep_to_disk_survives_a_crash_and_resumes(tmp_path):
         sweep_to_disk(exps, tmp_path / "b.nc", window=[20])
 
 
+def test_sweep_to_disk_identifies_each_experiment_once(tmp_path, monkeypatch):
+    """Assembling the result from the parts must not run the identify tasks again (the
+    archive's metadata coordinates once came back through them)."""
+    import importlib
+
+    sweep_module = importlib.import_module("lcmr_xr.scaleout.sweep")  # not the function sweep
+    save_archive([_labelled(i) for i in range(3)], tmp_path / "a.nc")
+    arc = open_archive(tmp_path / "a.nc")
+    assert "seed" in arc.coords  # metadata along experiment: what pulled the tasks back
+    calls = []
+    real = sweep_module._identify_or_flag
+
+    def counted(one, source, settings):
+        calls.append(str(one.experiment.values.ravel()[0]))
+        return real(one, source, settings)
+
+    monkeypatch.setattr(sweep_module, "_identify_or_flag", counted)
+    out = sweep_to_disk(arc, tmp_path / "r.nc", window=[12, 20], experiments_per_task=2,
+                        scheduler="synchronous", progress=False)
+    assert sorted(calls) == sorted(2 * [str(v) for v in arc.experiment.values])
+    res = open_dataset(out)
+    np.testing.assert_array_equal(res.seed.values, arc.seed.values)
+    arc.close()
+
+
 def test_sweep_to_disk_never_writes_into_or_over_its_archive(tmp_path):
     save_archive([_labelled(i) for i in range(2)], tmp_path / "dir", layout="files")
     save_archive([_labelled(i) for i in range(2)], tmp_path / "a.nc")

@@ -219,6 +219,21 @@ def _setting_template(template: xr.Dataset, setting: dict) -> xr.Dataset:
     return out.assign_coords({d: [v] for d, v in setting.items()})
 
 
+def _input_coords(res: xr.Dataset, experiments: xr.Dataset) -> dict:
+    """The experiments' own non-index coordinates (metadata along ``experiment``) for the
+    same names on a ``map_blocks`` result.
+
+    Why: ``map_blocks`` returns every coordinate of its template as an output of its
+    tasks, so a result variable replaced by another computation (``sweep_to_disk``
+    assembles the result from its part files) still pulled the metadata, and with it
+    the whole sweep, through the identify tasks again (measured: the assembly of 32
+    experiments ran all 32 identify calls a second time).
+    """
+    return {name: experiments[name].variable for name in res.coords
+            if name in experiments.coords and name not in res.xindexes
+            and experiments[name].dims == res[name].dims}
+
+
 def _carried(ds: xr.Dataset) -> dict:
     """Coordinates that do not vary along the leading dims (``time``, ``slow_time``,
     ``input``, ``output``, scalars): handed to every task whole instead of being cut out
@@ -509,6 +524,7 @@ def sweep(experiments: xr.Dataset, *, window=(30,), degrees=None, method=("lrm",
                                                 "carried": carried, "setting": setting},
                                         template=template.drop_vars(drop))
                     res = res.assign_coords({name: template[name].variable for name in drop})
+                    res = res.assign_coords(_input_coords(res, experiments))
                 else:
                     res = _pooled(ds, pools, settings).expand_dims(
                         {d: [v] for d, v in setting.items()})
