@@ -100,9 +100,33 @@ def dask_setup(worker) -> None:
 
 
 def trim_check(worker, trim):
-    """The periodic check of :func:`dask_setup`: ``trim(0)`` when ``worker``'s process
-    memory is above :data:`TRIM_FRACTION` of its limit (None: nothing to check, the worker
-    has no limit or ``trim`` is None)."""
+    """The periodic check of :func:`dask_setup`.
+
+    Parameters
+    ----------
+    worker : distributed.Worker
+        Read: ``memory_manager.memory_limit`` (bytes; 0 or None: no limit) and
+        ``monitor.get_process_memory()`` (bytes).
+    trim : callable or None
+        Called as ``trim(0)`` (glibc ``malloc_trim``: give back every free page).
+
+    Returns
+    -------
+    callable or None
+        A function of no arguments that calls ``trim(0)`` when the worker's process
+        memory is above :data:`TRIM_FRACTION` of its limit; None when there is nothing
+        to check (no limit, or ``trim`` is None).
+
+    Examples
+    --------
+    >>> from types import SimpleNamespace
+    >>> calls = []
+    >>> worker = SimpleNamespace(memory_manager=SimpleNamespace(memory_limit=100),
+    ...                          monitor=SimpleNamespace(get_process_memory=lambda: 90))
+    >>> trim_check(worker, calls.append)()
+    >>> calls
+    [0]
+    """
     limit = worker.memory_manager.memory_limit
     if not limit or trim is None:
         return None
