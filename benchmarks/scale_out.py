@@ -52,7 +52,7 @@ import numpy as np
 N = 3600
 WINDOW = 30
 #: Seconds a worker of the big run (part 7) lives before it is retired and restarted.
-LIFETIME = 180
+LIFETIME = 300
 
 
 # ------------------------------------------------------------------ archives
@@ -290,7 +290,7 @@ def throughput(path: Path, n: int, tmp: Path, per_task: int) -> None:
     from lcmr_xr.identification import identify
     from lcmr_xr.scaleout import local_cluster, open_archive, sweep_to_disk
 
-    arc = open_archive(path).isel(experiment=slice(0, n))
+    arc = open_archive(path, chunks={"experiment": per_task}).isel(experiment=slice(0, n))
     exps = [arc.isel(experiment=i).compute() for i in range(n)]
     truth = _truth_of(exps[0])
     identify(exps[0], window=WINDOW, errors="ignore")
@@ -495,11 +495,11 @@ def big_run(tmp_root: Path, memory_limit: str, factor: float, per_task: int,
         print(f"  written in {time.perf_counter() - t0:.0f} s; {path.stat().st_size / 1e9:.2f} GB "
               "on disk", flush=True)
         truth = _truth_of(base)
-        # A worker grows by tens of MB over thousands of tasks (measured: from 320 MB after
-        # its first tasks to 355-370 MB within 4 minutes), and a 400 MB worker pauses at
-        # 360 MB (local_cluster's 90 %) and then stalls for good.  distributed's remedy for
-        # slowly growing workers: retire and restart each after a lifetime (staggered),
-        # its tasks moved to the other worker first.
+        # A safety net: a worker that grows over thousands of tasks (measured with the
+        # archive rechunked: from 320 MB after its first tasks to 355-370 MB within 4
+        # minutes) pauses at 360 MB (local_cluster's 90 % of 400 MB) and may stall for
+        # good.  distributed's remedy for slowly growing workers: retire and restart each
+        # after a lifetime (staggered), its tasks moved to the other worker first.
         lifetime = {"distributed.worker.lifetime.duration": f"{LIFETIME} s",
                     "distributed.worker.lifetime.stagger": f"{LIFETIME // 4} s",
                     "distributed.worker.lifetime.restart": True}
@@ -507,7 +507,10 @@ def big_run(tmp_root: Path, memory_limit: str, factor: float, per_task: int,
                 local_cluster(2, memory_limit=memory_limit, silence_logs=50) as cluster, \
                 Client(cluster) as client:
             pids = list(client.run(os.getpid).values())
-            arc = open_archive(path)
+            # chunks of per_task experiments as read: root tasks that the scheduler queues
+            # (a rechunk of the archive's 16-experiment chunks let it assign 1 300 tasks at
+            # once, whose reads filled the workers until they paused)
+            arc = open_archive(path, chunks={"experiment": per_task})
             lazy = reduced_sweep(arc, truth, per_task, covariance)
             result, failed = None, None
             with _RssSampler(pids) as sampler:
