@@ -52,7 +52,7 @@ import numpy as np
 N = 3600
 WINDOW = 30
 #: Seconds a worker of the big run (part 7) lives before it is retired and restarted.
-LIFETIME = 300
+LIFETIME = 90
 
 
 # ------------------------------------------------------------------ archives
@@ -467,7 +467,7 @@ class _RssSampler:
 
 
 def big_run(tmp_root: Path, memory_limit: str, factor: float, per_task: int,
-            covariance: bool = False) -> None:
+            covariance: bool = False, archive: Path | None = None) -> None:
     """Item 7: a 2-worker cluster with ``memory_limit`` each identifies an archive
     ``factor`` times larger than the workers' memory together (``covariance``: with
     ``P_std``)."""
@@ -482,18 +482,23 @@ def big_run(tmp_root: Path, memory_limit: str, factor: float, per_task: int,
     per_exp = base[["r", "u", "y"]].nbytes
     n = int(np.ceil(factor * 2 * limit / per_exp))
     free = shutil.disk_usage(tmp_root).free
-    if free < 2 * n * per_exp:
+    if archive is None and free < 2 * n * per_exp:
         raise SystemExit(f"--big needs about {n * per_exp / 1e9:.1f} GB in {tmp_root} (twice that "
                          f"free), {free / 1e9:.1f} GB are free; pass --tmp DIR on a larger disk.")
     tmp = Path(tempfile.mkdtemp(prefix="lcmr-scale-big-", dir=tmp_root))
     try:
         path = tmp / "big.nc"
-        print(f"big run: writing {n} experiments ({n * per_exp / 1e9:.2f} GB of data) to {path}",
-              flush=True)
-        t0 = time.perf_counter()
-        make_consolidated(path, n, base, progress=True)
-        print(f"  written in {time.perf_counter() - t0:.0f} s; {path.stat().st_size / 1e9:.2f} GB "
-              "on disk", flush=True)
+        if archive is not None:  # an archive this run wrote before (kept by the caller)
+            path = archive
+            n = open_archive(path).sizes["experiment"]
+            print(f"big run: reusing {path} ({n} experiments)", flush=True)
+        else:
+            print(f"big run: writing {n} experiments ({n * per_exp / 1e9:.2f} GB of data) to "
+                  f"{path}", flush=True)
+            t0 = time.perf_counter()
+            make_consolidated(path, n, base, progress=True)
+            print(f"  written in {time.perf_counter() - t0:.0f} s; {path.stat().st_size / 1e9:.2f} "
+                  "GB on disk", flush=True)
         truth = _truth_of(base)
         # A safety net: a worker that grows over thousands of tasks (measured with the
         # archive rechunked: from 320 MB after its first tasks to 355-370 MB within 4
@@ -572,6 +577,8 @@ def main(argv=None):
     ap.add_argument("--big-covariance", action="store_true",
                     help="part 7 with P_std (default without: with it a 400 MB worker has ~60 MB "
                          "above its ~320 MB of libraries and kernels, and reached the limit)")
+    ap.add_argument("--big-archive", type=Path, default=None,
+                    help="part 7 on this consolidated archive (kept) instead of writing one")
     ap.add_argument("--tmp", type=Path, default=Path(tempfile.gettempdir()),
                     help="where part 7 writes its archive (deleted afterwards)")
     args = ap.parse_args(argv)
@@ -580,7 +587,8 @@ def main(argv=None):
     print(f"machine: {os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.1f} at the start "
           "(shared: compare numbers within the run)", flush=True)
     if args.big_only:
-        big_run(args.tmp, args.memory_limit, args.big_factor, args.per_task, args.big_covariance)
+        big_run(args.tmp, args.memory_limit, args.big_factor, args.per_task, args.big_covariance,
+                args.big_archive)
         return
     from lcmr_xr.scaleout import append_to_archive, open_archive, sweep
 
@@ -639,7 +647,8 @@ def main(argv=None):
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     if args.big:
-        big_run(args.tmp, args.memory_limit, args.big_factor, args.per_task, args.big_covariance)
+        big_run(args.tmp, args.memory_limit, args.big_factor, args.per_task, args.big_covariance,
+                args.big_archive)
 
 
 if __name__ == "__main__":

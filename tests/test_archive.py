@@ -234,7 +234,7 @@ def test_local_cluster_workers_get_the_allocator_settings():
     assert env["MALLOC_TRIM_THRESHOLD_"] == str(64 * 2**20)
     assert env["MALLOC_MMAP_THRESHOLD_"] == str(32 * 2**20)
     assert env["OPENBLAS_NUM_THREADS"] == "1"  # distributed's own defaults are kept
-    assert pause == 0.9  # WORKER_MEMORY
+    assert pause == 0.9  # PAUSE_FRACTION, set by the preload
     assert trims == (sys.platform == "linux")  # the preload's heap trimming (glibc)
 
 

@@ -22,8 +22,9 @@ of a fragmented heap over thousands of tasks, paused the workers for good: pausi
 free memory that the allocator keeps, nor the libraries' code.  Measured with trimming
 alone, the workers still sat at 320 MB after a few tasks, exactly at the pause threshold,
 and stalled.  So the workers of :func:`local_cluster` pause at 90 % of their limit
-(:data:`WORKER_MEMORY`; distributed still terminates a worker at 95 %), and each worker
-runs :func:`dask_setup` (a distributed preload): when its process memory is above
+(:data:`PAUSE_FRACTION`; distributed still terminates a worker at 95 %), and each worker
+runs :func:`dask_setup` (a distributed preload), which sets that and, when its process
+memory is above
 :data:`TRIM_FRACTION` of its limit it returns the freed heap to the system (glibc
 ``malloc_trim``), checked every :data:`TRIM_INTERVAL` seconds.  Workers far below their
 limit keep the fast path; a worker near it gives the kept heap back and pays the page
@@ -38,9 +39,7 @@ the dask configuration of the machines that start them::
           MALLOC_TRIM_THRESHOLD_: 67108864
           MALLOC_MMAP_THRESHOLD_: 33554432
       worker:
-        preload: [lcmr_xr.scaleout.cluster]
-        memory:
-          pause: 0.9
+        preload: [lcmr_xr.scaleout.cluster]  # pause at 90 %, trim near the limit
 """
 
 from __future__ import annotations
@@ -49,13 +48,16 @@ import contextlib
 import logging
 import os
 
-__all__ = ["WORKER_ENVIRON", "WORKER_MEMORY", "TRIM_FRACTION", "TRIM_INTERVAL", "worker_environ",
+__all__ = ["WORKER_ENVIRON", "PAUSE_FRACTION", "TRIM_FRACTION", "TRIM_INTERVAL", "worker_environ",
            "local_cluster", "dask_setup", "trim_check"]
 
 #: Environment the nanny gives each worker process (on top of distributed's defaults).
 WORKER_ENVIRON = {"MALLOC_TRIM_THRESHOLD_": str(64 * 2**20), "MALLOC_MMAP_THRESHOLD_": str(32 * 2**20)}
-#: distributed's memory thresholds for the workers (fractions of the memory limit).
-WORKER_MEMORY = {"distributed.worker.memory.pause": 0.9}
+#: Fraction of its memory limit at which a worker pauses (distributed's default 0.8), set
+#: by :func:`dask_setup` in every worker it starts: set in the configuration only, a
+#: worker that its nanny restarted (after a memory kill, or a ``lifetime``) paused at
+#: distributed's default again (measured).
+PAUSE_FRACTION = 0.9
 #: Fraction of a worker's memory limit above which it returns its freed heap to the system
 #: (distributed's default pause threshold).
 TRIM_FRACTION = 0.8
@@ -77,10 +79,12 @@ def _malloc_trim():
 
 
 def dask_setup(worker) -> None:
-    """distributed preload hook: a worker above :data:`TRIM_FRACTION` of its memory limit
-    returns its freed heap to the system (see the module notes).
+    """distributed preload hook: the worker pauses at :data:`PAUSE_FRACTION` of its memory
+    limit, and above :data:`TRIM_FRACTION` of it returns its freed heap to the system (see
+    the module notes).
 
-    Does nothing for workers without a memory limit or without glibc's ``malloc_trim``.
+    The trimming is left out for workers without a memory limit or without glibc's
+    ``malloc_trim``.
     Started by :func:`local_cluster`; for other workers pass
     ``--preload lcmr_xr.scaleout.cluster`` to ``dask worker``.
 
@@ -91,6 +95,7 @@ def dask_setup(worker) -> None:
     """
     from tornado.ioloop import PeriodicCallback
 
+    worker.memory_manager.memory_pause_fraction = PAUSE_FRACTION
     check = trim_check(worker, _malloc_trim())
     if check is None:
         return
@@ -195,7 +200,7 @@ def local_cluster(n_workers: int = 2, *, threads_per_worker: int = 1, memory_lim
 
     preload = list(dask.config.get("distributed.worker.preload", default=[]) or [])
     with dask.config.set({"distributed.nanny.pre-spawn-environ": worker_environ(),
-                          "distributed.worker.preload": preload + [__name__], **WORKER_MEMORY}), \
+                          "distributed.worker.preload": preload + [__name__]}), \
             _process_environ(WORKER_ENVIRON):
         return LocalCluster(n_workers=n_workers, threads_per_worker=threads_per_worker,
                             memory_limit=memory_limit, processes=processes,
