@@ -256,7 +256,8 @@ def moments_and_floor(rt, zt, n, sel, restart, k_base, slot_i, slot_j, p1, mom_o
                 for s in range(ns):
                     for a in range(p1):
                         mom_out[b, k, s * p1 + a] = mom[a * ns + s]
-                floor_out[b, k] = floor
+                for p in range(nr):
+                    floor_out[b, k, p] = floor[p]
     return 0
 
 
@@ -467,7 +468,8 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
             for a in range(q):
                 for c in range(a, q + nx):
                     m[a, c] = _moment(mom, n_flat, aug_index[a, c])
-            floor[:] = floors[0]
+            for p in range(nr):  # (a loop: an array slice assignment compiles numba's
+                floor[p] = floors[0, p]  # shape-mismatch message machinery, ~8 s)
         else:
             _gather_pooled(moms, n_flat, aug_index, zz_index, sh, tr, tinv, ge, txe, wtx,
                            xxe, m, xx, q, nx)
