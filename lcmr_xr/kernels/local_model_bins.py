@@ -191,15 +191,19 @@ def direct_moments(rt, zt, b, k, slot_i, slot_j, rho_pow, mom, base, x):
     bin ``k`` (padded samples ``k .. k + 2n``) by direct sums, ``(i, j) = (slot_i[s],
     slot_j[s])``.  Power-major, so that the inner loops run over the slots."""
     ns = slot_i.shape[0]
-    for f in range(mom.shape[0]):
-        mom[f] = 0j
+    # every weight is real: the sums run over the real and imaginary parts alike (in
+    # compiled code a real times a complex128 is a full complex product)
+    mf = mom.view(np.float64)
+    xf = x.view(np.float64)
+    for f in range(mf.shape[0]):
+        mf[f] = 0.0
     for r in range(rho_pow.shape[0]):
         _products(rt, zt, b, k + r, slot_i, slot_j, base, x)
         for a in range(rho_pow.shape[1]):
             w = rho_pow[r, a]
-            o = a * ns
-            for s in range(ns):
-                mom[o + s] += w * x[s]
+            row = mf[2 * a * ns: 2 * (a + 1) * ns]  # a view: indices from 0 vectorise
+            for s in range(2 * ns):
+                row[s] += w * xf[s]
 
 
 @numba.njit(**_JIT)
@@ -213,18 +217,24 @@ def step_moments(rt, zt, b, k, n, slot_i, slot_j, shift, lead, mom, base, x_out,
     ns = slot_i.shape[0]
     _products(rt, zt, b, k, slot_i, slot_j, base, x_out)
     _products(rt, zt, b, k + 2 * n + 1, slot_i, slot_j, base, x_in)
+    # real weights: real views, as in direct_moments
+    mf = mom.view(np.float64)
+    af = acc.view(np.float64)
+    xo = x_out.view(np.float64)
+    xi = x_in.view(np.float64)
+    n2 = 2 * ns
     for a in range(shift.shape[0] - 1, -1, -1):  # descending: lower powers are still old
         la = lead[a]
-        for s in range(ns):
-            acc[s] = x_in[s] - la * x_out[s]
+        for s in range(n2):
+            af[s] = xi[s] - la * xo[s]
         for c in range(a + 1):
             w = shift[a, c]
-            o = c * ns
-            for s in range(ns):
-                acc[s] += w * mom[o + s]
-        o = a * ns
-        for s in range(ns):
-            mom[o + s] = acc[s]
+            row = mf[c * n2: (c + 1) * n2]  # a view: indices from 0 vectorise (an offset
+            for s in range(n2):  # index might be negative to the compiler: wraparound)
+                af[s] += w * row[s]
+        row = mf[a * n2: (a + 1) * n2]
+        for s in range(n2):
+            row[s] = af[s]
 
 
 @numba.njit(**_JIT)
