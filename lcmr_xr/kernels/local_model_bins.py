@@ -259,7 +259,7 @@ def moments_and_floor(rt, zt, n, sel, restart, k_base, slot_i, slot_j, p1, mom_o
     floor = np.empty(nr)
     scratch = np.empty((4, max(ns, nr + 1 + zt.shape[2])), dtype=np.complex128)
     for b in range(sel.shape[0]):
-        valid = False
+        valid = np.bool_(False)  # not the literal False: one compiled _advance, not two
         for k in range(sel.shape[1]):
             valid = _advance(rt, zt, b, k, valid, sel[b], restart, k_base, n, slot_i,
                              slot_j, rho_pow, shift, lead, mom, floor, scratch)
@@ -335,7 +335,7 @@ def _advance(rt, zt, b, k, valid, sel_b, restart, k_base, n, slot_i, slot_j, rho
 def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
              aug_index, zz_index, a_base, a_pow, mean_pow, dof, mode, drop_tol,
              pivot_limit, sens_limit, out_g, out_t, out_ncov, out_cond, out_ill,
-             out_reduced, out_gcov, out_gvar, n_exp=1):
+             out_reduced, out_gcov, out_gvar, pool):
     """Fit the local model at the selected bins of one chunk (see the module notes).
 
     ``rt``, ``zt`` (nbat, K + 2n, nr / nz): the chunk with its ``n``-bin halo on each
@@ -349,7 +349,8 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
     number of dropped denominator columns, ``G`` covariance (., nz nr, nz nr; mode full)
     or variances (., nz, nr; mode diag).
 
-    Pooled experiments (``n_exp = E > 1``): rows ``b E .. b E + E - 1`` of ``rt``, ``zt``
+    ``pool``: None for one record per output row of ``sel``; pooled experiments
+    (``pool = E > 1``, an int): rows ``b E .. b E + E - 1`` of ``rt``, ``zt``
     are the ``E`` experiments of output group ``b`` (``sel`` has ``nbat / E`` rows), fitted
     with ``G`` and ``D`` shared and a transient per experiment.  Each experiment keeps its
     own moment vector (same recurrence); per bin its Gram and right-hand sides are
@@ -358,7 +359,7 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
     goes through the unchanged solve (as a model without transient).  Each experiment's
     ``T`` is back-substituted from its own projected moments (``out_t`` (., E, nz)); the
     covariance stacks the experiments' windows (``E W`` rows, transient leverage added).
-    ``E = 1`` is the single-record path, unchanged.
+    One experiment is the single-record path (``pool=None``).
     """
     q = aug_index.shape[0]
     nx = aug_index.shape[1] - q
@@ -373,7 +374,13 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
     width = 2 * n + 1
     # ---- pooled experiments: the transient columns (base nr) are eliminated per
     # experiment; the shared solve below sees the other qs columns only (indices sh)
-    pooled = n_exp > 1
+    # ``pool is None`` / ``pool is not None`` on the argument itself: numba then drops
+    # the pooled branches when compiling for one record (pool=None), which keeps that
+    # version (everybody's first call) free of the pooled code: less to compile
+    if pool is None:
+        n_exp = 1
+    else:
+        n_exp = pool
     q_all = q
     qt = 0
     for a in range(q):
@@ -391,7 +398,7 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
     rho_pow0, _s0, _l0 = _recurrence(n, p1)
     # inverse of the transient basis Gram sum_r rho^(c+c') (every experiment, every bin)
     tinv = np.zeros((qt, qt))
-    if pooled and qt > 0:
+    if pool is not None and qt > 0:
         tg = np.zeros((qt, 2 * qt), dtype=np.complex128)
         for t1 in range(qt):
             for t2 in range(qt):
@@ -414,7 +421,7 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
     tpow = np.empty(qt, dtype=np.int64)
     for t1 in range(qt):
         tpow[t1] = a_pow[tr[t1]]
-    if pooled:
+    if pool is not None:
         q = q_all - qt
         a_base = a_base[sh].copy()
         a_pow = a_pow[sh].copy()
@@ -468,7 +475,7 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
     floor = np.empty(nr)
     scratch = np.empty((4, max(slot_i.shape[0], nr + 1 + nz)), dtype=np.complex128)
     for b in range(sel.shape[0]):
-      valid = False
+      valid = np.bool_(False)  # not the literal False: one compiled _advance, not two
       for k in range(sel.shape[1]):
         v_all = valid
         for e in range(n_exp):  # one moment vector per experiment, same recurrence
@@ -482,7 +489,7 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
         # ---- gather [Gaa | A^H X]; an R column within FFT rounding of zero energy is
         # unexcited: the bin fails (NaN, flagged)
         dead = False
-        if not pooled:
+        if pool is None:
             for a in range(q):
                 for c in range(a, q + nx):
                     m[a, c] = _moment(mom, n_flat, aug_index[a, c])
@@ -522,7 +529,7 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
             out_ill[o] = True
             continue
         min_piv = min_a
-        if not pooled:  # (pooled: xx already holds the projected sums)
+        if pool is None:  # (pooled: xx already holds the projected sums)
             for i in range(nz):
                 for j in range(nz):
                     for s in range(rd1):
@@ -602,7 +609,7 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
             out_t[o, 0, i] = tail[0] * ds[q - nt] if has_t else 0j
             for p in range(nr):
                 out_g[o, i, p] = tail[nt - nr + p] * ds[q - nr + p]
-            if pooled:
+            if pool is not None:
                 _pooled_transients(m, q, nx, ds, delta[i], i, rd1, sh, tr, wtx, out_t[o],
                                    v[i], wa)
 
@@ -642,7 +649,7 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
         for a in range(q):
             sc = ds[a]
             pw = a_pow[a]
-            if pooled:  # stacked windows, each projected off its experiment's transient
+            if pool is not None:  # stacked windows, each projected off its experiment's transient
                 _pooled_columns(rt, b, k, a_base[a], pw, sh[a], sc, rho_pow, tpow, wtx,
                                 crow)
                 for r in range(width):
@@ -673,7 +680,7 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
         for a in range(q):
             for r in range(width):
                 lev[r] += qhr[a, r] ** 2 + qhi[a, r] ** 2
-        if pooled:  # the eliminated transient columns' leverage, the same in every window
+        if pool is not None:  # the eliminated transient columns' leverage, the same in every window
             for r in range(wn):
                 lt = 0.0
                 for t1 in range(qt):
@@ -699,7 +706,7 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
             for j in range(rk):
                 s = perm[i, j]
                 f = -tsc[i, s]
-                if pooled:
+                if pool is not None:
                     _pooled_d_column(zt, b, k, i, s + 1, q_all + c0 + s + 1, f, rho_pow,
                                      tpow, wtx, crow)
                     for r in range(width):

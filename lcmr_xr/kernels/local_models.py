@@ -626,7 +626,8 @@ def _fit_chunk(rt, zt, n, degrees, mode, sel, out_offset, m, dof, out, n_exp=1):
                   lay.a_base, lay.a_pow, np.ascontiguousarray(mean_pow), float(dof), mode,
                   DROP_TOLERANCE, CONDITION_LIMIT, G_SENSITIVITY_LIMIT,
                   out["G"], out["T"], out["noise_covariance"], out["condition"],
-                  out["ill_posed"], out["dropped"], out["G_cov"], out["G_var"], n_exp)
+                  out["ill_posed"], out["dropped"], out["G_cov"], out["G_var"],
+                  None if n_exp == 1 else int(n_exp))
 
 
 def _restart_interval(half_width: int) -> int:
