@@ -87,7 +87,7 @@ def small_sample_factor(dof) -> np.ndarray:
     return np.sqrt(d * np.expm1(np.log(20.0) / d) / np.log(20.0))
 
 
-def weak_direction(S: np.ndarray, S_cov: np.ndarray):
+def weak_direction(S: np.ndarray, S_cov: np.ndarray, svd=None):
     """Relative uncertainty of the weakest direction of the estimated ``S``.
 
     Parameters
@@ -96,6 +96,10 @@ def weak_direction(S: np.ndarray, S_cov: np.ndarray):
         Estimated lifted sensitivity per bin.
     S_cov : ndarray, complex, shape (..., nr nr, nr nr)
         ``E[dS dS^H]`` of ``vec(S)`` (row-major, index ``i nr + b``).
+    svd : tuple of ndarray, optional
+        ``(u, s, vh)`` of ``S`` (the identity where ``S`` is not finite), when the
+        caller has it (:func:`lcmr_xr.kernels.closed_loop.indirect_first_row`); computed
+        when None.
 
     Returns
     -------
@@ -107,7 +111,7 @@ def weak_direction(S: np.ndarray, S_cov: np.ndarray):
     nr = S.shape[-1]
     finite = np.isfinite(S).all(axis=(-2, -1))
     S_safe = np.where(finite[..., None, None], S, np.eye(nr))
-    u, sv, vh = np.linalg.svd(S_safe)
+    u, sv, vh = np.linalg.svd(S_safe) if svd is None else svd
     um, vm, smin = u[..., :, -1], vh[..., -1, :].conj(), sv[..., -1]
     C = np.asarray(S_cov).reshape(S_cov.shape[:-2] + (nr, nr, nr, nr))
     # u^H dS v = sum_ib conj(u_i) v_b dS_ib; one vector at a time (a single einsum over

@@ -126,13 +126,20 @@ def recover_frf(G, G_cov, *, n_fast: int, factor: int, nu: int, ny: int,
         if closed_loop == "indirect":
             S_cov = G_cov[..., : nr * nr, : nr * nr]
             src = mirror_source(G)
+            # S's SVD from the indirect step (on half the bins or all), if it is of the
+            # same matrices (the identity where G, there where S, is not finite)
+            same = np.array_equal(np.isfinite(G).all(axis=(-2, -1)),
+                                  np.isfinite(G[..., :nr, :]).all(axis=(-2, -1)))
+            u, sv, vh, on_half = ind.s_svd if same else (None, None, None, None)
             if src is not None and mirror_source(S_cov) is not None:
                 # conjugation leaves rho unchanged: half the SVDs (about 10 us each)
                 half = slice(0, G.shape[-3] // 2 + 1)
                 rho, rho_v = (np.take(x, src, axis=-1) for x in
-                              weak_direction(G[..., half, :nr, :], S_cov[..., half, :, :]))
+                              weak_direction(G[..., half, :nr, :], S_cov[..., half, :, :],
+                                             svd=(u, sv, vh) if on_half is True else None))
             else:
-                rho, rho_v = weak_direction(G[..., :nr, :], S_cov)
+                rho, rho_v = weak_direction(G[..., :nr, :], S_cov,
+                                            svd=(u, sv, vh) if on_half is False else None)
             nl, undetermined = nonlinearity_factor(rho, rho_v)
             undetermined = undetermined & ~s_sing
             slow_factor = slow_factor * nl
