@@ -395,7 +395,7 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
         else:
             sh[c] = a
             c += 1
-    rho_pow0, _s0, _l0 = _recurrence(n, p1)
+    rho_pow, shift, lead = _recurrence(n, p1)
     # inverse of the transient basis Gram sum_r rho^(c+c') (every experiment, every bin)
     tinv = np.zeros((qt, qt))
     if pool is not None and qt > 0:
@@ -404,7 +404,7 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
             for t2 in range(qt):
                 acc = 0.0
                 for r in range(width):
-                    acc += rho_pow0[r, a_pow[tr[t1]]] * rho_pow0[r, a_pow[tr[t2]]]
+                    acc += rho_pow[r, a_pow[tr[t1]]] * rho_pow[r, a_pow[tr[t2]]]
                 tg[t1, t2] = acc
             tg[t1, qt + t1] = 1.0
         cholesky_augmented(tg, qt)  # rows [L^H | L^-1]: inverse = L^-H L^-1
@@ -468,7 +468,6 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
     scov = np.empty((nz, nz), dtype=np.complex128)
 
     n_flat = slot_i.shape[0] * p1
-    rho_pow, shift, lead = _recurrence(n, p1)
     moms = np.empty((n_exp, n_flat), dtype=np.complex128)
     mom = moms[0]
     floors = np.empty((n_exp, nr))
