@@ -40,6 +40,9 @@ class IndirectResult(NamedTuple):
     #: :func:`mirror_source`) or on every bin, for
     #: :func:`lcmr_xr.kernels.adaptive.weak_direction` (one SVD serves both)
     s_svd: tuple | None = None
+    #: with ``G_cov``: :func:`mirror_source` of ``G`` when ``G`` and ``G_cov`` are both
+    #: exact mirrors, else None (checked once here: the check reads all of ``G_cov``)
+    mirror: np.ndarray | None = None
 
 
 def indirect_first_row(G: np.ndarray, n_lifted_inputs: int, G_cov: np.ndarray | None = None,
@@ -81,7 +84,7 @@ def indirect_first_row(G: np.ndarray, n_lifted_inputs: int, G_cov: np.ndarray | 
     P1 = PS @ S_inv
     P1 = np.where(singular[..., None, None], np.nan, P1)
 
-    cov = None
+    cov = src = None
     if G_cov is not None:
         ny = nz - nr
         L = np.concatenate(
@@ -91,7 +94,9 @@ def indirect_first_row(G: np.ndarray, n_lifted_inputs: int, G_cov: np.ndarray | 
         # an exactly mirrored estimate: the covariance of bin M - k is the conjugate of
         # that of bin k, so the products run on bins 0..M/2 only
         m = G.shape[-3]
-        src = mirror_source(G) if mirror_source(G_cov) is not None else None
+        src = mirror_source(G)  # (the small array first)
+        if src is not None and mirror_source(G_cov) is None:
+            src = None
         part = slice(None) if src is None else slice(0, m // 2 + 1)
         C = G_cov[..., part, :, :]
         C = C.reshape(C.shape[:-2] + (nz, nr, nz, nr))
@@ -108,7 +113,7 @@ def indirect_first_row(G: np.ndarray, n_lifted_inputs: int, G_cov: np.ndarray | 
             cov = np.take(cov, src, axis=-3)
             cov = np.where((np.arange(m) > m // 2)[:, None, None], cov.conj(), cov)
         cov = np.where(singular[..., None, None], np.nan, cov)
-    return IndirectResult(P1, cov, cond, singular, svd)
+    return IndirectResult(P1, cov, cond, singular, svd, src)
 
 
 def mirror_source(G: np.ndarray) -> np.ndarray | None:
@@ -132,7 +137,10 @@ def mirror_source(G: np.ndarray) -> np.ndarray | None:
         return None
     k = np.arange(G.shape[-3])
     mirror = (-k) % k.size
-    if not np.array_equal(G[..., mirror, :, :], G.conj(), equal_nan=True):
+    # bin 0 is its own mirror, bins 1.. those in reverse order: views, no gathered copy
+    first = G[..., :1, :, :]
+    if not (np.array_equal(first, first.conj(), equal_nan=True)
+            and np.array_equal(G[..., 1:, :, :], G[..., :0:-1, :, :].conj(), equal_nan=True)):
         return None
     return np.minimum(k, mirror)
 

@@ -11,11 +11,7 @@ import numpy as np
 
 from lcmr_xr.kernels.adaptive import (nonlinearity_factor, select_windows, small_sample_factor,
                                       weak_direction)
-from lcmr_xr.kernels.closed_loop import (
-    frf_variance_from_first_row,
-    indirect_first_row,
-    mirror_source,
-)
+from lcmr_xr.kernels.closed_loop import frf_variance_from_first_row, indirect_first_row
 from lcmr_xr.kernels.lifting import frf_from_first_block_row, lift
 from lcmr_xr.kernels.local_models import local_model, parameters_per_row
 from lcmr_xr.kernels.pooling import (mean_and_covariance, pooled_least_squares,
@@ -125,13 +121,13 @@ def recover_frf(G, G_cov, *, n_fast: int, factor: int, nu: int, ny: int,
         P_var_lin = frf_variance_from_first_row(P1_cov, n_fast, f_, bins, ny, nu)
         if closed_loop == "indirect":
             S_cov = G_cov[..., : nr * nr, : nr * nr]
-            src = mirror_source(G)
+            src = ind.mirror  # G and G_cov exact mirrors (checked once, in the indirect step)
             # S's SVD from the indirect step (on half the bins or all), if it is of the
             # same matrices (the identity where G, there where S, is not finite)
             same = np.array_equal(np.isfinite(G).all(axis=(-2, -1)),
                                   np.isfinite(G[..., :nr, :]).all(axis=(-2, -1)))
             u, sv, vh, on_half = ind.s_svd if same else (None, None, None, None)
-            if src is not None and mirror_source(S_cov) is not None:
+            if src is not None:
                 # conjugation leaves rho unchanged: half the SVDs (about 10 us each)
                 half = slice(0, G.shape[-3] // 2 + 1)
                 rho, rho_v = (np.take(x, src, axis=-1) for x in
