@@ -54,33 +54,66 @@ _JIT = {"cache": True, "nogil": True, "error_model": "numpy", "boundscheck": Fal
 
 
 @numba.njit(**_JIT)
-def cholesky_augmented(m, q):
-    """In place: ``m`` (q, c) holds a Hermitian positive definite ``G`` (upper triangle
-    of the first ``q`` columns read) and right-hand sides ``X`` after it; its rows become
-    ``[L^H | L^-1 X]``.  Returns the pivots (squared diagonal of ``L``); the first
-    non-positive pivot stops the factorisation (that and later pivots are NaN)."""
-    c = m.shape[1]
-    piv = np.full(q, np.nan)
-    # row j of L^H copied out: the update of row i then reads a separate array, so the
-    # compiler need not assume the two rows alias and vectorises the inner loop (same
-    # operations in the same order: results unchanged; measured about 1.5x faster)
-    row = np.empty(c, dtype=np.complex128)
+def cholesky_planes(mr, mi, q, piv, rr, ri):
+    """In place: ``mr + 1j mi`` (q, c), real and imaginary parts in separate arrays, holds
+    a Hermitian positive definite ``G`` (upper triangle of the first ``q`` columns read)
+    and right-hand sides ``X`` after it; its rows become ``[L^H | L^-1 X]``.  ``piv`` (q)
+    receives the pivots (squared diagonal of ``L``); the first non-positive pivot stops
+    the factorisation (that and later pivots are NaN).  ``rr``, ``ri`` (c) are scratch.
+    Returns the number of positive pivots.
+
+    Separate real and imaginary parts, row ``j`` of ``L^H`` copied out (so the compiler
+    need not assume that the rows alias) and row views indexed from 0 (so that it need
+    not guard against negative indices): the inner loop vectorises (measured 7.3 -> 5 us
+    for the HDD's 20 x 40).
+    """
+    c = mr.shape[1]
     for j in range(q):
-        p = m[j, j].real
+        piv[j] = np.nan
+    for j in range(q):
+        p = mr[j, j]
         if not p > 0.0:
-            return piv
+            return j
         piv[j] = p
         d = math.sqrt(p)
-        m[j, j] = d
+        mr[j, j] = d
+        mi[j, j] = 0.0
         inv = 1.0 / d
         for col in range(j + 1, c):
-            m[j, col] *= inv
-            row[col] = m[j, col]
+            a = mr[j, col] * inv
+            b = mi[j, col] * inv
+            mr[j, col] = a
+            mi[j, col] = b
+            rr[col] = a
+            ri[col] = b
         for i in range(j + 1, q):
-            f = row[i].conjugate()
-            mi = m[i]
-            for col in range(i, c):
-                mi[col] -= f * row[col]
+            fr = rr[i]  # row i -= conj(l_ji) row j, l_ji = fr + 1j fi
+            fi = ri[i]
+            ar = mr[i, i:]
+            ai = mi[i, i:]
+            br = rr[i:]
+            bi = ri[i:]
+            for t in range(c - i):
+                ar[t] -= fr * br[t] + fi * bi[t]
+                ai[t] -= fr * bi[t] - fi * br[t]
+    return q
+
+
+@numba.njit(**_JIT)
+def cholesky_augmented(m, q):
+    """:func:`cholesky_planes` on a complex ``m`` (q, c), in place; returns the pivots."""
+    c = m.shape[1]
+    mr = np.empty((q, c))
+    mi = np.empty((q, c))
+    for a in range(q):
+        for col in range(c):
+            mr[a, col] = m[a, col].real
+            mi[a, col] = m[a, col].imag
+    piv = np.empty(q)
+    cholesky_planes(mr, mi, q, piv, np.empty(c), np.empty(c))
+    for a in range(q):
+        for col in range(c):
+            m[a, col] = complex(mr[a, col], mi[a, col])
     return piv
 
 
@@ -431,6 +464,11 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
     wn = 2 * n + 1  # one experiment's window
     nan_c = complex(np.nan, np.nan)
     m = np.empty((q, q + nx), dtype=np.complex128)
+    mr = np.zeros((q, q + nx))  # m's real and imaginary planes for the Cholesky
+    mi = np.zeros((q, q + nx))
+    piv_a = np.empty(q)
+    rr_c = np.empty(q + nx)
+    ri_c = np.empty(q + nx)
     ds = np.empty(q)
     xx = np.empty((nz, nz, rd1, rd1), dtype=np.complex128)
     delta = np.zeros((nz, rd1), dtype=np.complex128)
@@ -511,12 +549,18 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
             out_cond[o] = np.inf
             out_ill[o] = True
             continue
-        for a in range(q):  # Jacobi scaling of the Gram (both sides) and of A^H X (rows)
-            for c in range(a, q):
-                m[a, c] *= ds[a] * ds[c]
+        for a in range(q):  # Jacobi scaling of the Gram (both sides) and of A^H X (rows),
+            for c in range(a, q):  # into the real and imaginary planes of the Cholesky
+                f = ds[a] * ds[c]
+                mr[a, c] = m[a, c].real * f
+                mi[a, c] = m[a, c].imag * f
             for c in range(q, q + nx):
-                m[a, c] *= ds[a]
-        piv_a = cholesky_augmented(m, q)
+                mr[a, c] = m[a, c].real * ds[a]
+                mi[a, c] = m[a, c].imag * ds[a]
+        cholesky_planes(mr, mi, q, piv_a, rr_c, ri_c)
+        for a in range(q):
+            for c in range(a, q + nx):
+                m[a, c] = complex(mr[a, c], mi[a, c])
         min_a = np.inf
         for a in range(q):
             if not piv_a[a] > 0.0:
