@@ -784,6 +784,21 @@ def test_pooled_experiments_agree_with_stacked_oracle(degrees, covariance):
         assert rel(fit.noise_covariance, ref["noise_covariance"]) < 1e-9
 
 
+def test_pooled_windows_may_be_narrower_than_one_record_allows():
+    """(2, 2, 2) with nr = 2: 11 parameters per row, so one record needs n >= 6; four
+    experiments together have 4 (2 n + 1) - 11 - 3 * 3 = 8 dof at n = 3 (stacked oracle)."""
+    R, Z, _ = _pooled_data(48, 4, 2, 2)
+    with pytest.raises(ValueError, match="half_width >= 6"):
+        local_model(R[0], Z[0], half_width=3, degrees=(2, 2, 2))
+    fit = local_model(R, Z, half_width=3, degrees=(2, 2, 2), experiment_axis=0)
+    ref = oracle_pooled_local_model(R, Z, 3, (2, 2, 2))
+    assert fit.dof == ref["dof"] == 8
+    rel = lambda a, b: np.max(abs(a - b)) / np.max(abs(b))  # noqa: E731
+    assert rel(fit.G, ref["G"]) < 1e-9 and rel(fit.G_cov, ref["G_cov"]) < 1e-9
+    with pytest.raises(ValueError, match="over 4 pooled experiments.*half_width >= 3"):
+        local_model(R, Z, half_width=2, degrees=(2, 2, 2), experiment_axis=0)
+
+
 def test_pooled_one_experiment_is_the_single_record_fit_bit_for_bit():
     R, Z, _ = _pooled_data(48, 2, 2, 2)
     one = local_model(R[:1], Z[:1], half_width=8, degrees=(2, 2, 2), experiment_axis=0)

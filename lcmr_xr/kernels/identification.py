@@ -123,9 +123,11 @@ def recover_frf(G, G_cov, *, n_fast: int, factor: int, nu: int, ny: int,
             S_cov = G_cov[..., : nr * nr, : nr * nr]
             src = ind.mirror  # G and G_cov exact mirrors (checked once, in the indirect step)
             # S's SVD from the indirect step (on half the bins or all), if it is of the
-            # same matrices (the identity where G, there where S, is not finite)
+            # same matrices: the identity where G is not finite there, where S or S_cov
+            # is not finite in weak_direction
             same = np.array_equal(np.isfinite(G).all(axis=(-2, -1)),
-                                  np.isfinite(G[..., :nr, :]).all(axis=(-2, -1)))
+                                  np.isfinite(G[..., :nr, :]).all(axis=(-2, -1))
+                                  & np.isfinite(S_cov).all(axis=(-2, -1)))
             u, sv, vh, on_half = ind.s_svd if same else (None, None, None, None)
             if src is not None:
                 # conjugation leaves rho unchanged: half the SVDs (about 10 us each)

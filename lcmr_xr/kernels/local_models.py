@@ -273,7 +273,7 @@ DROP_TOLERANCE = 1.0 / CONDITION_LIMIT**2
 G_SENSITIVITY_LIMIT = 1e-2
 
 
-def _check_half_width(half_width, batch, m, nr, degrees):
+def _check_half_width(half_width, batch, m, nr, degrees, n_exp=1):
     """Validated half-widths: ``(scalar int or None, array (n_batch, M) of int)``."""
     hw = np.asarray(half_width)
     if hw.dtype.kind not in "iuf" or not np.all(np.isfinite(hw)) or np.any(hw != np.round(hw)):
@@ -297,11 +297,15 @@ def _check_half_width(half_width, batch, m, nr, degrees):
             f"Use half_width <= {(m - 1) // 2} or more bins."
         )
     p_row = parameters_per_row(nr, degrees)
-    if 2 * n_min + 1 - p_row < 1:
+    # pooled: E windows, G and D shared, a transient (Rm + 1 terms) per experiment
+    p_all = p_row + (n_exp - 1) * (_check_degrees(degrees)[1] + 1)
+    if n_exp * (2 * n_min + 1) - p_all < 1:
+        need = -(-(p_all + 1 - n_exp) // (2 * n_exp))  # smallest n with a degree of freedom
+        pooled = f" over {n_exp} pooled experiments" if n_exp > 1 else ""
         raise ValueError(
-            f"no degrees of freedom: {p_row} parameters per row (nr={nr}, degrees="
-            f"{tuple(degrees)}) need a window of at least {p_row + 1} bins; use half_width >= "
-            f"{(p_row + 1) // 2} or lower degrees."
+            f"no degrees of freedom: {p_all} parameters per row{pooled} (nr={nr}, degrees="
+            f"{tuple(degrees)}) need at least {p_all + 1} bins in all windows together; use "
+            f"half_width >= {need} or lower degrees."
         )
     try:
         full = np.broadcast_to(hw, batch + (m,))
@@ -445,7 +449,7 @@ def local_model(R, Z, *, half_width, degrees=(3, 3, 3), circular: bool = True,
         ) from None
     if nr < 1 or nz < 1:
         raise ValueError(f"need at least one channel in R and Z, got nr={nr}, nz={nz}.")
-    scalar_n, widths = _check_half_width(half_width, batch, m, nr, degrees)
+    scalar_n, widths = _check_half_width(half_width, batch, m, nr, degrees, n_exp)
     if covariance not in ("full", "diag", None):
         raise ValueError(
             f"covariance must be 'full', 'diag' or None, got {covariance!r}."
