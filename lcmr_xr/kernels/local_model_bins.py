@@ -574,7 +574,7 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
         min_piv = min_a
         if pool is None:  # (pooled: xx already holds the projected sums)
             for i in range(nz):
-                for j in range(nz):
+                for j in range(i, nz):  # (j < i is never read)
                     for s in range(rd1):
                         for t in range(rd1):
                             xx[i, j, s, t] = _moment(mom, n_flat, zz_index[i, j, s, t])
@@ -593,11 +593,13 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
                     e = xx[i, i, s, s].real
                     tsc[i, s - 1] = 1.0 / math.sqrt(e) if e > 0.0 else 0.0
                 for s in range(1, rd1):
-                    for t in range(1, rd1):
+                    for t in range(s, rd1):  # Hermitian: the lower triangle mirrored
                         acc = xx[i, i, s, t]
                         for a in range(q):
                             acc -= m[a, q + c0 + s].conjugate() * m[a, q + c0 + t]
                         schur[s - 1, t - 1] = acc * (tsc[i, s - 1] * tsc[i, t - 1])
+                        if t != s:
+                            schur[t - 1, s - 1] = schur[s - 1, t - 1].conjugate()
                     acc = xx[i, i, s, 0]
                     for a in range(q):
                         acc -= m[a, q + c0 + s].conjugate() * m[a, q + c0]
@@ -676,12 +678,13 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
         if not cov:
             # tau_ij ~ dof mean_r d_i(r) conj(d_j(r)) (exact for the LPM; local_model Notes)
             for i in range(nz):
-                for j in range(nz):
+                for j in range(i, nz):  # Hermitian
                     acc = 0j
                     for s in range(rd1):
                         for t in range(rd1):
                             acc += delta[i, s] * mean_pow[s + t] * delta[j, t].conjugate()
                     out_ncov[o, i, j] = ehe[i, j].conjugate() / (dof * acc)
+                    out_ncov[o, j, i] = out_ncov[o, i, j].conjugate()
             continue
 
         # ---- covariance, explicit over the window (loops over r innermost, contiguous).
