@@ -522,11 +522,16 @@ def local_model(R, Z, *, half_width, degrees=(3, 3, 3), circular: bool = True,
             for task in tasks:
                 run(task)
     if mirror:
-        src = (-k[m // 2 + 1:]) % m
+        # bins M/2+1..M-1 from bins (M-1)/2..1 (a reversed view, written in place: no
+        # gathered copy of outputs that reach hundreds of MB for M = 2^19)
         for name, value in out.items():
             if value.size:
                 v = value.reshape((n_batch, m) + value.shape[1:])
-                v[:, m // 2 + 1:] = np.conj(v[:, src]) if v.dtype.kind == "c" else v[:, src]
+                src, dst = v[:, (m - 1) // 2:0:-1], v[:, m // 2 + 1:]
+                if v.dtype.kind == "c":
+                    np.conjugate(src, out=dst)
+                else:
+                    dst[...] = src
     shaped = {name: (v.reshape(batch + (m,) + v.shape[1:]) if v.shape[0] else None)
               for name, v in out.items()}
     # T: (..., M, E, nz) -> (..., E, M, nz) pooled, (..., M, nz) otherwise
