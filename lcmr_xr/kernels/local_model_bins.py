@@ -51,11 +51,9 @@ COV_NONE, COV_DIAG, COV_FULL = 0, 1, 2
 
 _JIT = {"cache": True, "nogil": True, "error_model": "numpy", "boundscheck": False,
         "fastmath": {"reassoc", "contract"}}
-#: Helpers only ever called from compiled code: no Python entry points to compile.
-_JIT_INNER = dict(_JIT, no_cpython_wrapper=True, no_cfunc_wrapper=True)
 
 
-@numba.njit(**_JIT_INNER)
+@numba.njit(**_JIT)
 def cholesky_planes(mr, mi, q, piv, rr, ri):
     """In place: ``mr + 1j mi`` (q, c), real and imaginary parts in separate arrays, holds
     a Hermitian positive definite ``G`` (upper triangle of the first ``q`` columns read)
@@ -194,7 +192,7 @@ def _chol_solve(low, rank, b, x):
         x[j] = acc / low[j, j].real
 
 
-@numba.njit(**_JIT_INNER)
+@numba.njit(**_JIT)
 def _tail_solve(u, q, nt, v, x):
     """``x = U22^-1 v[q-nt:]`` for the trailing ``nt x nt`` block of upper-triangular
     ``u`` (``x`` has length ``nt``)."""
@@ -206,7 +204,7 @@ def _tail_solve(u, q, nt, v, x):
         x[j] = acc / u[off + j, off + j].real
 
 
-@numba.njit(**_JIT_INNER)
+@numba.njit(**_JIT)
 def _products(rt, zt, b, j, slot_i, slot_j, base, x):
     """``x[s] = conj(base_i) base_j`` at padded sample ``j`` for every slot ``(i, j)``;
     the bases are ``R_0..R_{nr-1}``, ``1``, ``Z_0..`` (``base`` is scratch)."""
@@ -220,7 +218,7 @@ def _products(rt, zt, b, j, slot_i, slot_j, base, x):
         x[s] = base[slot_i[s]].conjugate() * base[slot_j[s]]
 
 
-@numba.njit(**_JIT_INNER)
+@numba.njit(**_JIT)
 def direct_moments(rt, zt, b, k, slot_i, slot_j, rho_pow, mom, base, x):
     """``mom[a n_slots + s] = sum_r rho^a conj(base_i) base_j`` over the window of output
     bin ``k`` (padded samples ``k .. k + 2n``) by direct sums, ``(i, j) = (slot_i[s],
@@ -241,7 +239,7 @@ def direct_moments(rt, zt, b, k, slot_i, slot_j, rho_pow, mom, base, x):
                 row[s] += w * xf[s]
 
 
-@numba.njit(**_JIT_INNER)
+@numba.njit(**_JIT)
 def step_moments(rt, zt, b, k, n, slot_i, slot_j, shift, lead, mom, base, x_out, x_in, acc):
     """Moments of output bin ``k + 1`` from those of bin ``k``, in place.
 
@@ -272,7 +270,7 @@ def step_moments(rt, zt, b, k, n, slot_i, slot_j, shift, lead, mom, base, x_out,
             row[s] = af[s]
 
 
-@numba.njit(**_JIT_INNER)
+@numba.njit(**_JIT)
 def _moment(mom, n_flat, f):
     """Table entry ``f``: the moments, then (``f >= n_flat``) their conjugates."""
     if f >= n_flat:
@@ -307,7 +305,7 @@ def moments_and_floor(rt, zt, n, sel, restart, k_base, slot_i, slot_j, p1, mom_o
     return 0
 
 
-@numba.njit(**_JIT_INNER)
+@numba.njit(**_JIT)
 def _recurrence(n, p1):
     """``rho^a`` over the window, and the coefficients of :func:`step_moments`."""
     width = 2 * n + 1
@@ -328,7 +326,7 @@ def _recurrence(n, p1):
     return rho_pow, shift, lead
 
 
-@numba.njit(**_JIT_INNER)
+@numba.njit(**_JIT)
 def _advance(rt, zt, b, k, valid, sel_b, restart, k_base, n, slot_i, slot_j, rho_pow, shift,
              lead, mom, floor, scratch):
     """Bring ``mom`` to output bin ``k`` and return whether it holds valid moments.
@@ -885,7 +883,7 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
     return 0
 
 
-@numba.njit(**_JIT_INNER)
+@numba.njit(**_JIT)
 def _gather_pooled(moms, n_flat, aug_index, zz_index, sh, tr, tinv, ge, txe, wtx, xxe, m, xx,
                    qs, nx):
     """Pooled ``[Gaa | A^H X]`` (shared columns ``sh``, upper triangle) and ``X^H X`` in
@@ -940,7 +938,7 @@ def _gather_pooled(moms, n_flat, aug_index, zz_index, sh, tr, tinv, ge, txe, wtx
                         xx[i, j, s, t] += acc
 
 
-@numba.njit(**_JIT_INNER)
+@numba.njit(**_JIT)
 def _pooled_transients(m, qs, nx, ds, delta_i, i, rd1, sh, tr, wtx, out_t_o, v_i, x):
     """Every experiment's transient ``T`` (the ``rho^0`` coefficient) of row ``i``:
     ``theta_T,e = Winv T^H (X_e delta_i - A_e theta_S)`` from the shared coefficients
@@ -960,7 +958,7 @@ def _pooled_transients(m, qs, nx, ds, delta_i, i, rd1, sh, tr, wtx, out_t_o, v_i
         out_t_o[e, i] = acc
 
 
-@numba.njit(**_JIT_INNER)
+@numba.njit(**_JIT)
 def _pooled_columns(rt, b, k, base, pw, orig, sc, rho_pow, tpow, wtx, out):
     """``out`` (E W): ``sc`` times the conjugate of shared column ``orig`` (base ``base``,
     power ``pw``) over the stacked windows, each projected off its transient columns."""
@@ -976,7 +974,7 @@ def _pooled_columns(rt, b, k, base, pw, orig, sc, rho_pow, tpow, wtx, out):
             out[e * wn + r] = sc * val
 
 
-@numba.njit(**_JIT_INNER)
+@numba.njit(**_JIT)
 def _pooled_d_column(zt, b, k, i, pw, orig, f, rho_pow, tpow, wtx, out):
     """``out`` (E W): ``f`` times ``rho^pw Z_i`` over the stacked windows, each projected
     off its experiment's transient columns (``orig``: the column's index in ``wtx``)."""
