@@ -365,6 +365,34 @@ def _advance(rt, zt, b, k, valid, sel_b, restart, k_base, n, slot_i, slot_j, rho
 
 
 @numba.njit(**_JIT)
+def _failed_bin(o, mode, out_g, out_t, out_ncov, out_cond, out_ill, out_reduced, out_gcov,
+                out_gvar):
+    """Output row ``o`` of a bin whose ``G`` is undetermined: NaN, flagged (the outputs
+    are not prefilled: every fitted bin writes all of its row)."""
+    nan_c = complex(np.nan, np.nan)
+    for i in range(out_g.shape[1]):
+        for p in range(out_g.shape[2]):
+            out_g[o, i, p] = nan_c
+    for e in range(out_t.shape[1]):
+        for i in range(out_t.shape[2]):
+            out_t[o, e, i] = nan_c
+    for i in range(out_ncov.shape[1]):
+        for j in range(out_ncov.shape[2]):
+            out_ncov[o, i, j] = nan_c
+    out_cond[o] = np.inf
+    out_ill[o] = True
+    out_reduced[o] = 0
+    if mode == 2:
+        for x in range(out_gcov.shape[1]):
+            for y in range(out_gcov.shape[2]):
+                out_gcov[o, x, y] = nan_c
+    elif mode == 1:
+        for i in range(out_gvar.shape[1]):
+            for p in range(out_gvar.shape[2]):
+                out_gvar[o, i, p] = np.nan
+
+
+@numba.njit(**_JIT)
 def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
              aug_index, zz_index, a_base, a_pow, mean_pow, dof, mode, drop_tol,
              pivot_limit, sens_limit, out_g, out_t, out_ncov, out_cond, out_ill,
@@ -546,8 +574,8 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
                 dead = True
             ds[a] = 1.0 / math.sqrt(dia) if dia > 0.0 else np.nan
         if dead:
-            out_cond[o] = np.inf
-            out_ill[o] = True
+            _failed_bin(o, mode, out_g, out_t, out_ncov, out_cond, out_ill, out_reduced,
+                        out_gcov, out_gvar)
             continue
         for a in range(q):  # Jacobi scaling of the Gram (both sides) and of A^H X (rows),
             for c in range(a, q):  # into the real and imaginary planes of the Cholesky
@@ -568,8 +596,8 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
                 break
             min_a = min(min_a, piv_a[a])
         if not min_a > 0.0:  # the shared block (holding G) is singular: G undetermined
-            out_cond[o] = np.inf
-            out_ill[o] = True
+            _failed_bin(o, mode, out_g, out_t, out_ncov, out_cond, out_ill, out_reduced,
+                        out_gcov, out_gvar)
             continue
         min_piv = min_a
         if pool is None:  # (pooled: xx already holds the projected sums)
