@@ -417,6 +417,26 @@ def test_unexcited_bins_are_flagged_not_raised():
     assert np.all((fit.condition > CONDITION_LIMIT) | ~fit.ill_posed | np.isinf(fit.condition))
 
 
+@pytest.mark.parametrize("covariance", [None, "diag", "full"])
+def test_failed_and_unfitted_bins_hold_nan_in_every_output(covariance):
+    """The outputs are not prefilled: a bin whose fit fails and a bin without a full
+    window (non-circular) must still hold NaN and the flag in every output."""
+    rng = np.random.default_rng(8)
+    R, Z = _random_spectra(rng, 60, 1, 2)
+    R[20:45] = 0.0  # unexcited: the fit fails in bins 25..39
+    for circular, bad in ((True, np.arange(25, 40)), (False, np.r_[0:5, 55:60])):
+        fit = local_model(R if circular else R[:60], Z, half_width=5, degrees=(1, 1, 1),
+                          circular=circular, covariance=covariance)
+        assert fit.ill_posed[bad].all() and np.isinf(fit.condition[bad]).all()
+        assert (fit.dropped[bad] == 0).all()
+        for x in (fit.G, fit.T, fit.noise_covariance, fit.noise_variance):
+            assert np.isnan(x[bad]).all()
+        if covariance is not None:
+            assert np.isnan(fit.G_cov[bad]).all()
+        ok = np.setdiff1d(np.r_[5:15], bad)
+        assert np.isfinite(fit.G[ok]).all() and not fit.ill_posed[ok].any()
+
+
 def test_errors_say_what_to_fix():
     rng = np.random.default_rng(9)
     R, Z = _random_spectra(rng, 30, 2, 1)
