@@ -6,7 +6,11 @@ plain loop over the chunk's bins.  Everything per bin is written as explicit loo
 small matrices: no BLAS call (threaded BLAS on thousands of 20 x 20 matrices spins and
 fights for the cores), no temporaries per bin (scratch is allocated once per call).
 Compiled once with ``cache=True`` (the first call of a new install compiles, later
-processes load the cache) and ``nogil=True``, so chunks run in parallel threads.
+processes load the cache) and ``nogil=True``, so chunks run in parallel threads.  Sums
+may be reassociated and multiply-adds fused (``fastmath`` ``reassoc``, ``contract``;
+not ``nnan``/``ninf``, NaN checks keep working) so that the loops vectorise: results are
+reproducible bit for bit for one build on one CPU, and agree across builds and CPUs to
+rounding (what the oracle tests check).
 
 Per bin and output row ``i`` the model's regressors are the shared block ``A`` (columns
 ``rho^b R_p`` and ``rho^c``, ordered so that ``T`` and then ``G`` come last) and the row's
