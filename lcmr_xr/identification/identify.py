@@ -22,6 +22,7 @@ from lcmr_xr.kernels.identification import (
     finish_packed,
     fit_packed,
     identify_spectra,
+    finish_packed_auto,
     identify_spectra_auto,
     identify_window0_arrays,
     packed_width,
@@ -85,8 +86,9 @@ def identify(experiment: xr.Dataset, *, method: str = "lrm", window=DEFAULT_WIND
         (model error against noise; see ``docs/uncertainty.md`` and
         :mod:`lcmr_xr.kernels.adaptive`); the choice is returned as ``local_window`` and
         the estimated model error is part of ``P_std``.  ``"auto"`` needs
-        ``covariance=True`` and no ``frequency_chunks``; with repeated periods each
-        candidate's band uses the noise covariance from the periods.
+        ``covariance=True`` (and ``frequency_chunks`` at least the widest candidate, 30);
+        with repeated periods each candidate's band uses the noise covariance from the
+        periods.
         An integer window is a whole number (``30.0`` is 30; ``30.5`` is refused, not
         rounded).  The default is :data:`lcmr_xr.settings.DEFAULT_WINDOW`.
     degrees : (int, int, int) or str, optional
@@ -479,22 +481,35 @@ def _estimate(r: xr.DataArray, u: xr.DataArray, y: xr.DataArray, s, *, factor: i
         results = xr.apply_ufunc(kernel, r, u, y, *extra, input_core_dims=core_in + extra_core,
                                  **output_spec)
     else:
-        packed = _fit_frequency_chunked(r, u, y, s, factor=factor, check_rank=check_rank,
-                                        noise=noise, pooled=pooled)
-        nz_, nr_ = packed.attrs["nz"], packed.attrs["nr"]
         n_exp = r.sizes[cv.EXPERIMENT] if pooled else None
+        windows = _candidate_windows(s, factor * nu, n // factor) if auto else (s.window,)
+        if max(windows) > s.frequency_chunks:
+            raise ValueError(
+                f"frequency_chunks={s.frequency_chunks} is smaller than the halo of the widest "
+                f"candidate window of window='auto' ({max(windows)} bins on each side); use "
+                f"frequency_chunks >= {max(windows)}."
+            )
+        # one chunked fit per candidate window (one for a fixed window), stacked in front
+        packed = xr.concat([_fit_frequency_chunked(r, u, y, s._replace(window=w), factor=factor,
+                                                   check_rank=check_rank and i == 0,
+                                                   noise=noise, pooled=pooled)
+                            for i, w in enumerate(windows)], "_candidate")
+        nz_, nr_ = packed.attrs["nz"], packed.attrs["nr"]
+        shape = dict(nz=nz_, nr=nr_, n_fast=n, factor=factor, nu=nu, ny=ny,
+                     closed_loop=s.closed_loop)
 
         def finish(p):
-            p = np.ascontiguousarray(p).view(complex)
-            return _split(finish_packed(p, nz=nz_, nr=nr_, n_fast=n, factor=factor, nu=nu, ny=ny,
-                                        closed_loop=s.closed_loop, covariance=s.covariance,
+            p = np.moveaxis(np.ascontiguousarray(p).view(complex), -3, 0)  # candidates first
+            if auto:
+                return _split(finish_packed_auto(p, windows=windows, degrees=s.degrees,
+                                                 n_exp=n_exp, **shape), **split)
+            return _split(finish_packed(p[0], covariance=s.covariance, n_exp=n_exp,
                                         dof=window_dof(s.window, nr_, s.degrees, n_exp or 1),
-                                        n_exp=n_exp),
-                          **split)
+                                        **shape), **split)
 
         # the recovery gathers every slow bin (P(k) uses bin k mod M): one chunk along it
-        results = xr.apply_ufunc(finish, packed.chunk({SF: -1}), input_core_dims=[[SF, "_packed"]],
-                                 **output_spec)
+        results = xr.apply_ufunc(finish, packed.chunk({SF: -1, "_candidate": -1}),
+                                 input_core_dims=[["_candidate", SF, "_packed"]], **output_spec)
     return xr.Dataset({name: da for (name, _, _), da in zip(specs, results)})
 
 
