@@ -333,17 +333,34 @@ def identify_spectra_auto(R, Z, *, n_fast: int, factor: int, nu: int, windows,
         units as ``P``).  ``noise_covariance`` (periods) as in :func:`identify_arrays`:
         every candidate's covariance is built from it, averaged over that candidate's window.
     """
-    windows = np.asarray(sorted(int(w) for w in windows))
+    windows = sorted(int(w) for w in windows)
     nz, nr = Z.shape[-1], R.shape[-1]
     ny = nz - nr if closed_loop == "indirect" else nz
-    shape = dict(nz=nz, nr=nr, n_fast=n_fast, factor=factor, nu=nu, ny=ny,
-                 closed_loop=closed_loop, covariance=True)
     # Emulates a per-bin window: one fit per candidate.  A kernel taking half_width per
     # bin replaces the gather below by a single fit at the chosen windows.
-    n_exp = _n_experiments(R, Z, experiment_axis)
-    packed = np.stack([fit_packed(R, Z, half_width=int(w), degrees=degrees,
+    packed = np.stack([fit_packed(R, Z, half_width=w, degrees=degrees,
                                   noise_covariance=noise_covariance,
                                   experiment_axis=experiment_axis) for w in windows])
+    return finish_packed_auto(packed, windows=windows, nz=nz, nr=nr, n_fast=n_fast,
+                              factor=factor, nu=nu, ny=ny, closed_loop=closed_loop,
+                              degrees=degrees, n_exp=_n_experiments(R, Z, experiment_axis))
+
+
+def finish_packed_auto(packed, *, windows, nz: int, nr: int, n_fast: int, factor: int, nu: int,
+                       ny: int, closed_loop: str = "indirect", degrees=(3, 3, 3),
+                       n_exp: int | None = None) -> dict:
+    """The window choice of :func:`identify_spectra_auto` from its candidates' fits.
+
+    ``packed`` (J, ..., M, K): :func:`fit_packed` of every candidate half-width in
+    ``windows`` (ascending, with covariance), e.g. fitted in frequency chunks.  Returns the
+    dict of :func:`identify_spectra_auto`.
+    """
+    windows = np.asarray(windows, dtype=int)
+    if np.any(np.diff(windows) <= 0) or len(windows) != len(packed):
+        raise ValueError(f"windows must be ascending, one per packed fit; got {windows.tolist()} "
+                         f"for {len(packed)} fits.")
+    shape = dict(nz=nz, nr=nr, n_fast=n_fast, factor=factor, nu=nu, ny=ny,
+                 closed_loop=closed_loop, covariance=True)
     outs = [finish_packed(p, dof=window_dof(w, nr, degrees, n_exp or 1), n_exp=n_exp, **shape)
             for p, w in zip(packed, windows)]
     P = np.stack([o["P"] for o in outs])
