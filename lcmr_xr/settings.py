@@ -322,10 +322,6 @@ def estimator_settings(*, method="lrm", window=DEFAULT_WINDOW, degrees=None,
             raise ValueError("window='auto' chooses the window from the estimates' covariances; "
                              "pass covariance=True, or an integer window (e.g. window=30) with "
                              "covariance=False.")
-        if frequency_chunks is not None:
-            raise ValueError("frequency_chunks is not supported with window='auto' (the window "
-                             "choice needs every candidate's fit at every bin); pass an integer "
-                             "window (e.g. window=30), or leave frequency_chunks unset.")
     elif frequency_chunks is not None and frequency_chunks < window:
         raise ValueError(
             f"frequency_chunks={frequency_chunks} is smaller than the halo the local window "

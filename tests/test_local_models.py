@@ -417,6 +417,26 @@ def test_unexcited_bins_are_flagged_not_raised():
     assert np.all((fit.condition > CONDITION_LIMIT) | ~fit.ill_posed | np.isinf(fit.condition))
 
 
+@pytest.mark.parametrize("covariance", [None, "diag", "full"])
+def test_failed_and_unfitted_bins_hold_nan_in_every_output(covariance):
+    """The outputs are not prefilled: a bin whose fit fails and a bin without a full
+    window (non-circular) must still hold NaN and the flag in every output."""
+    rng = np.random.default_rng(8)
+    R, Z = _random_spectra(rng, 60, 1, 2)
+    R[20:45] = 0.0  # unexcited: the fit fails in bins 25..39
+    for circular, bad in ((True, np.arange(25, 40)), (False, np.r_[0:5, 55:60])):
+        fit = local_model(R if circular else R[:60], Z, half_width=5, degrees=(1, 1, 1),
+                          circular=circular, covariance=covariance)
+        assert fit.ill_posed[bad].all() and np.isinf(fit.condition[bad]).all()
+        assert (fit.dropped[bad] == 0).all()
+        for x in (fit.G, fit.T, fit.noise_covariance, fit.noise_variance):
+            assert np.isnan(x[bad]).all()
+        if covariance is not None:
+            assert np.isnan(fit.G_cov[bad]).all()
+        ok = np.setdiff1d(np.r_[5:15], bad)
+        assert np.isfinite(fit.G[ok]).all() and not fit.ill_posed[ok].any()
+
+
 def test_errors_say_what_to_fix():
     rng = np.random.default_rng(9)
     R, Z = _random_spectra(rng, 30, 2, 1)
@@ -782,6 +802,21 @@ def test_pooled_experiments_agree_with_stacked_oracle(degrees, covariance):
                    .reshape(48, 2, 2)) < 1e-9
     if degrees[2] == 0:  # LPM: tau = dof exactly, also without the covariance
         assert rel(fit.noise_covariance, ref["noise_covariance"]) < 1e-9
+
+
+def test_pooled_windows_may_be_narrower_than_one_record_allows():
+    """(2, 2, 2) with nr = 2: 11 parameters per row, so one record needs n >= 6; four
+    experiments together have 4 (2 n + 1) - 11 - 3 * 3 = 8 dof at n = 3 (stacked oracle)."""
+    R, Z, _ = _pooled_data(48, 4, 2, 2)
+    with pytest.raises(ValueError, match="half_width >= 6"):
+        local_model(R[0], Z[0], half_width=3, degrees=(2, 2, 2))
+    fit = local_model(R, Z, half_width=3, degrees=(2, 2, 2), experiment_axis=0)
+    ref = oracle_pooled_local_model(R, Z, 3, (2, 2, 2))
+    assert fit.dof == ref["dof"] == 8
+    rel = lambda a, b: np.max(abs(a - b)) / np.max(abs(b))  # noqa: E731
+    assert rel(fit.G, ref["G"]) < 1e-9 and rel(fit.G_cov, ref["G_cov"]) < 1e-9
+    with pytest.raises(ValueError, match="over 4 pooled experiments.*half_width >= 3"):
+        local_model(R, Z, half_width=2, degrees=(2, 2, 2), experiment_axis=0)
 
 
 def test_pooled_one_experiment_is_the_single_record_fit_bit_for_bit():

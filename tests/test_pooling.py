@@ -353,8 +353,6 @@ def test_pooling_refusals_name_the_remedy():
         (dict(experiment=exps.isel(period=0, drop=True), window=0, combine="experiment"),
          "steady-state periodic data"),
         (dict(experiment=exps.isel(experiment=[0]), window=0, combine="experiment"), "at least F nu"),
-        (dict(experiment=exps, window=15, combine="experiment", frequency_chunks=40),
-         "not in frequency chunks"),
         (dict(experiment=xr.concat([ds, ds], "experiment"), window=0, combine="experiment"),
          "same excitation"),
         (dict(experiment=exps, window=0, combine="experiment", transient_periods=1),
@@ -404,6 +402,24 @@ def test_combine_different_excitations_is_one_local_model():
                     combine="experiment")
     assert lazy.P.chunks is not None
     np.testing.assert_allclose(lazy.P.values, pooled.P.values, rtol=1e-12)
+
+
+@pytest.mark.parametrize("periods", [1, 3])
+def test_combine_different_excitations_in_frequency_chunks(periods):
+    """One local model over the experiments, fitted in frequency chunks with wrapped halos
+    (the experiments kept in one chunk): the eager pooled result, also with the noise of
+    the periods' spread (haloed like the spectra)."""
+    exps = _different_experiments(3, 0.02, periods=periods)
+    if periods == 1:
+        exps = exps.isel(period=0, drop=True)
+    eager = identify(exps, window=15, degrees=(2, 2, 2), combine="experiment", stacked=True)
+    chunked = identify(exps.chunk({"experiment": 1}), window=15, degrees=(2, 2, 2),
+                       combine="experiment", stacked=True, frequency_chunks=40)
+    assert chunked.P.chunks is not None and "experiment" not in chunked.P.dims
+    assert chunked.attrs["noise_estimate"] == ("periods" if periods > 1 else "residual")
+    for name in ("P", "P_std", "G", "transient_y"):
+        np.testing.assert_allclose(chunked[name].values, eager[name].values, rtol=1e-9,
+                                   atol=1e-12 * float(abs(eager[name]).max()))
 
 
 def test_combine_different_excitations_band_covers_the_truth():

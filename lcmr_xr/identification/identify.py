@@ -22,6 +22,7 @@ from lcmr_xr.kernels.identification import (
     finish_packed,
     fit_packed,
     identify_spectra,
+    finish_packed_auto,
     identify_spectra_auto,
     identify_window0_arrays,
     packed_width,
@@ -85,8 +86,9 @@ def identify(experiment: xr.Dataset, *, method: str = "lrm", window=DEFAULT_WIND
         (model error against noise; see ``docs/uncertainty.md`` and
         :mod:`lcmr_xr.kernels.adaptive`); the choice is returned as ``local_window`` and
         the estimated model error is part of ``P_std``.  ``"auto"`` needs
-        ``covariance=True`` and no ``frequency_chunks``; with repeated periods each
-        candidate's band uses the noise covariance from the periods.
+        ``covariance=True`` (and ``frequency_chunks`` at least the widest candidate, 30);
+        with repeated periods each candidate's band uses the noise covariance from the
+        periods.
         An integer window is a whole number (``30.0`` is 30; ``30.5`` is refused, not
         rounded).  The default is :data:`lcmr_xr.settings.DEFAULT_WINDOW`.
     degrees : (int, int, int) or str, optional
@@ -113,8 +115,9 @@ def identify(experiment: xr.Dataset, *, method: str = "lrm", window=DEFAULT_WIND
         is extended by a halo of ``window`` bins on both sides (wrapping around the unit
         circle, as the circular windows do), so the result equals the unchunked one to
         rounding.  Default: one chunk (leading dims such as ``experiment`` are still
-        parallel when the experiment is dask-backed).  The singular-``S`` check of
-        ``errors="raise"`` runs only on computed (not lazy) results.
+        parallel when the experiment is dask-backed).  With ``combine="experiment"`` each
+        chunk holds every experiment (one local model over them).  The singular-``S``
+        check of ``errors="raise"`` runs only on computed (not lazy) results.
     stacked : bool, default False
         Also return the local-model estimate as the kernel fits it, one matrix per slow
         bin: ``G`` (``slow_frequency``, ``response``, ``excitation``) mapping the lifted
@@ -478,20 +481,35 @@ def _estimate(r: xr.DataArray, u: xr.DataArray, y: xr.DataArray, s, *, factor: i
         results = xr.apply_ufunc(kernel, r, u, y, *extra, input_core_dims=core_in + extra_core,
                                  **output_spec)
     else:
-        packed = _fit_frequency_chunked(r, u, y, s, factor=factor, check_rank=check_rank,
-                                        noise=noise)
+        n_exp = r.sizes[cv.EXPERIMENT] if pooled else None
+        windows = _candidate_windows(s, factor * nu, n // factor) if auto else (s.window,)
+        if max(windows) > s.frequency_chunks:
+            raise ValueError(
+                f"frequency_chunks={s.frequency_chunks} is smaller than the halo of the widest "
+                f"candidate window of window='auto' ({max(windows)} bins on each side); use "
+                f"frequency_chunks >= {max(windows)}."
+            )
+        # one chunked fit per candidate window (one for a fixed window), stacked in front
+        packed = xr.concat([_fit_frequency_chunked(r, u, y, s._replace(window=w), factor=factor,
+                                                   check_rank=check_rank and i == 0,
+                                                   noise=noise, pooled=pooled)
+                            for i, w in enumerate(windows)], "_candidate")
         nz_, nr_ = packed.attrs["nz"], packed.attrs["nr"]
+        shape = dict(nz=nz_, nr=nr_, n_fast=n, factor=factor, nu=nu, ny=ny,
+                     closed_loop=s.closed_loop)
 
         def finish(p):
-            p = np.ascontiguousarray(p).view(complex)
-            return _split(finish_packed(p, nz=nz_, nr=nr_, n_fast=n, factor=factor, nu=nu, ny=ny,
-                                        closed_loop=s.closed_loop, covariance=s.covariance,
-                                        dof=window_dof(s.window, nr_, s.degrees)),
-                          **split)
+            p = np.moveaxis(np.ascontiguousarray(p).view(complex), -3, 0)  # candidates first
+            if auto:
+                return _split(finish_packed_auto(p, windows=windows, degrees=s.degrees,
+                                                 n_exp=n_exp, **shape), **split)
+            return _split(finish_packed(p[0], covariance=s.covariance, n_exp=n_exp,
+                                        dof=window_dof(s.window, nr_, s.degrees, n_exp or 1),
+                                        **shape), **split)
 
         # the recovery gathers every slow bin (P(k) uses bin k mod M): one chunk along it
-        results = xr.apply_ufunc(finish, packed.chunk({SF: -1}), input_core_dims=[[SF, "_packed"]],
-                                 **output_spec)
+        results = xr.apply_ufunc(finish, packed.chunk({SF: -1, "_candidate": -1}),
+                                 input_core_dims=[["_candidate", SF, "_packed"]], **output_spec)
     return xr.Dataset({name: da for (name, _, _), da in zip(specs, results)})
 
 
@@ -500,12 +518,14 @@ def _candidate_windows(s, n_excitation: int, n_bins: int) -> tuple[int, ...]:
     return candidate_windows(*auto_window_range(s.degrees, n_excitation, n_bins))
 
 
-def _fit_frequency_chunked(r, u, y, s, *, factor, check_rank, noise=None):
+def _fit_frequency_chunked(r, u, y, s, *, factor, check_rank, noise=None, pooled=False):
     """Lazy local-model fit in chunks along ``slow_frequency`` with wrapped halos.
 
     On eager data the spectra are computed here, once, and the excitation rank is checked
     on them (``check_rank``).  ``noise`` (..., ``slow_frequency``, ``_z``, ``_z2``),
     optional: the noise covariance known per bin (periods), haloed like the spectra.
+    ``pooled``: one local model over the ``experiment`` dim (kept in one chunk; the fitted
+    blocks drop it).
 
     Returns a DataArray (..., ``slow_frequency``, ``_packed``) of :func:`fit_packed` columns.
     """
@@ -540,11 +560,13 @@ def _fit_frequency_chunked(r, u, y, s, *, factor, check_rank, noise=None):
     )
     if check_rank and R.chunks is None:
         _check_excitation_rank(R.values, "r" if closed_loop == "indirect" else "u")
-    lead_chunks = {d: "auto" for d in R.dims if d not in (SF, "_r")}
-    Rd = R.chunk({**{d: R.chunks[R.get_axis_num(d)] if R.chunks else -1 for d in lead_chunks},
-                  SF: chunk, "_r": -1}).data
-    Zd = Z.chunk({**{d: Z.chunks[Z.get_axis_num(d)] if Z.chunks else -1 for d in lead_chunks},
-                  SF: chunk, "_z": -1}).data
+    def one_chunk(d, x):  # pooled: every experiment in each block (one local model)
+        return -1 if (pooled and d == cv.EXPERIMENT) or x.chunks is None \
+            else x.chunks[x.get_axis_num(d)]
+
+    lead = [d for d in R.dims if d not in (SF, "_r")]
+    Rd = R.chunk({**{d: one_chunk(d, R) for d in lead}, SF: chunk, "_r": -1}).data
+    Zd = Z.chunk({**{d: one_chunk(d, Z) for d in lead}, SF: chunk, "_z": -1}).data
     ax = Rd.ndim - 2
     depth = {i: 0 for i in range(Rd.ndim)}
     depth[ax] = window
@@ -552,9 +574,13 @@ def _fit_frequency_chunked(r, u, y, s, *, factor, check_rank, noise=None):
     boundary[ax] = "periodic"
     Rg = da.overlap.overlap(Rd, depth=depth, boundary=boundary)
     Zg = da.overlap.overlap(Zd, depth=depth, boundary=boundary)
-    width = packed_width(nz, nr, s.covariance)
+    exp_ax = R.dims.index(cv.EXPERIMENT) if pooled else None
+    n_exp = R.sizes[cv.EXPERIMENT] if pooled else 1
+    width = packed_width(nz, nr, s.covariance, n_exp)
     blocks = [Rg, Zg]
     if noise is not None:  # (..., SF, nz nz) flat, so its blocks line up with R's and Z's
+        if pooled:  # one noise covariance for all experiments: repeated along their dim
+            noise = noise.expand_dims({cv.EXPERIMENT: n_exp})
         flat = noise.transpose(*R.dims[:-1], "_z", "_z2").stack(_zz=("_z", "_z2"))
         flat = flat.drop_vars(["_zz", "_z", "_z2"], errors="ignore")
         Nd = flat.chunk({**dict(zip(R.dims[:-1], Rd.chunks[:-1])), "_zz": -1}).data
@@ -562,15 +588,26 @@ def _fit_frequency_chunked(r, u, y, s, *, factor, check_rank, noise=None):
 
     def fit_block(rb, zb, *nb):
         known = nb[0].reshape(nb[0].shape[:-1] + (nz, nz)) if nb else None
+        if known is not None and pooled:
+            known = np.take(known, 0, axis=exp_ax)
         return fit_packed(rb, zb, half_width=window, degrees=s.degrees, circular=False,
-                          covariance=s.covariance, noise_covariance=known)
+                          covariance=s.covariance, noise_covariance=known,
+                          experiment_axis=exp_ax)
 
-    fitted = da.map_blocks(fit_block, *blocks, dtype=complex,
-                           chunks=Rg.chunks[:-1] + ((width,),))
+    chunks = Rg.chunks[:-1] + ((width,),)
+    if pooled:  # the fit pools the experiment axis away
+        chunks = chunks[:exp_ax] + chunks[exp_ax + 1:]
+        depth = {i: depth[j] for i, j in enumerate(k for k in range(Rd.ndim) if k != exp_ax)}
+        boundary = {i: boundary[j] for i, j in
+                    enumerate(k for k in range(Rd.ndim) if k != exp_ax)}
+    fitted = da.map_blocks(fit_block, *blocks, dtype=complex, chunks=chunks,
+                           drop_axis=[exp_ax] if pooled else [])
     trimmed = da.overlap.trim_internal(fitted, {**depth}, boundary=boundary)
     # a float view (pairs of re, im) so dask builds real metadata for the real outputs
-    out = xr.DataArray(trimmed.view(float), dims=R.dims[:-1] + ("_packed",),
-                       coords={k: v for k, v in R.coords.items() if k in R.dims[:-1]})
+    dims = [d for d in R.dims[:-1] if d != cv.EXPERIMENT or not pooled]
+    out = xr.DataArray(trimmed.view(float), dims=tuple(dims) + ("_packed",),
+                       coords={k: v for k, v in R.coords.items()
+                               if k in dims and cv.EXPERIMENT not in R[k].dims})
     out.attrs.update(nz=nz, nr=nr)
     return out
 

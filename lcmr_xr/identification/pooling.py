@@ -252,12 +252,6 @@ def plan(ds: xr.Dataset, *, window, transient_periods, combine, closed_loop: str
         noise_cov = None
         if has_period and p_steady > 1:  # per experiment over its periods, then the mean
             noise_cov = _spread_covariance(steady, [cv.PERIOD], closed_loop).mean(cv.EXPERIMENT)
-        if frequency_chunks is not None:
-            raise ValueError(
-                "combine='experiment' over different excitations fits one local model per "
-                "bin from all experiments; it runs lazily along the leading dims but not in "
-                "frequency chunks yet: leave frequency_chunks out (chunk other dims instead)."
-            )
         fitted = _average(steady, [cv.PERIOD]) if has_period else steady
         if fitted["u"].chunks is not None:  # one local model needs every experiment
             fitted = fitted.chunk({cv.EXPERIMENT: -1})

@@ -35,6 +35,14 @@ class IndirectResult(NamedTuple):
     first_row_cov: np.ndarray | None  #: (..., M, ny F nu, ny F nu) or None
     s_condition: np.ndarray  #: (..., M) condition number of S
     singular: np.ndarray  #: (..., M) bool: S could not be inverted
+    #: with ``G_cov``: ``(u, s, vh, half)``, the SVD of ``S`` (identity where ``G`` is not
+    #: finite) on bins ``0..M/2`` of an exactly mirrored estimate (``half``,
+    #: :func:`mirror_source`) or on every bin, for
+    #: :func:`lcmr_xr.kernels.adaptive.weak_direction` (one SVD serves both)
+    s_svd: tuple | None = None
+    #: with ``G_cov``: :func:`mirror_source` of ``G`` when ``G`` and ``G_cov`` are both
+    #: exact mirrors, else None (checked once here: the check reads all of ``G_cov``)
+    mirror: np.ndarray | None = None
 
 
 def indirect_first_row(G: np.ndarray, n_lifted_inputs: int, G_cov: np.ndarray | None = None,
@@ -68,30 +76,44 @@ def indirect_first_row(G: np.ndarray, n_lifted_inputs: int, G_cov: np.ndarray | 
     PS = G[..., nr:, :]
     finite = np.isfinite(G).all(axis=(-2, -1))
     S_safe = np.where(finite[..., None, None], S, np.eye(nr))
-    cond = np.where(finite, _condition(S_safe), np.inf)
+    cond_s, svd = _condition(S_safe, vectors=G_cov is not None)
+    cond = np.where(finite, cond_s, np.inf)
     singular = ~(cond < s_condition_limit)
     S_safe = np.where(singular[..., None, None], np.eye(nr), S_safe)
     S_inv = np.linalg.inv(S_safe)
     P1 = PS @ S_inv
     P1 = np.where(singular[..., None, None], np.nan, P1)
 
-    cov = None
+    cov = src = None
     if G_cov is not None:
         ny = nz - nr
         L = np.concatenate(
             [-P1, np.broadcast_to(np.eye(ny), P1.shape[:-2] + (ny, ny))], axis=-1
         )  # (..., M, ny, nz)
-        C = np.asarray(G_cov).reshape(G_cov.shape[:-2] + (nz, nr, nz, nr))
+        G_cov = np.asarray(G_cov)
+        # an exactly mirrored estimate: the covariance of bin M - k is the conjugate of
+        # that of bin k, so the products run on bins 0..M/2 only
+        m = G.shape[-3]
+        src = mirror_source(G)  # (the small array first)
+        if src is not None and mirror_source(G_cov) is None:
+            src = None
+        part = slice(None) if src is None else slice(0, m // 2 + 1)
+        C = G_cov[..., part, :, :]
+        C = C.reshape(C.shape[:-2] + (nz, nr, nz, nr))
+        Lp, Sp = L[..., part, :, :], S_inv[..., part, :, :]
         # Cov = J C J^H with J[a, c, i, b] = L[a, i] Sinv[b, c], one factor at a time:
         # a single three-operand einsum loops over all eight indices at once (about 12x
         # slower); two-operand einsums avoid BLAS on these tiny matrices
-        cov = np.einsum("...ai,...ibjd->...abjd", L, C)
-        cov = np.einsum("...abjd,...bc->...acjd", cov, S_inv)
-        cov = np.einsum("...acjd,...ej->...aced", cov, L.conj())
-        cov = np.einsum("...aced,...dg->...aceg", cov, S_inv.conj())
+        cov = np.einsum("...ai,...ibjd->...abjd", Lp, C)
+        cov = np.einsum("...abjd,...bc->...acjd", cov, Sp)
+        cov = np.einsum("...acjd,...ej->...aced", cov, Lp.conj())
+        cov = np.einsum("...aced,...dg->...aceg", cov, Sp.conj())
         cov = cov.reshape(cov.shape[:-4] + (ny * nr, ny * nr))
+        if src is not None:
+            cov = np.take(cov, src, axis=-3)
+            cov = np.where((np.arange(m) > m // 2)[:, None, None], cov.conj(), cov)
         cov = np.where(singular[..., None, None], np.nan, cov)
-    return IndirectResult(P1, cov, cond, singular)
+    return IndirectResult(P1, cov, cond, singular, svd, src)
 
 
 def mirror_source(G: np.ndarray) -> np.ndarray | None:
@@ -109,25 +131,44 @@ def mirror_source(G: np.ndarray) -> np.ndarray | None:
     Returns
     -------
     ndarray of int, shape (M,), or None
-        ``min(k, M - k)`` when the mirror holds exactly (NaN where NaN), else None.
+        ``min(k, M - k)`` when bins ``M - k`` are exactly the conjugates of bins ``k``,
+        ``0 < k < M/2`` (NaN where NaN), else None.  Bins 0 and ``M/2`` are their own
+        mirrors and are read in place, so they need not be real (a fitted real-signal
+        estimate is real there only to rounding).
     """
     if G.ndim < 3 or G.shape[-3] <= 2:
         return None
-    k = np.arange(G.shape[-3])
-    mirror = (-k) % k.size
-    if not np.array_equal(G[..., mirror, :, :], G.conj(), equal_nan=True):
+    m = G.shape[-3]
+    k = np.arange(m)
+    # bins 1..(M-1)/2 against M-1 down to M/2+1: views, no gathered copy; NaN-free data
+    # pass the plain comparison, the NaN-aware one only runs when that fails
+    a, b = G[..., 1:(m + 1) // 2, :, :], G[..., m - 1:m // 2:-1, :, :]
+    if not (((a.real == b.real) & (a.imag == -b.imag)).all()
+            or np.array_equal(a, b.conj(), equal_nan=True)):
         return None
-    return np.minimum(k, mirror)
+    return np.minimum(k, (-k) % m)
 
 
-def _condition(S: np.ndarray) -> np.ndarray:
+def _condition(S: np.ndarray, vectors: bool = False):
     """``np.linalg.cond`` of every ``S`` (..., M, nr, nr), on half the bins of an exactly
     mirrored estimate (:func:`mirror_source`): one small SVD costs about 10 us through
-    numpy, 1 s for the 90 000 bins of ``N = 180 000``."""
+    numpy, 1 s for the 90 000 bins of ``N = 180 000``.
+
+    Returns the condition numbers and, with ``vectors``, ``(u, s, vh, half)``: the SVD
+    on the bins it was computed on (``half``: bins ``0..M/2``), else None.
+    """
     src = mirror_source(S)
-    if src is None:
-        return np.linalg.cond(S)
-    return np.take(np.linalg.cond(S[..., : S.shape[-3] // 2 + 1, :, :]), src, axis=-1)
+    part = S if src is None else S[..., : S.shape[-3] // 2 + 1, :, :]
+    if vectors:
+        u, sv, vh = np.linalg.svd(part)
+    else:
+        sv = np.linalg.svd(part, compute_uv=False)
+    with np.errstate(all="ignore"):
+        cond = sv[..., 0] / sv[..., -1]
+    cond = np.where(np.isnan(cond), np.inf, cond)  # 0 / 0 (as np.linalg.cond)
+    if src is not None:
+        cond = np.take(cond, src, axis=-1)
+    return cond, ((u, sv, vh, src is not None) if vectors else None)
 
 
 def frf_variance_from_first_row(first_row_cov: np.ndarray, n_fast: int, factor: int,

@@ -11,11 +11,7 @@ import numpy as np
 
 from lcmr_xr.kernels.adaptive import (nonlinearity_factor, select_windows, small_sample_factor,
                                       weak_direction)
-from lcmr_xr.kernels.closed_loop import (
-    frf_variance_from_first_row,
-    indirect_first_row,
-    mirror_source,
-)
+from lcmr_xr.kernels.closed_loop import frf_variance_from_first_row, indirect_first_row
 from lcmr_xr.kernels.lifting import frf_from_first_block_row, lift
 from lcmr_xr.kernels.local_models import local_model, parameters_per_row
 from lcmr_xr.kernels.pooling import (mean_and_covariance, pooled_least_squares,
@@ -125,14 +121,23 @@ def recover_frf(G, G_cov, *, n_fast: int, factor: int, nu: int, ny: int,
         P_var_lin = frf_variance_from_first_row(P1_cov, n_fast, f_, bins, ny, nu)
         if closed_loop == "indirect":
             S_cov = G_cov[..., : nr * nr, : nr * nr]
-            src = mirror_source(G)
-            if src is not None and mirror_source(S_cov) is not None:
+            src = ind.mirror  # G and G_cov exact mirrors (checked once, in the indirect step)
+            # S's SVD from the indirect step (on half the bins or all), if it is of the
+            # same matrices: the identity where G is not finite there, where S or S_cov
+            # is not finite in weak_direction
+            same = np.array_equal(np.isfinite(G).all(axis=(-2, -1)),
+                                  np.isfinite(G[..., :nr, :]).all(axis=(-2, -1))
+                                  & np.isfinite(S_cov).all(axis=(-2, -1)))
+            u, sv, vh, on_half = ind.s_svd if same else (None, None, None, None)
+            if src is not None:
                 # conjugation leaves rho unchanged: half the SVDs (about 10 us each)
                 half = slice(0, G.shape[-3] // 2 + 1)
                 rho, rho_v = (np.take(x, src, axis=-1) for x in
-                              weak_direction(G[..., half, :nr, :], S_cov[..., half, :, :]))
+                              weak_direction(G[..., half, :nr, :], S_cov[..., half, :, :],
+                                             svd=(u, sv, vh) if on_half is True else None))
             else:
-                rho, rho_v = weak_direction(G[..., :nr, :], S_cov)
+                rho, rho_v = weak_direction(G[..., :nr, :], S_cov,
+                                            svd=(u, sv, vh) if on_half is False else None)
             nl, undetermined = nonlinearity_factor(rho, rho_v)
             undetermined = undetermined & ~s_sing
             slow_factor = slow_factor * nl
@@ -328,17 +333,34 @@ def identify_spectra_auto(R, Z, *, n_fast: int, factor: int, nu: int, windows,
         units as ``P``).  ``noise_covariance`` (periods) as in :func:`identify_arrays`:
         every candidate's covariance is built from it, averaged over that candidate's window.
     """
-    windows = np.asarray(sorted(int(w) for w in windows))
+    windows = sorted(int(w) for w in windows)
     nz, nr = Z.shape[-1], R.shape[-1]
     ny = nz - nr if closed_loop == "indirect" else nz
-    shape = dict(nz=nz, nr=nr, n_fast=n_fast, factor=factor, nu=nu, ny=ny,
-                 closed_loop=closed_loop, covariance=True)
     # Emulates a per-bin window: one fit per candidate.  A kernel taking half_width per
     # bin replaces the gather below by a single fit at the chosen windows.
-    n_exp = _n_experiments(R, Z, experiment_axis)
-    packed = np.stack([fit_packed(R, Z, half_width=int(w), degrees=degrees,
+    packed = np.stack([fit_packed(R, Z, half_width=w, degrees=degrees,
                                   noise_covariance=noise_covariance,
                                   experiment_axis=experiment_axis) for w in windows])
+    return finish_packed_auto(packed, windows=windows, nz=nz, nr=nr, n_fast=n_fast,
+                              factor=factor, nu=nu, ny=ny, closed_loop=closed_loop,
+                              degrees=degrees, n_exp=_n_experiments(R, Z, experiment_axis))
+
+
+def finish_packed_auto(packed, *, windows, nz: int, nr: int, n_fast: int, factor: int, nu: int,
+                       ny: int, closed_loop: str = "indirect", degrees=(3, 3, 3),
+                       n_exp: int | None = None) -> dict:
+    """The window choice of :func:`identify_spectra_auto` from its candidates' fits.
+
+    ``packed`` (J, ..., M, K): :func:`fit_packed` of every candidate half-width in
+    ``windows`` (ascending, with covariance), e.g. fitted in frequency chunks.  Returns the
+    dict of :func:`identify_spectra_auto`.
+    """
+    windows = np.asarray(windows, dtype=int)
+    if np.any(np.diff(windows) <= 0) or len(windows) != len(packed):
+        raise ValueError(f"windows must be ascending, one per packed fit; got {windows.tolist()} "
+                         f"for {len(packed)} fits.")
+    shape = dict(nz=nz, nr=nr, n_fast=n_fast, factor=factor, nu=nu, ny=ny,
+                 closed_loop=closed_loop, covariance=True)
     outs = [finish_packed(p, dof=window_dof(w, nr, degrees, n_exp or 1), n_exp=n_exp, **shape)
             for p, w in zip(packed, windows)]
     P = np.stack([o["P"] for o in outs])

@@ -273,7 +273,7 @@ DROP_TOLERANCE = 1.0 / CONDITION_LIMIT**2
 G_SENSITIVITY_LIMIT = 1e-2
 
 
-def _check_half_width(half_width, batch, m, nr, degrees):
+def _check_half_width(half_width, batch, m, nr, degrees, n_exp=1):
     """Validated half-widths: ``(scalar int or None, array (n_batch, M) of int)``."""
     hw = np.asarray(half_width)
     if hw.dtype.kind not in "iuf" or not np.all(np.isfinite(hw)) or np.any(hw != np.round(hw)):
@@ -297,11 +297,15 @@ def _check_half_width(half_width, batch, m, nr, degrees):
             f"Use half_width <= {(m - 1) // 2} or more bins."
         )
     p_row = parameters_per_row(nr, degrees)
-    if 2 * n_min + 1 - p_row < 1:
+    # pooled: E windows, G and D shared, a transient (Rm + 1 terms) per experiment
+    p_all = p_row + (n_exp - 1) * (_check_degrees(degrees)[1] + 1)
+    if n_exp * (2 * n_min + 1) - p_all < 1:
+        need = -(-(p_all + 1 - n_exp) // (2 * n_exp))  # smallest n with a degree of freedom
+        pooled = f" over {n_exp} pooled experiments" if n_exp > 1 else ""
         raise ValueError(
-            f"no degrees of freedom: {p_row} parameters per row (nr={nr}, degrees="
-            f"{tuple(degrees)}) need a window of at least {p_row + 1} bins; use half_width >= "
-            f"{(p_row + 1) // 2} or lower degrees."
+            f"no degrees of freedom: {p_all} parameters per row{pooled} (nr={nr}, degrees="
+            f"{tuple(degrees)}) need at least {p_all + 1} bins in all windows together; use "
+            f"half_width >= {need} or lower degrees."
         )
     try:
         full = np.broadcast_to(hw, batch + (m,))
@@ -445,7 +449,7 @@ def local_model(R, Z, *, half_width, degrees=(3, 3, 3), circular: bool = True,
         ) from None
     if nr < 1 or nz < 1:
         raise ValueError(f"need at least one channel in R and Z, got nr={nr}, nz={nz}.")
-    scalar_n, widths = _check_half_width(half_width, batch, m, nr, degrees)
+    scalar_n, widths = _check_half_width(half_width, batch, m, nr, degrees, n_exp)
     if covariance not in ("full", "diag", None):
         raise ValueError(
             f"covariance must be 'full', 'diag' or None, got {covariance!r}."
@@ -462,13 +466,17 @@ def local_model(R, Z, *, half_width, degrees=(3, 3, 3), circular: bool = True,
     # Bins-first layout (batch, bins, channel), padded with the widest halo on both ends
     n_batch = int(np.prod(batch, dtype=int))
     ex = (n_exp,) if pooled else ()
-    rt = np.broadcast_to(R, batch + ex + (m, nr)).reshape(n_batch * n_exp, m, nr).astype(complex)
-    zt = np.broadcast_to(Z, batch + ex + (m, nz)).reshape(n_batch * n_exp, m, nz).astype(complex)
+    # (read only from here on: a view of the caller's arrays when no copy is needed)
+    rt = np.broadcast_to(R, batch + ex + (m, nr)).reshape(n_batch * n_exp, m, nr).astype(
+        complex, copy=False)
+    zt = np.broadcast_to(Z, batch + ex + (m, nz)).reshape(n_batch * n_exp, m, nz).astype(
+        complex, copy=False)
     n_max = int(widths.max())
     k = np.arange(m)
     if circular:
-        idx = np.arange(-n_max, m + n_max) % m
-        rt_p, zt_p = rt[:, idx], zt[:, idx]
+        # the circular halo by slices (n_max < M): cheaper than a gathered copy
+        rt_p, zt_p = (np.concatenate([x[:, m - n_max:], x, x[:, :n_max]], axis=1)
+                      for x in (rt, zt))
         todo = np.ones((n_batch, m), dtype=bool)
         mirror = _hermitian(rt) and _hermitian(zt) and np.array_equal(
             widths, widths[:, (-k) % m])
@@ -517,12 +525,19 @@ def local_model(R, Z, *, half_width, degrees=(3, 3, 3), circular: bool = True,
         else:
             for task in tasks:
                 run(task)
+    if not mirror:  # (mirrored: the bins not fitted are the mirror's)
+        _fill_not_fitted(out, todo)
     if mirror:
-        src = (-k[m // 2 + 1:]) % m
+        # bins M/2+1..M-1 from bins (M-1)/2..1 (a reversed view, written in place: no
+        # gathered copy of outputs that reach hundreds of MB for M = 2^19)
         for name, value in out.items():
             if value.size:
                 v = value.reshape((n_batch, m) + value.shape[1:])
-                v[:, m // 2 + 1:] = np.conj(v[:, src]) if v.dtype.kind == "c" else v[:, src]
+                src, dst = v[:, (m - 1) // 2:0:-1], v[:, m // 2 + 1:]
+                if v.dtype.kind == "c":
+                    np.conjugate(src, out=dst)
+                else:
+                    dst[...] = src
     shaped = {name: (v.reshape(batch + (m,) + v.shape[1:]) if v.shape[0] else None)
               for name, v in out.items()}
     # T: (..., M, E, nz) -> (..., E, M, nz) pooled, (..., M, nz) otherwise
@@ -582,9 +597,11 @@ def _threads() -> int:
 def _hermitian(x: np.ndarray) -> bool:
     """``x[(-k) mod M] == conj(x[k])`` to rounding (spectra of real signals), per channel."""
     m = x.shape[1]
-    mirror = np.conj(x[:, (-np.arange(m)) % m])
-    scale = np.max(np.abs(x), axis=1, keepdims=True)
-    return bool(np.all(np.abs(mirror - x) <= 64 * np.finfo(float).eps * scale))
+    tol = 64 * np.finfo(float).eps * np.max(np.abs(x), axis=1, keepdims=True)
+    # each pair (k, M - k) once, on views; bins 0 and M/2 against their own conjugate
+    pairs = x[:, 1:(m + 1) // 2] - np.conj(x[:, m - 1:m // 2:-1])
+    self_mirrored = x[:, ::m // 2] if m % 2 == 0 else x[:, :1]
+    return bool(np.all(np.abs(pairs) <= tol) and np.all(2 * np.abs(self_mirrored.imag) <= tol))
 
 
 def _chunk_elements(nr, nz, covariance):
@@ -596,20 +613,38 @@ def _chunk_elements(nr, nz, covariance):
     return max(1, int(_CHUNK_BYTES // (16 * per_bin)))
 
 
+#: What a bin that is not fitted holds (NaN, flagged).
+_NOT_FITTED = {"G": complex(np.nan, np.nan), "T": complex(np.nan, np.nan),
+               "noise_covariance": complex(np.nan, np.nan), "condition": np.inf,
+               "ill_posed": True, "dropped": 0, "G_cov": complex(np.nan, np.nan),
+               "G_var": np.nan}
+
+
 def _allocate(n_batch, m, nz, nr, covariance, n_exp=1):
-    nan_c = complex(np.nan, np.nan)
+    """Outputs, not prefilled: every fitted bin writes its whole row (a failed one NaN),
+    the mirror or :func:`_fill_not_fitted` the others (prefilling hundreds of MB at
+    M = 2^19 cost about a tenth of the fit)."""
     size = n_batch * m
     ng = nz * nr
     return {
-        "G": np.full((size, nz, nr), nan_c),
-        "T": np.full((size, n_exp, nz), nan_c),
-        "noise_covariance": np.full((size, nz, nz), nan_c),
-        "condition": np.full(size, np.inf),
-        "ill_posed": np.ones(size, dtype=bool),
-        "dropped": np.zeros(size, dtype=np.int64),
-        "G_cov": np.full((size if covariance == "full" else 0, ng, ng), nan_c),
-        "G_var": np.full((size if covariance == "diag" else 0, nz, nr), np.nan),
+        "G": np.empty((size, nz, nr), complex),
+        "T": np.empty((size, n_exp, nz), complex),
+        "noise_covariance": np.empty((size, nz, nz), complex),
+        "condition": np.empty(size),
+        "ill_posed": np.empty(size, dtype=bool),
+        "dropped": np.empty(size, dtype=np.int64),
+        "G_cov": np.empty((size if covariance == "full" else 0, ng, ng), complex),
+        "G_var": np.empty((size if covariance == "diag" else 0, nz, nr)),
     }
+
+
+def _fill_not_fitted(out, todo):
+    """Bins outside ``todo`` (flat over batch and bins): NaN and flagged."""
+    skip = ~todo.reshape(-1)
+    if skip.any():
+        for name, value in out.items():
+            if value.size:
+                value[skip] = _NOT_FITTED[name]
 
 
 def _fit_chunk(rt, zt, n, degrees, mode, sel, out_offset, m, dof, out, n_exp=1):
@@ -626,7 +661,8 @@ def _fit_chunk(rt, zt, n, degrees, mode, sel, out_offset, m, dof, out, n_exp=1):
                   lay.a_base, lay.a_pow, np.ascontiguousarray(mean_pow), float(dof), mode,
                   DROP_TOLERANCE, CONDITION_LIMIT, G_SENSITIVITY_LIMIT,
                   out["G"], out["T"], out["noise_covariance"], out["condition"],
-                  out["ill_posed"], out["dropped"], out["G_cov"], out["G_var"], n_exp)
+                  out["ill_posed"], out["dropped"], out["G_cov"], out["G_var"],
+                  None if n_exp == 1 else int(n_exp))
 
 
 def _restart_interval(half_width: int) -> int:
