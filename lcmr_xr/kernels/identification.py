@@ -185,20 +185,30 @@ def fit_packed(R, Z, *, half_width: int, degrees=(3, 3, 3), circular: bool = Tru
     :func:`lcmr_xr.kernels.local_models.local_model`); the ``E`` transients are packed
     experiment-major (``E nz`` columns).
     """
+    fit = _fit(R, Z, half_width=half_width, degrees=degrees, circular=circular,
+               covariance=covariance, noise_covariance=noise_covariance,
+               experiment_axis=experiment_axis)
+    lead_m = fit["G"].shape[:-2]
+    T = fit["T"] if experiment_axis is None else \
+        np.moveaxis(fit["T"], -3, -2).reshape(lead_m + (-1,))
+    parts = [fit["G"].reshape(lead_m + (-1,)), T, fit["noise_variance"],
+             fit["condition"][..., None], fit["ill_posed"][..., None]]
+    if covariance:
+        parts.append(fit["G_cov"].reshape(lead_m + (-1,)))
+    return np.concatenate([np.asarray(p, dtype=complex) for p in parts], axis=-1)
+
+
+def _fit(R, Z, *, half_width, degrees, circular, covariance, noise_covariance, experiment_axis):
+    """The local model's outputs that :func:`fit_packed` packs (``T`` (..., E, M, nz)
+    pooled), ``G_cov`` rebuilt from a known noise covariance when one is given."""
     fit = local_model(R, Z, half_width=half_width, degrees=tuple(degrees), circular=circular,
                       covariance="full" if covariance else None, experiment_axis=experiment_axis)
-    lead_m = fit.G.shape[:-2]
-    T = fit.T if experiment_axis is None else np.moveaxis(fit.T, -3, -2).reshape(lead_m + (-1,))
-    parts = [fit.G.reshape(lead_m + (-1,)), T, fit.noise_variance,
-             fit.condition[..., None], fit.ill_posed[..., None]]
-    if covariance:
-        G_cov = fit.G_cov
-        if noise_covariance is not None:
-            known = window_mean(np.asarray(noise_covariance), half_width, axis=-3,
-                                circular=circular)
-            G_cov = rescale_covariance(G_cov, fit.noise_covariance, known)
-        parts.append(G_cov.reshape(lead_m + (-1,)))
-    return np.concatenate([np.asarray(p, dtype=complex) for p in parts], axis=-1)
+    G_cov = fit.G_cov
+    if covariance and noise_covariance is not None:
+        known = window_mean(np.asarray(noise_covariance), half_width, axis=-3, circular=circular)
+        G_cov = rescale_covariance(G_cov, fit.noise_covariance, known)
+    return {"G": fit.G, "T": fit.T, "noise_variance": fit.noise_variance,
+            "condition": fit.condition, "ill_posed": fit.ill_posed, "G_cov": G_cov}
 
 
 def finish_packed(packed, *, nz: int, nr: int, n_fast: int, factor: int, nu: int, ny: int,
@@ -224,15 +234,37 @@ def finish_packed(packed, *, nz: int, nr: int, n_fast: int, factor: int, nu: int
     condition = packed[..., o + nz].real.copy()
     ill_posed = packed[..., o + nz + 1].real != 0
     G_cov = packed[..., o + nz + 2:].reshape(lead_m + (g, g)) if covariance else None
+    return _finish({"G": G, "T": T, "noise_variance": noise_variance, "condition": condition,
+                    "ill_posed": ill_posed, "G_cov": G_cov}, n_fast=n_fast, factor=factor,
+                   nu=nu, ny=ny, closed_loop=closed_loop, dof=dof)
+
+
+def _finish(fit: dict, *, n_fast, factor, nu, ny, closed_loop, dof) -> dict:
+    """The fast FRF and the per-bin outputs from a fit (``T`` as :func:`finish_packed`
+    returns it); ``fit["G_cov"]`` None: no covariance."""
+    G, G_cov = fit["G"], fit["G_cov"]
     out = recover_frf(G, G_cov, n_fast=n_fast, factor=factor, nu=nu, ny=ny,
-                      closed_loop=closed_loop, ill_posed=ill_posed, dof=dof)
-    if covariance:
+                      closed_loop=closed_loop, ill_posed=fit["ill_posed"], dof=dof)
+    if G_cov is not None:
         G_var = np.real(np.diagonal(G_cov, axis1=-2, axis2=-1)).reshape(G.shape)
     else:
         G_var = np.full(G.shape, np.nan)
-    out.update({"G": G, "G_var": G_var, "T": T, "noise_variance": noise_variance,
-                "condition": condition, "ill_posed": ill_posed})
+    out.update({"G": G, "G_var": G_var, "T": fit["T"], "noise_variance": fit["noise_variance"],
+                "condition": fit["condition"], "ill_posed": fit["ill_posed"]})
     return out
+
+
+def _fit_and_finish(R, Z, *, half_width, degrees, covariance, noise_covariance, experiment_axis,
+                    n_fast, factor, nu, ny, closed_loop, n_exp) -> dict:
+    """:func:`fit_packed` then :func:`finish_packed` without the packed copy (eager data:
+    the (nz nr)^2 covariance columns, the bulk of the memory, are held once, not twice)."""
+    fit = _fit(R, Z, half_width=half_width, degrees=degrees, circular=True,
+               covariance=covariance, noise_covariance=noise_covariance,
+               experiment_axis=experiment_axis)
+    if n_exp is not None:  # as finish_packed returns it: (..., M, E, nz)
+        fit["T"] = np.moveaxis(fit["T"], -3, -2)
+    return _finish(fit, n_fast=n_fast, factor=factor, nu=nu, ny=ny, closed_loop=closed_loop,
+                   dof=window_dof(half_width, R.shape[-1], degrees, n_exp or 1))
 
 
 def identify_arrays(r, u, y, *, factor: int, half_width: int, degrees=(3, 3, 3),
@@ -290,12 +322,10 @@ def identify_spectra(R, Z, *, n_fast: int, factor: int, nu: int, half_width: int
     """
     nz, nr = Z.shape[-1], R.shape[-1]
     ny = nz - nr if closed_loop == "indirect" else nz
-    n_exp = _n_experiments(R, Z, experiment_axis)
-    packed = fit_packed(R, Z, half_width=half_width, degrees=degrees, covariance=covariance,
-                        noise_covariance=noise_covariance, experiment_axis=experiment_axis)
-    return finish_packed(packed, nz=nz, nr=nr, n_fast=n_fast, factor=factor, nu=nu, ny=ny,
-                         closed_loop=closed_loop, covariance=covariance,
-                         dof=window_dof(half_width, nr, degrees, n_exp or 1), n_exp=n_exp)
+    return _fit_and_finish(R, Z, half_width=half_width, degrees=degrees, covariance=covariance,
+                           noise_covariance=noise_covariance, experiment_axis=experiment_axis,
+                           n_fast=n_fast, factor=factor, nu=nu, ny=ny, closed_loop=closed_loop,
+                           n_exp=_n_experiments(R, Z, experiment_axis))
 
 
 def _n_experiments(R, Z, experiment_axis):
@@ -336,14 +366,15 @@ def identify_spectra_auto(R, Z, *, n_fast: int, factor: int, nu: int, windows,
     windows = sorted(int(w) for w in windows)
     nz, nr = Z.shape[-1], R.shape[-1]
     ny = nz - nr if closed_loop == "indirect" else nz
-    # Emulates a per-bin window: one fit per candidate.  A kernel taking half_width per
-    # bin replaces the gather below by a single fit at the chosen windows.
-    packed = np.stack([fit_packed(R, Z, half_width=w, degrees=degrees,
-                                  noise_covariance=noise_covariance,
-                                  experiment_axis=experiment_axis) for w in windows])
-    return finish_packed_auto(packed, windows=windows, nz=nz, nr=nr, n_fast=n_fast,
-                              factor=factor, nu=nu, ny=ny, closed_loop=closed_loop,
-                              degrees=degrees, n_exp=_n_experiments(R, Z, experiment_axis))
+    # Emulates a per-bin window: one fit per candidate, each finished before the next is
+    # fitted (one candidate's covariance in memory at a time).  A kernel taking half_width
+    # per bin replaces the gather by a single fit at the chosen windows.
+    n_exp = _n_experiments(R, Z, experiment_axis)
+    outs = [_fit_and_finish(R, Z, half_width=w, degrees=degrees, covariance=True,
+                            noise_covariance=noise_covariance, experiment_axis=experiment_axis,
+                            n_fast=n_fast, factor=factor, nu=nu, ny=ny,
+                            closed_loop=closed_loop, n_exp=n_exp) for w in windows]
+    return _choose_windows(outs, np.asarray(windows, dtype=int), R.shape[-2])
 
 
 def finish_packed_auto(packed, *, windows, nz: int, nr: int, n_fast: int, factor: int, nu: int,
@@ -363,10 +394,15 @@ def finish_packed_auto(packed, *, windows, nz: int, nr: int, n_fast: int, factor
                  closed_loop=closed_loop, covariance=True)
     outs = [finish_packed(p, dof=window_dof(w, nr, degrees, n_exp or 1), n_exp=n_exp, **shape)
             for p, w in zip(packed, windows)]
+    return _choose_windows(outs, windows, packed.shape[-2])
+
+
+def _choose_windows(outs, windows, m) -> dict:
+    """Choose per slow bin among the finished candidates ``outs`` (ascending ``windows``)
+    and gather every array from the chosen one (module notes of ``kernels.adaptive``)."""
     P = np.stack([o["P"] for o in outs])
     P_var = np.stack([o["P_var"] for o in outs])
     P_lin = np.stack([o["P_var_linear"] for o in outs])
-    m = packed.shape[-2]
     choice, bias2 = select_windows(P, P_var, P_lin, m)
     fast_choice = np.take(choice, np.arange(P.shape[-3]) % m, axis=-1)
 
