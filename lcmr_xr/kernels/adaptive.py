@@ -87,11 +87,12 @@ def small_sample_factor(dof) -> np.ndarray:
     return np.sqrt(d * np.expm1(np.log(20.0) / d) / np.log(20.0))
 
 
-def _whitened_ratio(u, sv, vh, C):
+def _whitened_ratio(u, sv, vh, C, column_trace=None):
     """:func:`whitened_weak_direction` from the SVD ``S = u diag(sv) vh`` and ``C``
-    reshaped to (..., nr, nr, nr, nr)."""
+    reshaped to (..., nr, nr, nr, nr); ``column_trace`` is ``sum_i C[..., i, :, i, :]``
+    when the caller has it."""
     sigma = np.einsum("...ibjb->...ij", C)
-    w = np.einsum("...ibic->...bc", C).conj()
+    w = (np.einsum("...ibic->...bc", C) if column_trace is None else column_trace).conj()
     total = np.einsum("...ibib->...", C).real
     # 1/sigma_min(Sigma^-1/2 S conj(W)^-1/2)^2 = lambda_max(S^-1 Sigma S^-H conj(W))
     # = lambda_max(B^H Sigma B), B = S^-H conj(W)^1/2 (similar matrices), S^-H = U D V^H:
@@ -189,12 +190,13 @@ def weak_direction(S: np.ndarray, S_cov: np.ndarray, svd=None):
     x = np.einsum("...ib,...b->...i", x, vm)
     var = np.einsum("...i,...i->...", x, um.conj()).real
     # ||dS v||^2 = sum_i |sum_b v_b dS_ib|^2
-    x = np.einsum("...bc,...c->...b", np.einsum("...ibic->...bc", C), vm.conj())
+    column_trace = np.einsum("...ibic->...bc", C)  # also the whitening's column factor
+    x = np.einsum("...bc,...c->...b", column_trace, vm.conj())
     var_v = np.einsum("...b,...b->...", x, vm).real
     with np.errstate(divide="ignore", invalid="ignore"):
         rho = np.sqrt(np.maximum(var, 0.0)) / smin
         rho_v = np.sqrt(np.maximum(var_v, 0.0)) / smin
-        rho = np.maximum(rho, _whitened_ratio(u, sv, vh, C))
+        rho = np.maximum(rho, _whitened_ratio(u, sv, vh, C, column_trace))
     bad = ~finite | ~np.isfinite(rho)
     return np.where(bad, np.inf, rho), np.where(bad, np.inf, rho_v)
 
