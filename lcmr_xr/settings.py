@@ -25,7 +25,7 @@ __all__ = [
     "METHODS", "CLOSED_LOOP", "ERRORS", "EstimatorSettings", "estimator_settings",
     "parse_degrees", "degrees_label", "degrees_arguments", "as_integer", "as_bool", "as_choice",
     "check_window_fits", "AUTO_WINDOW", "DEFAULT_WINDOW", "as_window", "window_argument",
-    "auto_window_range",
+    "auto_window_range", "DENOMINATOR", "DEFAULT_DENOMINATOR", "as_denominator",
 ]
 
 
@@ -48,6 +48,19 @@ CLOSED_LOOP = {
     "indirect": "[S; PS_1] from the lifted excitation r, then P_1 = PS_1 S^-1 (unbiased under feedback)",
     "direct": "local model from the lifted measured input u to y (biased under feedback)",
 }
+
+#: How the local rational model's denominator is estimated (``denominator=``).  Only a
+#: model with a denominator (``Rd > 0``) has the choice; ``None`` is the default below.
+DENOMINATOR = {
+    "ls": "least squares, the paper's LRM: the noise on Z among the denominator's regressors "
+          "biases G (errors-in-variables)",
+    "iv": "instrumental variables: the denominator's regressors are instrumented by a "
+          "prediction of Z from a first fit (docs/uncertainty.md)",
+}
+#: ``denominator=None`` means this for a model with a denominator (``Rd > 0``).
+DEFAULT_DENOMINATOR = "ls"
+#: What the result records when no denominator is fitted (``Rd = 0``: the LPM; window 0).
+NO_DENOMINATOR = "none"
 
 #: What to do with a non-invertible estimated S (``errors=``).
 ERRORS = {
@@ -75,6 +88,9 @@ class EstimatorSettings(NamedTuple):
     covariance: bool
     errors: str
     frequency_chunks: int | None
+    # "ls", "iv", or NO_DENOMINATOR when the model has none (Rd = 0); last, with a
+    # default, so that positional constructions of the older fields keep working
+    denominator: str = DEFAULT_DENOMINATOR
 
 
 def _either(choices) -> str:
@@ -269,6 +285,33 @@ def window_argument(text: str):
     return text
 
 
+def as_denominator(value, degrees) -> str:
+    """``denominator`` for a model of ``degrees``: ``"ls"``, ``"iv"`` or ``"none"`` (Rd = 0).
+
+    ``None`` is :data:`DEFAULT_DENOMINATOR` where the model has a denominator and
+    ``"none"`` where it has not; ``"ls"`` is accepted for a model without one (least
+    squares is what is done), ``"iv"`` is refused there (there is nothing to instrument).
+
+    Examples
+    --------
+    >>> as_denominator(None, (3, 3, 3)), as_denominator("iv", (3, 3, 3)), as_denominator(None, (3, 3, 0))
+    ('ls', 'iv', 'none')
+    """
+    has_denominator = tuple(degrees)[2] > 0
+    if value is None:
+        return DEFAULT_DENOMINATOR if has_denominator else NO_DENOMINATOR
+    value = as_choice(value, "denominator", DENOMINATOR)
+    if not has_denominator:
+        if value == "iv":
+            raise ValueError(
+                f"denominator='iv' instruments the denominator of the local rational model, but "
+                f"degrees {tuple(degrees)} have none (Rd = 0: the local polynomial model, whose "
+                f"least squares has no noisy regressors). Drop denominator (or pass "
+                f"denominator='ls'), or use method='lrm' with Rd > 0 (e.g. degrees=(3, 3, 3)).")
+        return NO_DENOMINATOR
+    return value
+
+
 def lpm_pair_ok(method) -> bool:
     """Whether ``method`` takes the degrees pair ``(Rn, Rm)`` (no denominator)."""
     return method is not None and not METHODS[method].has_denominator
@@ -277,7 +320,7 @@ def lpm_pair_ok(method) -> bool:
 def estimator_settings(*, method="lrm", window=DEFAULT_WINDOW, degrees=None,
                        closed_loop="indirect",
                        covariance=True, errors="raise", frequency_chunks=None,
-                       no_transient: bool = False) -> EstimatorSettings:
+                       no_transient: bool = False, denominator=None) -> EstimatorSettings:
     """Check and normalise every setting of a local-model estimate, before any data is read.
 
     Parameters
@@ -289,6 +332,9 @@ def estimator_settings(*, method="lrm", window=DEFAULT_WINDOW, degrees=None,
     no_transient : bool, default False
         Accept ``Rm = -1`` in ``degrees`` (see :func:`parse_degrees`); the caller checks that
         the data are steady-state periodic.
+    denominator : {None, "ls", "iv"}, optional
+        How the denominator is estimated (:data:`DENOMINATOR`; :func:`as_denominator`):
+        ``None`` is :data:`DEFAULT_DENOMINATOR` with a denominator, ``"none"`` without.
 
     Returns
     -------
@@ -301,7 +347,8 @@ def estimator_settings(*, method="lrm", window=DEFAULT_WINDOW, degrees=None,
         A value of the wrong type (``covariance="no"``, ``window="30"``).
     ValueError
         A value out of range or not among the choices (``window=30.5``, ``method="arx"``,
-        ``degrees=(3, 3, 3)`` with ``method="lpm"``, ``frequency_chunks < window``).
+        ``degrees=(3, 3, 3)`` with ``method="lpm"``, ``frequency_chunks < window``,
+        ``denominator="iv"`` without a denominator).
 
     Examples
     --------
@@ -327,8 +374,9 @@ def estimator_settings(*, method="lrm", window=DEFAULT_WINDOW, degrees=None,
             f"frequency_chunks={frequency_chunks} is smaller than the halo the local window "
             f"needs (window={window} bins on each side); use frequency_chunks >= {window}."
         )
+    denominator = as_denominator(denominator, degrees)
     return EstimatorSettings(method, degrees, window, closed_loop, covariance, errors,
-                             frequency_chunks)
+                             frequency_chunks, denominator)
 
 
 def auto_window_range(degrees, n_excitation: int, n_bins: int) -> tuple[int, int]:
