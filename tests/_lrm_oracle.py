@@ -11,7 +11,8 @@ from __future__ import annotations
 import numpy as np
 
 
-def oracle_local_model(R, Z, half_width, degrees, circular=True, bins=None, covariance=True):
+def oracle_local_model(R, Z, half_width, degrees, circular=True, bins=None, covariance=True,
+                       instruments=None):
     """Per-bin ``lstsq`` fit of ``D(r) Z_i(k+r) - N_i(r) R(k+r) - Mt_i(r) = e_i(r)``.
 
     ``covariance=False`` stops after ``G``, ``T`` and the residual covariance (a plain
@@ -35,6 +36,11 @@ def oracle_local_model(R, Z, half_width, degrees, circular=True, bins=None, cova
       ``E[r_j^H r_i] = s_ij tau_ij`` with ``tau_ij = tr(D_j^H P_j P_i D_i)`` and the noise
       estimate ``s_ij = (sum_r r_i conj(r_j)) / tau_ij`` (``residual_covariance`` holds the
       plain ``sum_r r_i conj(r_j) / dof``).  For the LPM ``D = I``, ``tau = dof``.
+
+    ``instruments`` (M, nz): instrumental variables for the denominator columns: ``Phi_i``
+    is ``K_i`` with ``-rho^s Z_i`` replaced by ``-rho^s Zhat_i``, ``theta = (Phi^H K)^-1
+    Phi^H z`` (``numpy.linalg.solve``), ``K_i^+`` above becomes ``(Phi^H K)^-1 Phi^H`` and
+    ``P_i = I - K (Phi^H K)^-1 Phi^H`` an oblique projector (the same formulas otherwise).
     """
     R = np.asarray(R, dtype=complex)
     Z = np.asarray(Z, dtype=complex)
@@ -77,13 +83,21 @@ def oracle_local_model(R, Z, half_width, degrees, circular=True, bins=None, cova
             for s in range(1, rd + 1):  # D(r) Z_i = Z_i + sum_s d_s rho^s Z_i, moved right
                 columns.append(-(rho**s) * Zw[:, i])
             K = np.stack(columns, axis=1)
-            theta, *_ = np.linalg.lstsq(K, Zw[:, i], rcond=None)
+            if instruments is None:
+                theta, *_ = np.linalg.lstsq(K, Zw[:, i], rcond=None)
+                pinv_of = np.linalg.pinv
+            else:
+                Phi = K.copy()
+                for s in range(1, rd + 1):
+                    Phi[:, p_row - rd + s - 1] = -(rho**s) * instruments[idx, i]
+                theta = np.linalg.solve(Phi.conj().T @ K, Phi.conj().T @ Zw[:, i])
+                pinv_of = lambda K, Phi=Phi: np.linalg.solve(Phi.conj().T @ K, Phi.conj().T)  # noqa: E731
             out["G"][k, i] = theta[0 : nr * (rn + 1) : rn + 1]
             out["T"][k, i] = theta[nr * (rn + 1)] if rm >= 0 else 0.0  # Rm = -1: no T
             resid[i] = Zw[:, i] - K @ theta
             if not covariance:
                 continue
-            pinv = np.linalg.pinv(K)
+            pinv = pinv_of(K)
             gain.append(pinv[0 : nr * (rn + 1) : rn + 1])
             proj.append(np.eye(2 * n + 1) - K @ pinv)
             d_coef = theta[p_row - rd :]  # d(r) = 1 + sum_s d_s rho^s (empty for the LPM)
@@ -97,7 +111,7 @@ def oracle_local_model(R, Z, half_width, degrees, circular=True, bins=None, cova
         out["residual_covariance"][k] = raw / dof
         if not covariance:
             continue
-        # tau_ij = tr(D_j^H P_j P_i D_i) = sum of conj(P_j D_j) * (P_i D_i) (P Hermitian)
+        # tau_ij = tr(D_j^H P_j^H P_i D_i) = sum of conj(P_j D_j) * (P_i D_i)
         pd = [proj[i] @ dwin[i] for i in range(nz)]
         tau = np.array([[np.sum(np.conj(pd[j]) * pd[i]) for j in range(nz)] for i in range(nz)])
         s = raw / tau
@@ -114,14 +128,14 @@ def oracle_local_model(R, Z, half_width, degrees, circular=True, bins=None, cova
     return out
 
 
-def oracle_pooled_local_model(R, Z, half_width, degrees, bins=None):
+def oracle_pooled_local_model(R, Z, half_width, degrees, bins=None, instruments=None):
     """Per-bin ``lstsq`` fit of ``E`` experiments stacked: shared ``G``, numerator and
     denominator, one transient term per experiment (block columns), written literally.
 
     ``R`` (E, M, nr), ``Z`` (E, M, nz), circular windows.  Returns ``G`` (M, nz, nr), ``T``
     (E, M, nz), ``noise_covariance`` (M, nz, nz), ``G_cov`` (M, nz nr, nz nr) and ``dof``
     ``E (2n + 1) - p`` with the same first-order formulas as :func:`oracle_local_model`
-    over the stacked windows.
+    over the stacked windows; ``instruments`` (E, M, nz) as in :func:`oracle_local_model`.
     """
     R = np.asarray(R, dtype=complex)
     Z = np.asarray(Z, dtype=complex)
@@ -151,13 +165,22 @@ def oracle_pooled_local_model(R, Z, half_width, degrees, bins=None):
                 blocks.append(np.stack(cols, axis=1))
             K = np.concatenate(blocks, axis=0)
             zi = np.concatenate([Z[e, idx, i] for e in range(n_exp)])
-            theta, *_ = np.linalg.lstsq(K, zi, rcond=None)
+            if instruments is None:
+                theta, *_ = np.linalg.lstsq(K, zi, rcond=None)
+                pinv = np.linalg.pinv(K)
+            else:
+                Phi = K.copy()
+                zh = np.concatenate([instruments[e, idx, i] for e in range(n_exp)])
+                rho_all = np.tile(rho, n_exp)
+                for s in range(1, rd + 1):
+                    Phi[:, p - rd + s - 1] = -(rho_all**s) * zh
+                theta = np.linalg.solve(Phi.conj().T @ K, Phi.conj().T @ zi)
+                pinv = np.linalg.solve(Phi.conj().T @ K, Phi.conj().T)
             out["G"][k, i] = theta[0: nr * (rn + 1): rn + 1]
             if rm >= 0:
                 out["T"][:, k, i] = theta[nr * (rn + 1): nr * (rn + 1) + n_exp * (rm + 1)] \
                     .reshape(n_exp, rm + 1)[:, 0]
             resid.append(zi - K @ theta)
-            pinv = np.linalg.pinv(K)
             gain.append(pinv[0: nr * (rn + 1): rn + 1])
             proj.append(np.eye(n_exp * w) - K @ pinv)
             d_r = np.ones(w, dtype=complex)

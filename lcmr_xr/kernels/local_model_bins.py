@@ -197,6 +197,163 @@ def _chol_solve(low, rank, b, x):
 
 
 @numba.njit(**_JIT)
+def _lu_factor(a, k, ipiv):
+    """LU with partial (row) pivoting of the leading ``k x k`` block of the small,
+    general ``a``, in place (``L`` unit lower below the diagonal, ``U`` on and above);
+    ``ipiv[j]`` the row swapped with row ``j``.  Returns ``sum_j log|u_jj|`` (``-inf``
+    at the first zero pivot, which stops the factorisation)."""
+    logdet = 0.0
+    for j in range(k):
+        best = j
+        for t in range(j + 1, k):
+            if abs(a[t, j]) > abs(a[best, j]):
+                best = t
+        ipiv[j] = best
+        if best != j:
+            for c in range(k):
+                a[j, c], a[best, c] = a[best, c], a[j, c]
+        p = a[j, j]
+        if not abs(p) > 0.0:
+            return -np.inf
+        logdet += math.log(abs(p))
+        for t in range(j + 1, k):
+            f = a[t, j] / p
+            a[t, j] = f
+            for c in range(j + 1, k):
+                a[t, c] -= f * a[j, c]
+    return logdet
+
+
+@numba.njit(**_JIT)
+def _lu_solve(a, k, ipiv, x):
+    """``x = A^-1 x`` in place from :func:`_lu_factor`'s factors of ``A`` (leading
+    ``k`` entries)."""
+    for j in range(k):
+        t = ipiv[j]
+        if t != j:
+            x[j], x[t] = x[t], x[j]
+    for j in range(k):
+        acc = x[j]
+        for c in range(j):
+            acc -= a[j, c] * x[c]
+        x[j] = acc
+    for j in range(k - 1, -1, -1):
+        acc = x[j]
+        for c in range(j + 1, k):
+            acc -= a[j, c] * x[c]
+        x[j] = acc / a[j, j]
+
+
+@numba.njit(**_JIT)
+def _chol_logdet(s, k, scratch):
+    """``log det`` of the leading ``k x k`` block of the small Hermitian ``s`` by an
+    unpivoted Cholesky (``-inf`` when a pivot is not positive); ``s`` is kept,
+    ``scratch`` overwritten."""
+    for a in range(k):
+        for c in range(k):
+            scratch[a, c] = s[a, c]
+    logdet = 0.0
+    for j in range(k):
+        p = scratch[j, j].real
+        if not p > 0.0:
+            return -np.inf
+        logdet += math.log(p)
+        for a in range(j + 1, k):
+            f = scratch[a, j] / p
+            for c in range(j + 1, a + 1):
+                scratch[a, c] -= f * scratch[c, j].conjugate()
+    return logdet
+
+
+@numba.njit(**_JIT)
+def _iv_row(m, q, nx, i, rk, perm, low, tsc, wx, ww, twc, siv, ipiv, gw, scratch, dsol,
+            delta):
+    """Instrumental-variable denominator of row ``i`` on its kept columns (``perm[:rk]``).
+
+    ``m`` holds ``[L^H | Y_X | Y_W]`` after the shared Cholesky (``Y_W = L^-1 A~^H W``,
+    the instruments' columns ``rho^s Zhat_i`` at ``q + nx + i (Rd+1) + s``), ``wx``, ``ww``
+    (nz, Rd+1, Rd+1) the moments ``W_s^H X_t``, ``W_s^H W_t``.  The IV Schur complement
+    ``S = W~^H X~`` (``~``: projected off ``A``; rows scaled by ``twc = 1/||W_s||``,
+    columns by ``tsc``) is factored by LU with partial pivoting into ``siv``, ``ipiv``
+    (kept for the covariance), and ``delta[s + 1]`` of the kept columns overwritten by
+    the IV solution.  Returns ``log`` of the geometric mean of the squared canonical
+    correlations between the projected instruments and regressors,
+    ``|det S|^2 / (det W~^H W~ det X~^H X~)`` to the power ``1 / rk`` (scale-free, 0 for
+    ``W = X``; ``-inf`` when ``S`` or the instruments' Gram is singular).
+    """
+    rd1 = wx.shape[1]
+    c0 = i * rd1
+    cw = q + nx + c0  # the W columns of m (s = 0..Rd)
+    cx = q + c0
+    for s in range(1, rd1):
+        e = ww[i, s, s].real
+        twc[s - 1] = 1.0 / math.sqrt(e) if e > 0.0 else 0.0
+    if rk == 0:
+        return 0.0
+    for j1 in range(rk):
+        s1 = perm[j1] + 1
+        for j2 in range(rk):  # (W~^H X~)[s1, s2] = W^H X - Y_W^H Y_X
+            s2 = perm[j2] + 1
+            acc = wx[i, s1, s2]
+            for a in range(q):
+                acc -= m[a, cw + s1].conjugate() * m[a, cx + s2]
+            siv[j1, j2] = acc * (twc[s1 - 1] * tsc[s2 - 1])
+        for j2 in range(j1, rk):  # W~^H W~, Hermitian
+            s2 = perm[j2] + 1
+            acc = ww[i, s1, s2]
+            for a in range(q):
+                acc -= m[a, cw + s1].conjugate() * m[a, cw + s2]
+            gw[j1, j2] = acc * (twc[s1 - 1] * twc[s2 - 1])
+            gw[j2, j1] = gw[j1, j2].conjugate()
+        acc = wx[i, s1, 0]  # right-hand side -W~^H X~_0 (the B columns are -rho^s Z_i)
+        for a in range(q):
+            acc -= m[a, cw + s1].conjugate() * m[a, cx]
+        dsol[j1] = -acc * twc[s1 - 1]
+    log_w = _chol_logdet(gw, rk, scratch)
+    log_x = 0.0
+    for j in range(rk):
+        log_x += 2.0 * math.log(low[j, j].real)
+    log_iv = _lu_factor(siv, rk, ipiv)
+    if not (log_iv > -np.inf and log_w > -np.inf):
+        return -np.inf
+    _lu_solve(siv, rk, ipiv, dsol)
+    for j in range(rk):
+        s = perm[j]
+        delta[s + 1] = dsol[j] * tsc[s]
+    return (2.0 * log_iv - log_w - log_x) / rk
+
+
+@numba.njit(**_JIT)
+def _pooled_iv_blocks(moms, n_flat, wx_index, ww_index, txe, wtx, q_all, nx, wx, ww):
+    """Pooled ``W^H X`` and ``W^H W`` (nz, Rd+1, Rd+1): every experiment's moments
+    projected off its transient columns (``txe``, ``wtx`` from :func:`_gather_pooled`,
+    whose columns hold ``[A | X | W]``) and summed."""
+    nz = wx_index.shape[0]
+    rd1 = wx_index.shape[1]
+    qt = txe.shape[1]
+    for i in range(nz):
+        for s in range(rd1):
+            for t in range(rd1):
+                wx[i, s, t] = 0j
+                ww[i, s, t] = 0j
+    for e in range(moms.shape[0]):
+        mom = moms[e]
+        for i in range(nz):
+            for s in range(rd1):
+                cw = q_all + nx + i * rd1 + s
+                for t in range(rd1):
+                    cx = q_all + i * rd1 + t
+                    cw2 = q_all + nx + i * rd1 + t
+                    ax = _moment(mom, n_flat, wx_index[i, s, t])
+                    aw = _moment(mom, n_flat, ww_index[i, s, t])
+                    for t1 in range(qt):
+                        ax -= txe[e, t1, cw].conjugate() * wtx[e, t1, cx]
+                        aw -= txe[e, t1, cw].conjugate() * wtx[e, t1, cw2]
+                    wx[i, s, t] += ax
+                    ww[i, s, t] += aw
+
+
+@numba.njit(**_JIT)
 def _tail_solve(u, q, nt, v, x):
     """``x = U22^-1 v[q-nt:]`` for the trailing ``nt x nt`` block of upper-triangular
     ``u`` (``x`` has length ``nt``)."""
@@ -400,7 +557,7 @@ def _failed_bin(o, mode, out_g, out_t, out_ncov, out_cond, out_ill, out_reduced,
 def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
              aug_index, zz_index, a_base, a_pow, mean_pow, dof, mode, drop_tol,
              pivot_limit, sens_limit, out_g, out_t, out_ncov, out_cond, out_ill,
-             out_reduced, out_gcov, out_gvar, pool):
+             out_reduced, out_gcov, out_gvar, pool, iv):
     """Fit the local model at the selected bins of one chunk (see the module notes).
 
     ``rt``, ``zt`` (nbat, K + 2n, nr / nz): the chunk with its ``n``-bin halo on each
@@ -425,11 +582,26 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
     ``T`` is back-substituted from its own projected moments (``out_t`` (., E, nz)); the
     covariance stacks the experiments' windows (``E W`` rows, transient leverage added).
     One experiment is the single-record path (``pool=None``).
+
+    ``iv``: None for least squares; instrumental variables for the denominator columns:
+    ``(wx_index, ww_index, weak_limit)``.  ``zt`` then holds ``Z`` and after it the
+    instruments ``Zhat`` (nbat, K + 2n, 2 nz); ``aug_index`` (q, q + nx + nw) indexes
+    ``[Gaa | A^H X | A^H W]`` (``W`` columns ``rho^s Zhat_i`` at ``i (Rd+1) + s``, ``nw =
+    nx``), ``wx_index``, ``ww_index`` (nz, Rd+1, Rd+1) the moments ``W_s^H X_t``,
+    ``W_s^H W_t``.  Rows whose geometric-mean canonical correlation between projected
+    instruments and regressors is below ``weak_limit`` flag the bin (weak instruments);
+    a singular IV system fails it.  Compiled apart from the least-squares version
+    (``iv is None`` is tested on the argument: numba drops the IV branches there).
     """
     q = aug_index.shape[0]
-    nx = aug_index.shape[1] - q
     nz = zz_index.shape[0]
     rd1 = zz_index.shape[2]
+    # instruments: their columns follow X in [Gaa | A^H X | A^H W] (nw = 0 without)
+    if iv is None:
+        nw = 0
+    else:
+        nw = nz * rd1
+    nx = aug_index.shape[1] - q - nw
     rd = rd1 - 1
     nr = out_g.shape[2]
     # T (the constant column rho^0) precedes G at the end of A, unless Rm = -1 (no
@@ -479,9 +651,10 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
                 for t3 in range(qt):
                     acc += (tg[t3, qt + t1].conjugate() * tg[t3, qt + t2]).real
                 tinv[t1, t2] = acc
-    ge = np.empty((q_all, q_all + nx), dtype=np.complex128)  # one experiment's [Gaa | A^H X]
-    wtx = np.empty((max(n_exp, 1), qt, q_all + nx), dtype=np.complex128)  # Winv T^H [A | X]
-    txe = np.empty((max(n_exp, 1), qt, q_all + nx), dtype=np.complex128)  # T^H [A | X]
+    nxw = nx + nw
+    ge = np.empty((q_all, q_all + nxw), dtype=np.complex128)  # one experiment's [Gaa | A^H X]
+    wtx = np.empty((max(n_exp, 1), qt, q_all + nxw), dtype=np.complex128)  # Winv T^H [A | X]
+    txe = np.empty((max(n_exp, 1), qt, q_all + nxw), dtype=np.complex128)  # T^H [A | X]
     xxe = np.empty((nz, nz, zz_index.shape[2], zz_index.shape[2]), dtype=np.complex128)
     tpow = np.empty(qt, dtype=np.int64)
     for t1 in range(qt):
@@ -495,12 +668,12 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
         width = n_exp * (2 * n + 1)
     wn = 2 * n + 1  # one experiment's window
     nan_c = complex(np.nan, np.nan)
-    m = np.empty((q, q + nx), dtype=np.complex128)
-    mr = np.zeros((q, q + nx))  # m's real and imaginary planes for the Cholesky
-    mi = np.zeros((q, q + nx))
+    m = np.empty((q, q + nxw), dtype=np.complex128)
+    mr = np.zeros((q, q + nxw))  # m's real and imaginary planes for the Cholesky
+    mi = np.zeros((q, q + nxw))
     piv_a = np.empty(q)
-    rr_c = np.empty(q + nx)
-    ri_c = np.empty(q + nx)
+    rr_c = np.empty(q + nxw)
+    ri_c = np.empty(q + nxw)
     ds = np.empty(q)
     xx = np.empty((nz, nz, rd1, rd1), dtype=np.complex128)
     delta = np.zeros((nz, rd1), dtype=np.complex128)
@@ -536,13 +709,31 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
     wb = np.empty(max(rd, 1), dtype=np.complex128)
     tau = np.empty((nz, nz), dtype=np.complex128)
     scov = np.empty((nz, nz), dtype=np.complex128)
+    # instrumental variables (sized 0 without: the least-squares build allocates nothing)
+    rdv = max(rd, 1) if nw > 0 else 0
+    wcv = wc if nw > 0 else 0
+    wxm = np.empty((nz, rd1, rd1) if nw > 0 else (0, 0, 0), dtype=np.complex128)
+    wwm = np.empty((nz, rd1, rd1) if nw > 0 else (0, 0, 0), dtype=np.complex128)
+    twc = np.empty((nz, rdv))
+    siv = np.empty((nz, rdv, rdv), dtype=np.complex128)
+    ipiv = np.empty((nz, rdv), dtype=np.int64)
+    gwv = np.empty((rdv, rdv), dtype=np.complex128)
+    gws = np.empty((rdv, rdv), dtype=np.complex128)
+    sinv = np.empty((rdv, rdv), dtype=np.complex128)
+    ybw = np.empty((q, rdv), dtype=np.complex128)
+    wmr = np.empty((rdv, wcv))
+    wmi = np.empty((rdv, wcv))
+    ymr = np.empty((nz, rdv, wcv))
+    ymi = np.empty((nz, rdv, wcv))
+    ncr = np.empty((nz, wcv))
+    nci = np.empty((nz, wcv))
 
     n_flat = slot_i.shape[0] * p1
     moms = np.empty((n_exp, n_flat), dtype=np.complex128)
     mom = moms[0]
     floors = np.empty((n_exp, nr))
     floor = np.empty(nr)
-    scratch = np.empty((4, max(slot_i.shape[0], nr + 1 + nz)), dtype=np.complex128)
+    scratch = np.empty((4, max(slot_i.shape[0], nr + 1 + zt.shape[2])), dtype=np.complex128)
     for b in range(sel.shape[0]):
       valid = np.bool_(False)  # not the literal False: one compiled _advance, not two
       for k in range(sel.shape[1]):
@@ -560,13 +751,13 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
         dead = False
         if pool is None:
             for a in range(q):
-                for c in range(a, q + nx):
+                for c in range(a, q + nxw):
                     m[a, c] = _moment(mom, n_flat, aug_index[a, c])
             for p in range(nr):  # (a loop: an array slice assignment compiles numba's
                 floor[p] = floors[0, p]  # shape-mismatch message machinery, ~8 s)
         else:
             _gather_pooled(moms, n_flat, aug_index, zz_index, sh, tr, tinv, ge, txe, wtx,
-                           xxe, m, xx, q, nx)
+                           xxe, m, xx, q, nxw)
             for p in range(nr):
                 acc_f = 0.0
                 for e in range(n_exp):
@@ -586,12 +777,12 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
                 f = ds[a] * ds[c]
                 mr[a, c] = m[a, c].real * f
                 mi[a, c] = m[a, c].imag * f
-            for c in range(q, q + nx):
+            for c in range(q, q + nxw):
                 mr[a, c] = m[a, c].real * ds[a]
                 mi[a, c] = m[a, c].imag * ds[a]
         cholesky_planes(mr, mi, q, piv_a, rr_c, ri_c)
         for a in range(q):
-            for c in range(a, q + nx):
+            for c in range(a, q + nxw):
                 m[a, c] = complex(mr[a, c], mi[a, c])
         min_a = np.inf
         for a in range(q):
@@ -610,9 +801,19 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
                     for s in range(rd1):
                         for t in range(rd1):
                             xx[i, j, s, t] = _moment(mom, n_flat, zz_index[i, j, s, t])
+        if iv is not None:  # the instruments' moments W^H X, W^H W (same row only)
+            if pool is None:
+                for i in range(nz):
+                    for s in range(rd1):
+                        for t in range(rd1):
+                            wxm[i, s, t] = _moment(mom, n_flat, iv[0][i, s, t])
+                            wwm[i, s, t] = _moment(mom, n_flat, iv[1][i, s, t])
+            else:
+                _pooled_iv_blocks(moms, n_flat, iv[0], iv[1], txe, wtx, q_all, nx, wxm, wwm)
 
         # ---- per row: Schur complement of the D columns, pivoted and rank revealing
         ill = False
+        iv_failed = False
         n_drop = 0
         for i in range(nz):
             delta[i, 0] = 1.0
@@ -676,6 +877,13 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
                         sens += abs(tail[nt - nr + p]) ** 2
                     if sens > sens_limit**2 * norm2:
                         ill = True
+                if iv is not None:  # the kept columns' coefficients by IV instead
+                    corr = _iv_row(m, q, nx, i, rk, perm[i], low[i], tsc[i], wxm, wwm,
+                                   twc[i], siv[i], ipiv[i], gwv, gws, dsol, delta[i])
+                    if not corr > -np.inf:
+                        iv_failed = True
+                    elif corr < 2.0 * math.log(iv[2]):
+                        ill = True
             # v_i = Y_i delta_i (the shared coordinates of D z_i); T, G from its tail
             for a in range(q):
                 acc = 0j
@@ -689,6 +897,12 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
             if pool is not None:
                 _pooled_transients(m, q, nx, ds, delta[i], i, rd1, sh, tr, wtx, out_t[o],
                                    v[i], wa)
+
+        if iv is not None:
+            if iv_failed:  # a singular IV system: the instruments do not determine D
+                _failed_bin(o, mode, out_g, out_t, out_ncov, out_cond, out_ill,
+                            out_reduced, out_gcov, out_gvar)
+                continue
 
         # ---- residual cross products e_i^H e_j = delta_i^H X_i^H X_j delta_j - v_i^H v_j
         for i in range(nz):
@@ -775,6 +989,12 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
                 dwi[i, r] = acc.imag
             rk = rank[i]
             c0 = i * rd1
+            if iv is not None:
+                _iv_row_gains(rt, zt, b, k, i, nz, rk, perm[i], tsc[i], twc[i], siv[i],
+                              ipiv[i], m, q, nx, q_all, ds, dwr[i], dwi[i], qhr, qhi, rho_pow,
+                              tpow, wtx, pool is not None, crow, ybk, ybw, wmr, wmi, sinv,
+                              dsol, umr[i], umi[i], ymr[i], ymi[i], hgr, hgi, wa, wb)
+                continue
             # U_i (rows j, over r): the kept scaled D columns projected off A, whitened
             # by L_s^-H
             for j in range(rk):
@@ -852,10 +1072,13 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
                     hr = hgr[x, r]
                     hgr[x, r] = hr * fr - hgi[x, r] * fi
                     hgi[x, r] = hr * fi + hgi[x, r] * fr
+        if iv is not None:  # the oblique residual projector's tau (_iv_tau)
+            _iv_tau(rank, lev, dwr, dwi, umr, umi, ymr, ymi, ncr, nci, vmr, vmi, ehe, tau,
+                    scov)
         # tau_ij and s_ij = raw_ij / tau_ij (i <= j, Hermitian).  Per row first: the
         # weights 1 - lev - nu_i, and V_i = U_i conj(d_i), so that the trace term's
         # U_i^H diag(d_i conj(d_j)) U_j is V_i^H V_j
-        for i in range(nz):
+        for i in range(nz if iv is None else 0):
             for r in range(width):
                 nuv[i, r] = 0.0
             for s in range(rank[i]):
@@ -865,7 +1088,7 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
                     nuv[i, r] += ur * ur + ui * ui
                     vmr[i, s, r] = ur * dwr[i, r] + ui * dwi[i, r]
                     vmi[i, s, r] = ui * dwr[i, r] - ur * dwi[i, r]
-        for i in range(nz):
+        for i in range(nz if iv is None else 0):
             for j in range(i, nz):
                 accr = 0.0
                 acci = 0.0
@@ -913,6 +1136,176 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
                 out_gcov[o, x, y] = acc
                 out_gcov[o, y, x] = acc.conjugate()
     return 0
+
+
+@numba.njit(**_JIT)
+def _iv_row_gains(rt, zt, b, k, i, nz, rk, perm, tsc, twc, siv, ipiv, m, q, nx, q_all, ds,
+                  dwr, dwi, qhr, qhi, rho_pow, tpow, wtx, pooled, crow, ybk, ybw, wmr, wmi,
+                  sinv, x, umr, umi, ymr, ymi, hgr, hgi, wa, wb):
+    """IV covariance pieces of row ``i`` over the window (the IV counterpart of the
+    least-squares ``U_i`` and gains in :func:`fit_bins`).
+
+    ``X~ = P B~`` (kept scaled columns projected off ``A``, not whitened) into ``umr``,
+    ``umi`` (rk, W); ``Y = W~ S^-H`` into ``ymr``, ``ymi`` (``W~ = P W'``, the scaled
+    instruments projected off ``A``; ``S = W~^H B~`` from the LU in ``siv``), so that
+    the residual projector is ``P - X~ Y^H``.  The gains of ``G_i`` (rows ``i nr + p`` of
+    ``hgr``, ``hgi``): ``delta G = ds_g wa^H (Q_A^H - Y_B Y^H) e`` with ``Y_B = Q_A^H B~``
+    and ``wa = L^-1 e_g``, times ``d_i(r)`` (the equation error is ``d_i V_i``).  ``P``
+    is ``I - Q_A Q_A^H`` (pooled: the columns also off each experiment's transient,
+    through ``wtx``).  ``x`` (>= rk) is scratch.
+    """
+    width = qhr.shape[1]
+    nr = hgr.shape[0] // nz
+    rd1 = tsc.shape[0] + 1
+    c0 = i * rd1
+    for j in range(rk):
+        s = perm[j]
+        for a in range(q):
+            ybk[a, j] = -tsc[s] * m[a, q + c0 + s + 1]
+            ybw[a, j] = -twc[s] * m[a, q + nx + c0 + s + 1]
+    for j in range(rk):
+        s = perm[j]
+        f = -tsc[s]
+        fw = -twc[s]
+        if pooled:
+            _pooled_d_column(zt, b, k, i, s + 1, q_all + c0 + s + 1, f, rho_pow, tpow, wtx,
+                             crow)
+            for r in range(width):
+                umr[j, r] = crow[r].real
+                umi[j, r] = crow[r].imag
+            _pooled_d_column(zt, b, k, nz + i, s + 1, q_all + nx + c0 + s + 1, fw, rho_pow,
+                             tpow, wtx, crow)
+            for r in range(width):
+                wmr[j, r] = crow[r].real
+                wmi[j, r] = crow[r].imag
+        else:
+            for r in range(width):
+                w = f * rho_pow[r, s + 1]
+                umr[j, r] = w * zt[b, k + r, i].real
+                umi[j, r] = w * zt[b, k + r, i].imag
+                w = fw * rho_pow[r, s + 1]
+                wmr[j, r] = w * zt[b, k + r, nz + i].real
+                wmi[j, r] = w * zt[b, k + r, nz + i].imag
+        for a in range(q):  # - Q_A Y~: Q_A(r, a) = conj(qh[a, r])
+            yr = ybk[a, j].real
+            yi = ybk[a, j].imag
+            vr = ybw[a, j].real
+            vi = ybw[a, j].imag
+            for r in range(width):
+                umr[j, r] -= qhr[a, r] * yr + qhi[a, r] * yi
+                umi[j, r] -= qhr[a, r] * yi - qhi[a, r] * yr
+                wmr[j, r] -= qhr[a, r] * vr + qhi[a, r] * vi
+                wmi[j, r] -= qhr[a, r] * vi - qhi[a, r] * vr
+    for t in range(rk):  # S^-1, column by column
+        for u in range(rk):
+            x[u] = 1.0 if u == t else 0.0
+        _lu_solve(siv, rk, ipiv, x)
+        for u in range(rk):
+            sinv[u, t] = x[u]
+    for t in range(rk):  # Y(r, t) = sum_u W~(r, u) conj(S^-1[t, u])
+        for r in range(width):
+            ymr[t, r] = 0.0
+            ymi[t, r] = 0.0
+        for u in range(rk):
+            fr = sinv[t, u].real
+            fi = -sinv[t, u].imag
+            for r in range(width):
+                ymr[t, r] += wmr[u, r] * fr - wmi[u, r] * fi
+                ymi[t, r] += wmr[u, r] * fi + wmi[u, r] * fr
+    for p in range(nr):
+        g = q - nr + p
+        for a in range(q):  # wa = L^-1 e_g (non-zero on the trailing entries only)
+            wa[a] = 0j
+        for a in range(g, q):
+            acc = 1.0 + 0j if a == g else 0j
+            for c in range(g, a):
+                acc -= m[c, a].conjugate() * wa[c]
+            wa[a] = acc / m[a, a].real
+        for j in range(rk):  # wb = Y_B^H wa
+            acc = 0j
+            for a in range(g, q):
+                acc += ybk[a, j].conjugate() * wa[a]
+            wb[j] = acc
+        xg = i * nr + p
+        for r in range(width):
+            hgr[xg, r] = 0.0
+            hgi[xg, r] = 0.0
+        for a in range(g, q):  # += qh[a] conj(wa[a])
+            fr = wa[a].real
+            fi = -wa[a].imag
+            for r in range(width):
+                hgr[xg, r] += qhr[a, r] * fr - qhi[a, r] * fi
+                hgi[xg, r] += qhr[a, r] * fi + qhi[a, r] * fr
+        for j in range(rk):  # -= conj(Y(r, j)) conj(wb[j])
+            br = wb[j].real
+            bi = wb[j].imag
+            for r in range(width):
+                hgr[xg, r] -= ymr[j, r] * br - ymi[j, r] * bi
+                hgi[xg, r] += ymr[j, r] * bi + ymi[j, r] * br
+        sc = ds[g]
+        for r in range(width):  # *= ds[g] d_i(r)
+            fr = sc * dwr[r]
+            fi = sc * dwi[r]
+            hr = hgr[xg, r]
+            hgr[xg, r] = hr * fr - hgi[xg, r] * fi
+            hgi[xg, r] = hr * fi + hgi[xg, r] * fr
+
+
+@numba.njit(**_JIT)
+def _iv_tau(rank, lev, dwr, dwi, umr, umi, ymr, ymi, ncr, nci, vmr, vmi, ehe, tau, scov):
+    """``tau_ij = tr(D_j^H Pi_j^H Pi_i D_i)`` of the IV residual projector
+    ``Pi_i = P - X_i Y_i^H`` (oblique, ``Y_i^H X_i = I``; ``X``, ``Y`` in ``umr``/``ymr``
+    from :func:`_iv_row_gains`) and ``scov = conj(ehe) / tau``::
+
+        tau_ij = sum_r c(r) (1 - lev(r) - x_i(r) - conj(x_j(r)))
+                 + tr((X_j^H X_i)(Y_i^H diag(c) Y_j)),   c = d_i conj(d_j),
+
+    ``x_i(r) = sum_t conj(Y_i(r, t)) X_i(r, t)`` (``||U_i(r, :)||^2`` for least
+    squares, where ``Y = X``).  ``O(rk^2 W)`` per pair of rows.
+    """
+    nz = rank.shape[0]
+    width = lev.shape[0]
+    for i in range(nz):
+        for r in range(width):
+            ncr[i, r] = 0.0
+            nci[i, r] = 0.0
+        for t in range(rank[i]):
+            for r in range(width):
+                yr = ymr[i, t, r]
+                yi = ymi[i, t, r]
+                xr = umr[i, t, r]
+                xi = umi[i, t, r]
+                ncr[i, r] += yr * xr + yi * xi
+                nci[i, r] += yr * xi - yi * xr
+                vmr[i, t, r] = yr * dwr[i, r] + yi * dwi[i, r]  # V_i = Y_i conj(d_i)
+                vmi[i, t, r] = yi * dwr[i, r] - yr * dwi[i, r]
+    for i in range(nz):
+        for j in range(i, nz):
+            accr = 0.0
+            acci = 0.0
+            for r in range(width):
+                cr = dwr[i, r] * dwr[j, r] + dwi[i, r] * dwi[j, r]
+                ci = dwi[i, r] * dwr[j, r] - dwr[i, r] * dwi[j, r]
+                wr = 1.0 - lev[r] - ncr[i, r] - ncr[j, r]
+                wi = nci[j, r] - nci[i, r]
+                accr += cr * wr - ci * wi
+                acci += cr * wi + ci * wr
+            acc = complex(accr, acci)
+            for s in range(rank[j]):
+                for t in range(rank[i]):
+                    xjr = 0.0  # (X_j^H X_i)[s, t]
+                    xji = 0.0
+                    vcr = 0.0  # (V_i^H V_j)[t, s] = (Y_i^H diag(c) Y_j)[t, s]
+                    vci = 0.0
+                    for r in range(width):
+                        xjr += umr[j, s, r] * umr[i, t, r] + umi[j, s, r] * umi[i, t, r]
+                        xji += umr[j, s, r] * umi[i, t, r] - umi[j, s, r] * umr[i, t, r]
+                        vcr += vmr[i, t, r] * vmr[j, s, r] + vmi[i, t, r] * vmi[j, s, r]
+                        vci += vmr[i, t, r] * vmi[j, s, r] - vmi[i, t, r] * vmr[j, s, r]
+                    acc += complex(xjr, xji) * complex(vcr, vci)
+            tau[i, j] = acc
+            scov[i, j] = ehe[i, j].conjugate() / acc
+            scov[j, i] = scov[i, j].conjugate()
 
 
 @numba.njit(**_JIT)

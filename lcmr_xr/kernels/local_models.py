@@ -272,6 +272,13 @@ DROP_TOLERANCE = 1.0 / CONDITION_LIMIT**2
 #: of its own size, or the bin is flagged: there ``G`` itself is not determined.
 G_SENSITIVITY_LIMIT = 1e-2
 
+#: Instrumental variables (``local_model(..., instruments=)``): a row whose instruments,
+#: projected off the shared columns, correlate with its denominator regressors less
+#: than this (geometric mean of the canonical correlations) flags the bin: there the
+#: IV estimate's spread exceeds least squares' about 1/corr^2 times and its first-order
+#: covariance is no longer a description of it (weak instruments).
+WEAK_INSTRUMENT_LIMIT = 1e-2
+
 
 def _check_half_width(half_width, batch, m, nr, degrees, n_exp=1):
     """Validated half-widths: ``(scalar int or None, array (n_batch, M) of int)``."""
@@ -319,8 +326,8 @@ def _check_half_width(half_width, batch, m, nr, degrees, n_exp=1):
 
 
 def local_model(R, Z, *, half_width, degrees=(3, 3, 3), circular: bool = True,
-                covariance: str | None = "full", experiment_axis: int | None = None
-                ) -> LocalModelFit:
+                covariance: str | None = "full", experiment_axis: int | None = None,
+                instruments=None) -> LocalModelFit:
     """Fit the local rational (LRM) or polynomial (LPM, ``Rd = 0``) model at every bin.
 
     Parameters
@@ -436,6 +443,15 @@ def local_model(R, Z, *, half_width, degrees=(3, 3, 3), circular: bool = True,
         raise ValueError(
             f"R has {m} bins and Z has {Z.shape[-2]} (axis -2); pass spectra on the same bins."
         )
+    use_iv = False
+    if instruments is not None:
+        Zhat = _check_instruments(instruments, Z)
+        use_iv = rd > 0  # the LPM has no denominator: IV is least squares there
+        if use_iv:  # the kernel reads the instruments as nz more channels after Z
+            lead = np.broadcast_shapes(Z.shape[:-2], Zhat.shape[:-2])
+            Z = np.concatenate([np.broadcast_to(Z, lead + Z.shape[-2:]),
+                                np.broadcast_to(Zhat, lead + Z.shape[-2:])], axis=-1)
+    nzc = Z.shape[-1]  # channels the kernel reads (2 nz with instruments)
     R, Z, n_exp = _experiments_last(R, Z, experiment_axis)
     pooled = experiment_axis is not None
     hw_lead = np.shape(half_width)[:-1]
@@ -469,7 +485,7 @@ def local_model(R, Z, *, half_width, degrees=(3, 3, 3), circular: bool = True,
     # (read only from here on: a view of the caller's arrays when no copy is needed)
     rt = np.broadcast_to(R, batch + ex + (m, nr)).reshape(n_batch * n_exp, m, nr).astype(
         complex, copy=False)
-    zt = np.broadcast_to(Z, batch + ex + (m, nz)).reshape(n_batch * n_exp, m, nz).astype(
+    zt = np.broadcast_to(Z, batch + ex + (m, nzc)).reshape(n_batch * n_exp, m, nzc).astype(
         complex, copy=False)
     n_max = int(widths.max())
     k = np.arange(m)
@@ -516,7 +532,7 @@ def local_model(R, Z, *, half_width, degrees=(3, 3, 3), circular: bool = True,
         rows = slice(g.start * n_exp, g.stop * n_exp)  # the group's experiments, consecutive
         _fit_chunk(rt_p[rows, c0 + n_max - n: c1 + n_max + n],
                    zt_p[rows, c0 + n_max - n: c1 + n_max + n], n, degrees, mode, sel,
-                   g.start * m + c0, m, n_exp * (2 * n + 1) - p_pool, out, n_exp)
+                   g.start * m + c0, m, n_exp * (2 * n + 1) - p_pool, out, n_exp, use_iv)
 
     with np.errstate(all="ignore"):
         if threads > 1 and len(tasks) > 1:
@@ -555,6 +571,36 @@ def local_model(R, Z, *, half_width, degrees=(3, 3, 3), circular: bool = True,
         G_cov=shaped["G_cov"] if covariance == "full" else shaped["G_var"],
         condition=cond, ill_posed=shaped["ill_posed"], dropped=shaped["dropped"],
     )
+
+
+def _check_instruments(instruments, Z):
+    """The validated instruments (an array with ``Z``'s trailing shape whose leading dims
+    broadcast with ``Z``'s)."""
+    W = np.asarray(instruments)
+    if W.dtype.kind not in "iufc":
+        raise TypeError(
+            f"instruments must be a real or complex numeric array (a noise-free prediction "
+            f"of Z), got dtype {W.dtype}."
+        )
+    if W.ndim < 2 or W.shape[-2:] != Z.shape[-2:]:
+        raise ValueError(
+            f"instruments must have Z's shape (..., M, nz) = (..., {Z.shape[-2]}, "
+            f"{Z.shape[-1]}), got {W.shape}; pass the prediction of Z on the same bins and "
+            f"channels (for example G_hat R from a first fit)."
+        )
+    try:
+        np.broadcast_shapes(W.shape[:-2], Z.shape[:-2])
+    except ValueError:
+        raise ValueError(
+            f"the leading dims of instruments {W.shape[:-2]} do not broadcast with Z's "
+            f"{Z.shape[:-2]}."
+        ) from None
+    if not np.all(np.isfinite(W)):
+        raise ValueError(
+            "instruments must be finite (found NaN or inf); predict Z at every bin (where a "
+            "first fit failed, use another prediction or instruments=None)."
+        )
+    return W
 
 
 def _experiments_last(R, Z, axis):
@@ -647,22 +693,26 @@ def _fill_not_fitted(out, todo):
                 value[skip] = _NOT_FITTED[name]
 
 
-def _fit_chunk(rt, zt, n, degrees, mode, sel, out_offset, m, dof, out, n_exp=1):
+def _fit_chunk(rt, zt, n, degrees, mode, sel, out_offset, m, dof, out, n_exp=1, iv=False):
     """Fit the bins ``sel`` (nbat, K) of one chunk; ``rt`` (nbat, K + 2n, nr), ``zt``
-    (nbat, K + 2n, nz) the haloed data; flat output row of bin ``(b, k)`` is
-    ``out_offset + b M + k``."""
+    (nbat, K + 2n, nz) the haloed data (``iv``: (nbat, K + 2n, 2 nz), ``Z`` then the
+    instruments); flat output row of bin ``(b, k)`` is ``out_offset + b M + k``."""
     rd = degrees[2]
-    nr, nz = rt.shape[-1], zt.shape[-1]
-    slots = _slot_pairs(nr, nz, degrees)
+    nr, nz = rt.shape[-1], zt.shape[-1] // (2 if iv else 1)
     lay = _power_major_layout(nr, nz, degrees)
+    if iv:
+        tab = _iv_tables(nr, nz, degrees)
+        slots, aug, zz = tab.slots, tab.aug_index, tab.zz_index
+        iv_arg = (tab.wx_index, tab.ww_index, WEAK_INSTRUMENT_LIMIT)
+    else:
+        slots, aug, zz, iv_arg = _slot_pairs(nr, nz, degrees), lay.aug_index, lay.zz_index, None
     mean_pow = _analytic_moments(n, 2 * rd) / (2 * n + 1)
     _bins().fit_bins(np.ascontiguousarray(rt), np.ascontiguousarray(zt), n, np.ascontiguousarray(sel),
-                  out_offset, m, _restart_interval(n), *slots, lay.aug_index, lay.zz_index,
-                  lay.a_base, lay.a_pow, np.ascontiguousarray(mean_pow), float(dof), mode,
+                  out_offset, m, _restart_interval(n), *slots, aug, zz, lay.a_base, lay.a_pow, np.ascontiguousarray(mean_pow), float(dof), mode,
                   DROP_TOLERANCE, CONDITION_LIMIT, G_SENSITIVITY_LIMIT,
                   out["G"], out["T"], out["noise_covariance"], out["condition"],
                   out["ill_posed"], out["dropped"], out["G_cov"], out["G_var"],
-                  None if n_exp == 1 else int(n_exp))
+                  None if n_exp == 1 else int(n_exp), iv_arg)
 
 
 def _restart_interval(half_width: int) -> int:
@@ -689,20 +739,73 @@ def _slot_pairs(nr, nz, degrees):
     return slot_i, slot_j, slots.p1
 
 
+def _power_major(index, slots: _Slots):
+    """Table indices remapped from slot-major (``s p1 + a``, as ``_table_index`` numbers
+    them) to the compiled kernel's power-major ``a n_slots + s`` (conjugated half offset
+    by ``n_slots p1`` in both)."""
+    n_flat = slots.n_slots * slots.p1
+    half, f = np.divmod(index, n_flat)
+    s, a = np.divmod(f, slots.p1)
+    out = np.ascontiguousarray(half * n_flat + a * slots.n_slots + s)
+    out.flags.writeable = False
+    return out
+
+
 @functools.lru_cache(maxsize=32)
 def _power_major_layout(nr, nz, degrees):
-    """``_layout``'s gather indices, remapped from slot-major (``s p1 + a``, as
-    ``_table_index`` numbers them) to the compiled kernel's power-major ``a n_slots + s``
-    (conjugated half offset by ``n_slots p1`` in both)."""
+    """``_layout``'s gather indices in the compiled kernel's power-major numbering."""
     lay = _layout(nr, nz, degrees, 0)
     slots = _table_slots(nr, nz, degrees, 0)
-    n_flat = slots.n_slots * slots.p1
+    return lay._replace(aug_index=_power_major(lay.aug_index, slots),
+                        zz_index=_power_major(lay.zz_index, slots))
 
-    def remap(index):
-        half, f = np.divmod(index, n_flat)
-        s, a = np.divmod(f, slots.p1)
-        out = half * n_flat + a * slots.n_slots + s
-        out.flags.writeable = False
-        return np.ascontiguousarray(out)
 
-    return lay._replace(aug_index=remap(lay.aug_index), zz_index=remap(lay.zz_index))
+class _IVTables(NamedTuple):
+    """Moment slots and gather indices of the instrumental-variable fit (``_iv_tables``)."""
+
+    slots: tuple  # (slot_i, slot_j, p1): the least-squares slots, then the instruments'
+    aug_index: np.ndarray  # (q, q + 2 nx) [Gaa | A^H X | A^H W], power-major
+    zz_index: np.ndarray  # (nz, nz, Rd+1, Rd+1) X_i^H X_j (as _layout's, in this table)
+    wx_index: np.ndarray  # (nz, Rd+1, Rd+1) W_s^H X_t of the same row
+    ww_index: np.ndarray  # (nz, Rd+1, Rd+1) W_s^H W_t
+
+
+@functools.lru_cache(maxsize=32)
+def _iv_tables(nr, nz, degrees):
+    """The instruments ``Zhat_i`` are ``nz`` more bases after ``Z`` (the kernel's ``zt``
+    holds ``[Z, Zhat]``).  Their moments with the shared columns (``R_p``, ``1``), with
+    their own row's ``Z_i`` and with themselves are extra slots after the least-squares
+    ones (whose numbering, and so the least-squares gathers, stay as they are); the
+    powers per slot (``p1``) are those of the ``Z`` pairs, which bound them."""
+    ls = _table_slots(nr, nz, degrees, 0)
+    one, zb, wb = nr, nr + 1, nr + 1 + nz
+    extra = ([(p, wb + i) for p in range(nr) for i in range(nz)]
+             + [(one, wb + i) for i in range(nz)]
+             + [(zb + i, wb + i) for i in range(nz)] + [(wb + i, wb + i) for i in range(nz)])
+    slot = np.full((wb + nz, wb + nz), -1)
+    slot[:wb, :wb] = ls.slot
+    for x, (a, b) in enumerate(extra):
+        slot[a, b] = ls.n_slots + x
+    slots = _Slots(slot, (), ls.n_slots + len(extra), ls.p1)
+    slot_i, slot_j, p1 = _slot_pairs(nr, nz, degrees)
+    slot_i = np.concatenate([slot_i, [a for a, _ in extra]])
+    slot_j = np.concatenate([slot_j, [b for _, b in extra]])
+    rd = degrees[2]
+    lay = _layout(nr, nz, degrees, 0)
+    w_base = np.repeat(wb + np.arange(nz), rd + 1)
+    w_pow = np.tile(np.arange(rd + 1), nz)
+    # every index anew: the conjugated half of the table starts later (more slots)
+    cols = np.concatenate([lay.a_base, w_base - nz, w_base])  # [A | X | W]
+    pows = np.concatenate([lay.a_pow, w_pow, w_pow])
+    aug = _table_index(slots, lay.a_base[:, None], cols[None, :],
+                       lay.a_pow[:, None] + pows[None, :])
+    s = np.arange(rd + 1)
+    zi, wi = zb + np.arange(nz), wb + np.arange(nz)
+    pw = s[None, :, None] + s[None, None, :]
+    zz = _table_index(slots, zi[:, None, None, None], zi[None, :, None, None],
+                      s[None, None, :, None] + s[None, None, None, :])
+    wx = _table_index(slots, wi[:, None, None], zi[:, None, None], pw)
+    ww = _table_index(slots, wi[:, None, None], wi[:, None, None], pw)
+    for arr in (slot_i, slot_j):
+        arr.flags.writeable = False
+    return _IVTables((slot_i, slot_j, p1), *(_power_major(x, slots) for x in (aug, zz, wx, ww)))
