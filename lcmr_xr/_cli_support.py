@@ -176,3 +176,10 @@ def heartbeat(label: str, out=None, every: float = 2.0):
         out.write(f"{chr(13) if terminal else ''}{label}: {status} in "
                   f"{time.perf_counter() - start:.1f} s\n")
         out.flush()
+
+
+#: ``--denominator`` of identify and sweep.
+DENOMINATOR_HELP = ("how the LRM's denominator is estimated: ls (least squares, the paper) or iv "
+                    "(instrumental variables from a first fit; removes the noise-induced bias, "
+                    "see docs/uncertainty.md); default: ls for a model with a denominator, "
+                    "nothing to choose for lpm")

@@ -1,7 +1,8 @@
 """Command line: ``lcmr-xr identify | demo | simulate | sweep | archive``.
 
     lcmr-xr identify EXPERIMENT.nc -o FRF.nc [--method lrm|lpm] [--window N|auto]
-                     [--degrees RN-RM-RD] [--closed-loop indirect|direct] [--plot FILE.png]
+                     [--degrees RN-RM-RD] [--closed-loop indirect|direct] [--denominator ls|iv]
+                     [--plot FILE.png]
                      [--overwrite]
     lcmr-xr demo [--experiment FILE.nc] [--output-dir DIR] [--window N|auto] [--degrees RN-RM-RD]
                  [--overwrite]
@@ -24,9 +25,9 @@ import argparse
 import sys
 from pathlib import Path
 
-from lcmr_xr._cli_support import (FIGURE_SUFFIXES, NETCDF_SUFFIXES, HelpFormatter,
+from lcmr_xr._cli_support import (DENOMINATOR_HELP, FIGURE_SUFFIXES, NETCDF_SUFFIXES, HelpFormatter,
                                   add_overwrite, check_outputs, error_line, heartbeat)
-from lcmr_xr.settings import CLOSED_LOOP, DEFAULT_WINDOW, METHODS, window_argument
+from lcmr_xr.settings import CLOSED_LOOP, DEFAULT_WINDOW, DENOMINATOR, METHODS, window_argument
 
 #: Help text of every ``--degrees`` option: one syntax on every command line.
 DEGREES_HELP = ("local model degrees RN-RM-RD: numerator, transient, denominator (default "
@@ -53,6 +54,8 @@ def _parser() -> argparse.ArgumentParser:
     ident.add_argument("--closed-loop", choices=tuple(CLOSED_LOOP), default="indirect",
                        help="indirect: P = PS S^-1 from the excitation (unbiased); direct: from "
                             "the measured input (biased under feedback)")
+    ident.add_argument("--denominator", choices=tuple(DENOMINATOR), default=None,
+                       help=DENOMINATOR_HELP)
     ident.add_argument("--plot", type=Path, default=None,
                        help="also write a Bode plot PNG (default: no plot)")
     add_overwrite(ident)
@@ -111,14 +114,14 @@ def _identify(args) -> int:
 
     # the settings first: a typo is reported before the experiment is read
     s = estimator_settings(method=args.method, window=args.window, degrees=_one_degrees(args),
-                           closed_loop=args.closed_loop)
+                           closed_loop=args.closed_loop, denominator=args.denominator)
     check_outputs({"-o": (args.output, NETCDF_SUFFIXES), "--plot": (args.plot, FIGURE_SUFFIXES)},
                   inputs=[args.experiment], overwrite=args.overwrite)
     exp = open_experiment(args.experiment)
     with heartbeat(f"identifying {args.experiment.name} ({exp.sizes['slow_time']} slow bins, "
                    f"{s.method}, window {s.window})", sys.stderr):
         frf = identify(exp, method=s.method, window=s.window, degrees=s.degrees,
-                       closed_loop=s.closed_loop)
+                       closed_loop=s.closed_loop, denominator=args.denominator)
     save(frf, args.output)
     print(f"wrote {args.output}: P {dict(frf.P.sizes)}, "
           f"{int(frf.P_flag.sum())} flagged bins, method {args.method}, window {args.window}")

@@ -25,7 +25,8 @@ __all__ = [
     "METHODS", "CLOSED_LOOP", "ERRORS", "EstimatorSettings", "estimator_settings",
     "parse_degrees", "degrees_label", "degrees_arguments", "as_integer", "as_bool", "as_choice",
     "check_window_fits", "AUTO_WINDOW", "DEFAULT_WINDOW", "as_window", "window_argument",
-    "auto_window_range", "DENOMINATOR", "DEFAULT_DENOMINATOR", "as_denominator",
+    "auto_window_range", "DENOMINATOR", "DEFAULT_DENOMINATOR", "NO_DENOMINATOR",
+    "as_denominator",
 ]
 
 

@@ -23,6 +23,7 @@ from lcmr_xr.kernels.identification import (
     fit_packed,
     identify_spectra,
     finish_packed_auto,
+    first_fit_window,
     identify_spectra_auto,
     identify_window0_arrays,
     packed_width,
@@ -62,7 +63,8 @@ def _ratio_units(num: str, den: str) -> str:
 def identify(experiment: xr.Dataset, *, method: str = "lrm", window=DEFAULT_WINDOW, degrees=None,
              closed_loop: str = "indirect", covariance: bool = True, errors: str = "raise",
              frequency_chunks: int | None = None, stacked: bool = False,
-             transient_periods: int | None = None, combine: str | None = None) -> xr.Dataset:
+             transient_periods: int | None = None, combine: str | None = None,
+             denominator: str | None = None) -> xr.Dataset:
     """Identify the fast-rate FRF of a plant in multirate closed loop (paper, Procedure 1).
 
     The fast excitation ``r`` and plant input ``u`` are lifted by the factor ``F``, the
@@ -147,6 +149,16 @@ def identify(experiment: xr.Dataset, *, method: str = "lrm", window=DEFAULT_WIND
         ``frequency_chunks``).  ``degrees`` with ``Rm = -1`` (no transient term) is
         accepted only for steady-state periodic records (a ``period`` dim, transient
         periods dropped).
+    denominator : {None, "ls", "iv"}, optional
+        How the LRM's denominator is estimated: ``"ls"`` least squares (the paper), or
+        ``"iv"`` instrumental variables, whose instruments are a prediction of the spectra
+        from a first least-squares fit in the narrowest window the degrees allow
+        (``Zhat = G1 R + T1``), so that the noise on ``Z`` in the denominator's regressors
+        no longer biases ``G`` (costs a second fit; the frequency-chunk halo grows by that
+        window).  Default (None): :data:`lcmr_xr.settings.DEFAULT_DENOMINATOR` for a model
+        with a denominator; a model without one (``Rd = 0``: the LPM, window 0) is least
+        squares, and ``"iv"`` is refused there.  Recorded as the attribute ``denominator``
+        (``"ls"``, ``"iv"`` or ``"none"``).  What it changes, measured: ``docs/uncertainty.md``.
 
 Returns
     -------
@@ -202,7 +214,11 @@ Returns
     s = estimator_settings(method=method, window=1 if window0 else window, degrees=degrees,
                            closed_loop=closed_loop, covariance=covariance, errors=errors,
                            frequency_chunks=None if window0 else frequency_chunks,
-                           no_transient=True)
+                           no_transient=True, denominator=denominator)
+    if window0 and denominator == "iv":
+        raise ValueError("denominator='iv' instruments the denominator of a local model, but "
+                         "window=0 fits no local model (G = Z R^+ per bin); drop denominator or "
+                         "pass a local window (e.g. window=30).")
     stacked = as_bool(stacked, "stacked")
     ds = _validate(experiment)
     factor = int(ds.attrs[cv.FACTOR])
@@ -269,13 +285,16 @@ def _settings_attrs(ds, s, *, factor, th) -> dict:
         "n_samples": ds.sizes[cv.TIME],
         "parameters_per_row": parameters_per_row(factor * ds.sizes[cv.INPUT], s.degrees),
         "covariance": int(s.covariance),
+        "denominator": s.denominator,
+        **({"iv_first_window": first_fit_window(factor * ds.sizes[cv.INPUT], s.degrees)}
+           if s.denominator == "iv" else {}),
         "title": f"lifted {s.closed_loop} closed-loop {s.method.upper()} FRF estimate",
     } if s.window > 0 else {  # window 0: no local model, G = Z R^+ per bin (nr parameters per row)
         "conventions": cv.CONVENTIONS, "method": "pooled", "closed_loop": s.closed_loop,
         "window": 0, "window_bins": 1, "degrees": np.array([0, -1, 0]), "factor": factor,
         "sampling_period": th, "slow_nyquist": 1.0 / (2 * factor * th),
         "n_samples": ds.sizes[cv.TIME], "parameters_per_row": factor * ds.sizes[cv.INPUT],
-        "covariance": int(s.covariance),
+        "covariance": int(s.covariance), "denominator": "none",
         "title": f"lifted {s.closed_loop} closed-loop FRF, bin by bin over experiments",
     }
 
@@ -462,11 +481,12 @@ def _estimate(r: xr.DataArray, u: xr.DataArray, y: xr.DataArray, s, *, factor: i
                                              windows=windows, degrees=s.degrees,
                                              closed_loop=s.closed_loop,
                                              noise_covariance=noise_covariance,
-                                             experiment_axis=exp_axis)
+                                             experiment_axis=exp_axis,
+                                             denominator=_kernel_denominator(s))
             return identify_spectra(R, Z, n_fast=n, factor=factor, nu=nu, half_width=s.window,
                                     degrees=s.degrees, closed_loop=s.closed_loop,
                                     covariance=s.covariance, noise_covariance=noise_covariance,
-                                    experiment_axis=exp_axis)
+                                    experiment_axis=exp_axis, denominator=_kernel_denominator(s))
 
         def kernel(r_, u_, y_, *noise_cov):
             # lazy data were not checked by the validation: name the variable and time range
@@ -483,11 +503,15 @@ def _estimate(r: xr.DataArray, u: xr.DataArray, y: xr.DataArray, s, *, factor: i
     else:
         n_exp = r.sizes[cv.EXPERIMENT] if pooled else None
         windows = _candidate_windows(s, factor * nu, n // factor) if auto else (s.window,)
-        if max(windows) > s.frequency_chunks:
+        halo = max(windows) + _first_fit_halo(s, factor * nu)
+        if halo > s.frequency_chunks:
+            what = (f"the widest candidate window of window='auto' ({max(windows)} bins"
+                    if auto else f"the window ({s.window} bins")
+            if halo > max(windows):
+                what += f" plus {halo - max(windows)} for the first fit of denominator='iv'"
             raise ValueError(
-                f"frequency_chunks={s.frequency_chunks} is smaller than the halo of the widest "
-                f"candidate window of window='auto' ({max(windows)} bins on each side); use "
-                f"frequency_chunks >= {max(windows)}."
+                f"frequency_chunks={s.frequency_chunks} is smaller than the halo of {what} on "
+                f"each side); use frequency_chunks >= {halo}."
             )
         # one chunked fit per candidate window (one for a fixed window), stacked in front
         packed = xr.concat([_fit_frequency_chunked(r, u, y, s._replace(window=w), factor=factor,
@@ -535,6 +559,7 @@ def _fit_frequency_chunked(r, u, y, s, *, factor, check_rank, noise=None, pooled
     m = y.sizes[cv.SLOW_TIME]
     nu, ny = r.sizes[cv.INPUT], y.sizes[cv.OUTPUT]
     nr = factor * nu
+    halo = window + _first_fit_halo(s, nr)  # the instruments' first fit needs its own
     nz = nr + ny if closed_loop == "indirect" else ny
     SF = cv.SLOW_FREQUENCY
     th = even_spacing(r[cv.TIME].values, cv.TIME)[1]
@@ -569,7 +594,7 @@ def _fit_frequency_chunked(r, u, y, s, *, factor, check_rank, noise=None, pooled
     Zd = Z.chunk({**{d: one_chunk(d, Z) for d in lead}, SF: chunk, "_z": -1}).data
     ax = Rd.ndim - 2
     depth = {i: 0 for i in range(Rd.ndim)}
-    depth[ax] = window
+    depth[ax] = halo
     boundary = {i: "none" for i in range(Rd.ndim)}
     boundary[ax] = "periodic"
     Rg = da.overlap.overlap(Rd, depth=depth, boundary=boundary)
@@ -592,7 +617,7 @@ def _fit_frequency_chunked(r, u, y, s, *, factor, check_rank, noise=None, pooled
             known = np.take(known, 0, axis=exp_ax)
         return fit_packed(rb, zb, half_width=window, degrees=s.degrees, circular=False,
                           covariance=s.covariance, noise_covariance=known,
-                          experiment_axis=exp_ax)
+                          experiment_axis=exp_ax, denominator=_kernel_denominator(s))
 
     chunks = Rg.chunks[:-1] + ((width,),)
     if pooled:  # the fit pools the experiment axis away
@@ -610,6 +635,16 @@ def _fit_frequency_chunked(r, u, y, s, *, factor, check_rank, noise=None, pooled
                                if k in dims and cv.EXPERIMENT not in R[k].dims})
     out.attrs.update(nz=nz, nr=nr)
     return out
+
+
+def _kernel_denominator(s) -> str:
+    """The kernels' ``denominator`` for settings ``s`` (no denominator: least squares)."""
+    return "iv" if s.denominator == "iv" else "ls"
+
+
+def _first_fit_halo(s, n_excitation: int) -> int:
+    """Extra halo bins the first fit of ``denominator="iv"`` needs (0 for least squares)."""
+    return first_fit_window(n_excitation, s.degrees) if s.denominator == "iv" else 0
 
 
 def _is_lazy(ds):
@@ -753,6 +788,8 @@ def identify_single_rate(experiment: xr.Dataset, *, method: str = "lrm", window:
     attrs = _settings_attrs(ds, s, factor=factor, th=th)
     for key in ("parameters_per_row", "covariance"):  # not recorded for this estimate
         attrs.pop(key)
+    if "iv_first_window" in attrs:  # F = 1: nu excitation channels, not F nu
+        attrs["iv_first_window"] = first_fit_window(ds.sizes[cv.INPUT], s.degrees)
     attrs.update({"closed_loop": "single-rate indirect",
                   "title": f"single-rate closed-loop {s.method.upper()} FRF estimate (ignores lifting)"})
     out.attrs.update(attrs)

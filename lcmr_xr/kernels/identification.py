@@ -26,6 +26,69 @@ EXCITATION_RANK_TOL = 1e-9
 #: the two equal); the kernels import nothing outside ``lcmr_xr.kernels``.
 CLOSED_LOOP_METHODS = ("indirect", "direct")
 
+#: How the local rational model's denominator is estimated: least squares (the paper) or
+#: instrumental variables (:func:`denominator_instruments`).  The settings table
+#: :data:`lcmr_xr.settings.DENOMINATOR` lists the same ones for users (a test keeps them
+#: equal).  A model without a denominator (``Rd = 0``) is least squares either way.
+DENOMINATOR_METHODS = ("ls", "iv")
+
+
+def check_denominator(denominator: str, degrees) -> bool:
+    """Whether ``denominator`` asks for instruments; refuses an unknown one, and ``"iv"``
+    for a model without a denominator (``Rd = 0``)."""
+    if denominator not in DENOMINATOR_METHODS:
+        raise ValueError(f"denominator must be one of {DENOMINATOR_METHODS}, got {denominator!r}.")
+    if denominator == "iv" and tuple(degrees)[2] < 1:
+        raise ValueError(f"denominator='iv' needs a denominator (Rd > 0), got degrees "
+                         f"{tuple(degrees)}; pass denominator='ls'.")
+    return denominator == "iv"
+
+
+def first_fit_window(nr: int, degrees) -> int:
+    """Half-width of the first fit that predicts ``Z`` for the instruments: the smallest
+    window that leaves two degrees of freedom per row (``2 n + 1 >= p + 2``), where the
+    local model is nearly free of model error (the pilot of ``window="auto"`` too)."""
+    return parameters_per_row(nr, tuple(degrees)) // 2 + 1
+
+
+def denominator_instruments(R, Z, *, degrees=(3, 3, 3), half_width: int | None = None,
+                            circular: bool = True, experiment_axis: int | None = None
+                            ) -> np.ndarray:
+    """Instruments for the denominator regressors ``-rho^s Z_i``: ``Zhat = G1 R + T1``.
+
+    ``G1``, ``T1`` come from a first least-squares fit of the same local model in the
+    narrow window ``half_width`` (default :func:`first_fit_window`), pooled like the main
+    fit (``experiment_axis``: the pooled ``G1`` and each experiment's own ``T1``).  The
+    prediction is built from the excitation, so the noise on ``Z`` in the main window is
+    (nearly) not in it, and ``local_model(..., instruments=Zhat)`` solves
+    ``Phi^H A theta = Phi^H z`` with ``Phi`` the regression with ``Zhat`` in place of ``Z``:
+    the errors-in-variables bias of least squares (noise in its own regressors) is gone
+    to the extent that ``Zhat`` is free of the noise at the same bin (Soderstrom & Stoica,
+    *System Identification*, 1989, ch. 8; docs/uncertainty.md measures it).
+
+    Where the first fit gives no prediction (failed or flagged bins, and the ``half_width``
+    bins at each end with ``circular=False``) the instrument is ``Z`` itself: least squares
+    for those regressors.
+
+    Returns
+    -------
+    ndarray, complex, shape of ``Z`` (broadcast with ``R``'s leading dims)
+    """
+    n1 = first_fit_window(np.shape(R)[-1], degrees) if half_width is None else int(half_width)
+    first = local_model(R, Z, half_width=n1, degrees=tuple(degrees), circular=circular,
+                        covariance=None, experiment_axis=experiment_axis)
+    R, Z = np.asarray(R), np.asarray(Z)
+    lead = np.broadcast_shapes(R.shape[:-2], Z.shape[:-2])
+    R = np.broadcast_to(R, lead + R.shape[-2:])
+    if experiment_axis is None:
+        zhat = np.einsum("...mip,...mp->...mi", first.G, R) + first.T
+    else:  # G1 (..., M, nz, nr) shared; T1 (..., E, M, nz) one per experiment
+        zhat = np.einsum("...mip,...emp->...emi", first.G,
+                         np.moveaxis(R, experiment_axis, -3)) + first.T
+        zhat = np.moveaxis(zhat, -3, experiment_axis)
+    Zb = np.broadcast_to(Z, zhat.shape)
+    return np.where(np.isfinite(zhat), zhat, Zb)
+
 
 def lifted_spectra(x: np.ndarray, factor: int) -> np.ndarray:
     """DFT of the lifted signal: ``(..., N, c) -> (..., M, F c)``, phase-major channels."""
@@ -167,7 +230,7 @@ def packed_width(nz: int, nr: int, covariance: bool, n_exp: int = 1) -> int:
 
 def fit_packed(R, Z, *, half_width: int, degrees=(3, 3, 3), circular: bool = True,
                covariance: bool = True, noise_covariance=None,
-               experiment_axis: int | None = None) -> np.ndarray:
+               experiment_axis: int | None = None, denominator: str = "ls") -> np.ndarray:
     """Local model per bin, packed into one complex array ``(..., M, K)``.
 
     One array (rather than a tuple) so that a frequency-chunked dask computation can run
@@ -184,10 +247,15 @@ def fit_packed(R, Z, *, half_width: int, degrees=(3, 3, 3), circular: bool = Tru
     ``experiment_axis``: pool that leading axis of ``R``, ``Z`` into one model (see
     :func:`lcmr_xr.kernels.local_models.local_model`); the ``E`` transients are packed
     experiment-major (``E nz`` columns).
+
+    ``denominator="iv"``: instrumental variables (:func:`denominator_instruments`).  With
+    ``circular=False`` its first fit needs :func:`first_fit_window` more halo bins: the
+    ``half_width + first_fit_window`` bins at each end are not those of the circular fit
+    (trim them).
     """
     fit = _fit(R, Z, half_width=half_width, degrees=degrees, circular=circular,
                covariance=covariance, noise_covariance=noise_covariance,
-               experiment_axis=experiment_axis)
+               experiment_axis=experiment_axis, denominator=denominator)
     lead_m = fit["G"].shape[:-2]
     T = fit["T"] if experiment_axis is None else \
         np.moveaxis(fit["T"], -3, -2).reshape(lead_m + (-1,))
@@ -198,11 +266,17 @@ def fit_packed(R, Z, *, half_width: int, degrees=(3, 3, 3), circular: bool = Tru
     return np.concatenate([np.asarray(p, dtype=complex) for p in parts], axis=-1)
 
 
-def _fit(R, Z, *, half_width, degrees, circular, covariance, noise_covariance, experiment_axis):
+def _fit(R, Z, *, half_width, degrees, circular, covariance, noise_covariance, experiment_axis,
+         denominator="ls", instruments=None):
     """The local model's outputs that :func:`fit_packed` packs (``T`` (..., E, M, nz)
-    pooled), ``G_cov`` rebuilt from a known noise covariance when one is given."""
+    pooled), ``G_cov`` rebuilt from a known noise covariance when one is given.
+    ``instruments``: those of ``denominator="iv"`` when the caller has them already."""
+    if check_denominator(denominator, degrees) and instruments is None:
+        instruments = denominator_instruments(R, Z, degrees=degrees, circular=circular,
+                                              experiment_axis=experiment_axis)
     fit = local_model(R, Z, half_width=half_width, degrees=tuple(degrees), circular=circular,
-                      covariance="full" if covariance else None, experiment_axis=experiment_axis)
+                      covariance="full" if covariance else None, experiment_axis=experiment_axis,
+                      instruments=instruments if denominator == "iv" else None)
     G_cov = fit.G_cov
     if covariance and noise_covariance is not None:
         known = window_mean(np.asarray(noise_covariance), half_width, axis=-3, circular=circular)
@@ -255,12 +329,14 @@ def _finish(fit: dict, *, n_fast, factor, nu, ny, closed_loop, dof) -> dict:
 
 
 def _fit_and_finish(R, Z, *, half_width, degrees, covariance, noise_covariance, experiment_axis,
-                    n_fast, factor, nu, ny, closed_loop, n_exp) -> dict:
+                    n_fast, factor, nu, ny, closed_loop, n_exp, denominator="ls",
+                    instruments=None) -> dict:
     """:func:`fit_packed` then :func:`finish_packed` without the packed copy (eager data:
     the (nz nr)^2 covariance columns, the bulk of the memory, are held once, not twice)."""
     fit = _fit(R, Z, half_width=half_width, degrees=degrees, circular=True,
                covariance=covariance, noise_covariance=noise_covariance,
-               experiment_axis=experiment_axis)
+               experiment_axis=experiment_axis, denominator=denominator,
+               instruments=instruments)
     if n_exp is not None:  # as finish_packed returns it: (..., M, E, nz)
         fit["T"] = np.moveaxis(fit["T"], -3, -2)
     return _finish(fit, n_fast=n_fast, factor=factor, nu=nu, ny=ny, closed_loop=closed_loop,
@@ -312,20 +388,22 @@ def identify_arrays(r, u, y, *, factor: int, half_width: int, degrees=(3, 3, 3),
 def identify_spectra(R, Z, *, n_fast: int, factor: int, nu: int, half_width: int,
                      degrees=(3, 3, 3), closed_loop: str = "indirect",
                      covariance: bool = True, noise_covariance=None,
-                     experiment_axis: int | None = None) -> dict:
+                     experiment_axis: int | None = None, denominator: str = "ls") -> dict:
     """:func:`identify_arrays` from the spectra of :func:`experiment_spectra` (computed once).
 
     ``R`` (..., M, nr) and ``Z`` (..., M, nz); ``n_fast`` is ``N``, ``nu`` the number of
     plant inputs; ``noise_covariance`` as in :func:`identify_arrays`.  Returns the dict of
     :func:`identify_arrays`.  ``experiment_axis``: pool that leading axis (``E``
     experiments, shared ``G``, a transient each; ``T`` is then (..., M, E, nz)).
+    ``denominator``: ``"ls"`` (least squares) or ``"iv"`` (instrumental variables,
+    :func:`denominator_instruments`); ``"iv"`` needs ``Rd > 0``.
     """
     nz, nr = Z.shape[-1], R.shape[-1]
     ny = nz - nr if closed_loop == "indirect" else nz
     return _fit_and_finish(R, Z, half_width=half_width, degrees=degrees, covariance=covariance,
                            noise_covariance=noise_covariance, experiment_axis=experiment_axis,
                            n_fast=n_fast, factor=factor, nu=nu, ny=ny, closed_loop=closed_loop,
-                           n_exp=_n_experiments(R, Z, experiment_axis))
+                           n_exp=_n_experiments(R, Z, experiment_axis), denominator=denominator)
 
 
 def _n_experiments(R, Z, experiment_axis):
@@ -346,7 +424,8 @@ def window_dof(half_width, nr: int, degrees, n_exp: int = 1) -> np.ndarray:
 
 def identify_spectra_auto(R, Z, *, n_fast: int, factor: int, nu: int, windows,
                           degrees=(3, 3, 3), closed_loop: str = "indirect",
-                          noise_covariance=None, experiment_axis: int | None = None) -> dict:
+                          noise_covariance=None, experiment_axis: int | None = None,
+                          denominator: str = "ls") -> dict:
     """:func:`identify_spectra` with a window chosen per slow bin among ``windows``.
 
     Every candidate half-width (ascending) is fitted with its covariance, its fast FRF and
@@ -362,8 +441,12 @@ def identify_spectra_auto(R, Z, *, n_fast: int, factor: int, nu: int, windows,
         slow bin, and ``P_bias`` (..., N/2+1, ny, nu), the model-error estimate (same
         units as ``P``).  ``noise_covariance`` (periods) as in :func:`identify_arrays`:
         every candidate's covariance is built from it, averaged over that candidate's window.
+        ``denominator`` as :func:`identify_spectra`: one first fit's instruments serve
+        every candidate.
     """
     windows = sorted(int(w) for w in windows)
+    instruments = denominator_instruments(R, Z, degrees=degrees, experiment_axis=experiment_axis) \
+        if check_denominator(denominator, degrees) else None
     nz, nr = Z.shape[-1], R.shape[-1]
     ny = nz - nr if closed_loop == "indirect" else nz
     # Emulates a per-bin window: one fit per candidate, each finished before the next is
@@ -373,7 +456,8 @@ def identify_spectra_auto(R, Z, *, n_fast: int, factor: int, nu: int, windows,
     outs = [_fit_and_finish(R, Z, half_width=w, degrees=degrees, covariance=True,
                             noise_covariance=noise_covariance, experiment_axis=experiment_axis,
                             n_fast=n_fast, factor=factor, nu=nu, ny=ny,
-                            closed_loop=closed_loop, n_exp=n_exp) for w in windows]
+                            closed_loop=closed_loop, n_exp=n_exp, denominator=denominator,
+                            instruments=instruments) for w in windows]
     return _choose_windows(outs, np.asarray(windows, dtype=int), R.shape[-2])
 
 

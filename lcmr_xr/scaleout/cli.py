@@ -1,7 +1,7 @@
 """``lcmr-xr sweep``: identify an archive for every combination of settings, in parallel.
 
     lcmr-xr sweep ARCHIVE -o RESULT.nc [--window 10 20 30] [--degrees 3-3-3 2-2-2 ...]
-                  [--method lrm lpm] [--closed-loop indirect|direct]
+                  [--method lrm lpm] [--closed-loop indirect|direct] [--denominator ls|iv]
                   [--scheduler threads|processes|synchronous|ADDRESS] [--select CHOICE.nc]
                   [--overwrite]
 
@@ -30,11 +30,11 @@ import sys
 from pathlib import Path
 from urllib.parse import urlsplit
 
-from lcmr_xr._cli_support import (NETCDF_SUFFIXES, HelpFormatter, add_overwrite,
+from lcmr_xr._cli_support import (DENOMINATOR_HELP, NETCDF_SUFFIXES, HelpFormatter, add_overwrite,
                                   check_outputs, error_line, futures_progress, progress)
 
 from lcmr_xr import conventions as cv
-from lcmr_xr.settings import CLOSED_LOOP, METHODS, window_argument
+from lcmr_xr.settings import CLOSED_LOOP, DENOMINATOR, METHODS, window_argument
 
 LOCAL_SCHEDULERS = ("threads", "processes", "synchronous")
 #: Seconds to wait for a dask scheduler to answer (``--connect-timeout``).
@@ -99,6 +99,8 @@ def add_sweep_parser(subparsers) -> argparse.ArgumentParser:
     sw.add_argument("--closed-loop", choices=tuple(CLOSED_LOOP), default="indirect",
                     help="indirect: P = PS S^-1 from the excitation (unbiased); direct: from "
                          "the measured input (biased under feedback)")
+    sw.add_argument("--denominator", choices=tuple(DENOMINATOR), default=None,
+                    help=DENOMINATOR_HELP)
     sw.add_argument("--no-covariance", action="store_true",
                     help="skip P_std (less memory; default: compute it)")
     sw.add_argument("--scheduler", default="threads",
@@ -280,6 +282,7 @@ def run_sweep(args) -> int:
     try:
         settings = dict(window=args.window, method=args.method, closed_loop=args.closed_loop,
                         covariance=not args.no_covariance,
+                        denominator=getattr(args, "denominator", None),
                         degrees=None if args.degrees is None else degrees_arguments(args.degrees))
         sweep_settings(**settings)  # before the archive is opened
         pool = getattr(args, "pool", None)

@@ -56,6 +56,9 @@ def _manifest(lazy: xr.Dataset, chunks, closed_loop: str, covariance: bool) -> d
         "covariance": bool(covariance),
         "chunks": [int(c) for c in chunks],
         "experiments": hashlib.sha1(labels.encode()).hexdigest(),
+        # only when instrumented: the parts of least-squares sweeps keep their old manifest
+        **({"denominator_fit": [[str(v) for v in row] for row in lazy["denominator_fit"].values]}
+           if (lazy["denominator_fit"] == "iv").any() else {}),
     }
 
 
@@ -178,7 +181,8 @@ def _run_client(tasks, client):
 def sweep_to_disk(experiments: xr.Dataset, output, *, window=(30,), degrees=None, method=("lrm",),
                   closed_loop: str = "indirect", covariance: bool = True,
                   experiments_per_task: int | None = None, client=None, workers: int | None = None,
-                  scheduler: str = "threads", progress=True, overwrite: bool = False) -> Path:
+                  scheduler: str = "threads", progress=True, overwrite: bool = False,
+                  denominator=None) -> Path:
     """Run a sweep task by task, streaming each result to disk; resumable after a crash.
 
     Parameters
@@ -189,7 +193,7 @@ def sweep_to_disk(experiments: xr.Dataset, output, *, window=(30,), degrees=None
     output : str or os.PathLike
         The result NetCDF file: the dataset :func:`lcmr_xr.scaleout.sweep` returns,
         computed.  Parts are kept in ``.OUTPUT.parts/`` next to it until it is written.
-    window, degrees, method, closed_loop, covariance, experiments_per_task
+    window, degrees, method, closed_loop, covariance, experiments_per_task, denominator
         As for :func:`lcmr_xr.scaleout.sweep` (one task per setting and chunk).
     client : distributed.Client, optional
         Run the tasks on this cluster (local or remote); results travel to this process
@@ -247,7 +251,7 @@ def sweep_to_disk(experiments: xr.Dataset, output, *, window=(30,), degrees=None
     from lcmr_xr.scaleout import sweep as sweep_lazily
     from lcmr_xr.settings import degrees_label
     from lcmr_xr.scaleout.sweep import (ERROR_VAR, SETTING_DIMS, _chunked, _identify_block,
-                                        sweep_settings)
+                                        identify_denominator, sweep_settings)
 
     if scheduler not in ("threads", "processes", "synchronous"):
         raise ValueError(f"scheduler must be 'threads', 'processes' or 'synchronous', got "
@@ -265,11 +269,12 @@ def sweep_to_disk(experiments: xr.Dataset, output, *, window=(30,), degrees=None
                          f"inside the archive {source}; choose another output path.")
     lazy = sweep_lazily(experiments, window=window, degrees=degrees, method=method,
                     closed_loop=closed_loop, covariance=covariance,
-                    experiments_per_task=experiments_per_task)
+                    experiments_per_task=experiments_per_task, denominator=denominator)
     # the settings as identify takes them (LPM defaults, checked), keyed as the lazy result's coords
     checked = {(m, degrees_label(d), w): st for (m, d, w), st in
                sweep_settings(window=window, degrees=degrees, method=method, closed_loop=closed_loop,
-                              covariance=covariance, experiments=experiments).items()}
+                              covariance=covariance, experiments=experiments,
+                              denominator=denominator).items()}
     ds = _chunked(experiments, experiments_per_task)
     chunks = ds["r"].chunks[ds["r"].get_axis_num(cv.EXPERIMENT)]
     parts = parts_directory(output)
@@ -284,7 +289,8 @@ def sweep_to_disk(experiments: xr.Dataset, output, *, window=(30,), degrees=None
         st = checked[str(lazy["method"].values[im]), str(lazy["degrees"].values[idg]),
                      int(lazy["window"].values[iw])]
         settings = dict(method=st.method, window=st.window, degrees=st.degrees,
-                        closed_loop=st.closed_loop, covariance=st.covariance, source=source)
+                        closed_loop=st.closed_loop, covariance=st.covariance, source=source,
+                        denominator=identify_denominator(st))
         block = ds.isel({cv.EXPERIMENT: slice(a, b)})
         tasks.append(dask.delayed(_identify_block, pure=True)(block, **settings))
     finished = (_run_client(tasks, client) if client is not None

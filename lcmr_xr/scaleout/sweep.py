@@ -31,6 +31,7 @@ from lcmr_xr.settings import (
     AUTO_WINDOW,
     CLOSED_LOOP,
     METHODS,
+    NO_DENOMINATOR,
     as_bool,
     as_choice,
     as_integer,
@@ -46,7 +47,8 @@ __all__ = ["sweep", "sweep_settings", "parse_degrees", "degrees_label", "SETTING
 SETTING_DIMS = ("method", "degrees", "window")
 # ``period`` (repeated periods, averaged by identify) belongs to one experiment's record
 _CORE_DIMS = (cv.TIME, cv.SLOW_TIME, cv.INPUT, cv.OUTPUT, cv.PERIOD)
-_PER_SETTING_ATTRS = ("method", "window", "window_bins", "degrees", "parameters_per_row", "title")
+_PER_SETTING_ATTRS = ("method", "window", "window_bins", "degrees", "parameters_per_row", "title",
+                      "denominator", "iv_first_window")
 
 
 def _as_list(value, what: str) -> list:
@@ -129,6 +131,11 @@ def _pools(pool, ds: xr.Dataset):
         raise ValueError(f"pool={too_big} is more than the {n_exp} experiments; use pool <= "
                          f"{n_exp} or add experiments.")
     return sorted(pools)
+
+
+def identify_denominator(s) -> str | None:
+    """``identify``'s ``denominator`` for checked settings ``s`` (None: the model has none)."""
+    return None if s.denominator == NO_DENOMINATOR else s.denominator
 
 
 def _pooled(ds: xr.Dataset, pools, settings) -> xr.Dataset:
@@ -329,7 +336,8 @@ def _with_error(template: xr.Dataset, ds: xr.Dataset, lead: list[str]) -> xr.Dat
 
 
 def sweep_settings(*, window=(30,), degrees=None, method=("lrm",), closed_loop="indirect",
-                   covariance=True, experiments: xr.Dataset | None = None) -> dict:
+                   covariance=True, experiments: xr.Dataset | None = None,
+                   denominator=None) -> dict:
     """Check every (method, degrees, window) of a sweep by the rules of ``identify``.
 
     All invalid combinations are reported at once, before anything is computed.  Without
@@ -339,7 +347,7 @@ def sweep_settings(*, window=(30,), degrees=None, method=("lrm",), closed_loop="
 
     Parameters
     ----------
-    window, degrees, method, closed_loop, covariance
+    window, degrees, method, closed_loop, covariance, denominator
         As in :func:`sweep`.
     experiments : xarray.Dataset, optional
         The experiments (only sizes and the ``factor`` attribute are read).
@@ -378,7 +386,7 @@ def sweep_settings(*, window=(30,), degrees=None, method=("lrm",), closed_loop="
     for m, deg, w in itertools.product(methods, degrees_list, windows):
         try:
             s = estimator_settings(method=m, window=w, degrees=deg, closed_loop=closed_loop,
-                                   covariance=covariance, errors="ignore")
+                                   covariance=covariance, errors="ignore", denominator=denominator)
             if fits is not None:
                 check_window_fits(s.window, s.degrees, *fits)
             checked[m, deg, w] = s
@@ -402,7 +410,7 @@ def sweep_settings(*, window=(30,), degrees=None, method=("lrm",), closed_loop="
 
 def sweep(experiments: xr.Dataset, *, window=(30,), degrees=None, method=("lrm",),
           closed_loop: str = "indirect", covariance: bool = True,
-          experiments_per_task: int | None = None, pool=None) -> xr.Dataset:
+          experiments_per_task: int | None = None, pool=None, denominator=None) -> xr.Dataset:
     """Identify experiments for every combination of settings; one lazy FRF dataset.
 
     Parameters
@@ -441,6 +449,10 @@ def sweep(experiments: xr.Dataset, *, window=(30,), degrees=None, method=("lrm",
         then has the dims ``pool`` (``k``) and ``pool_group`` (``g``) in place of
         ``experiment`` (groups a ``k`` does not fill are NaN), so the error and the band can
         be followed as the data grow.  Default: every experiment on its own.
+    denominator : {None, "ls", "iv"}, optional
+        Passed to :func:`lcmr_xr.identify` for every setting with a denominator (``"iv"``
+        with a method or degrees without one, ``Rd = 0``, is an invalid combination);
+        recorded as the coordinate ``denominator_fit`` (``"ls"``, ``"iv"`` or ``"none"``).
 
     Returns
     -------
@@ -495,7 +507,8 @@ def sweep(experiments: xr.Dataset, *, window=(30,), degrees=None, method=("lrm",
                                              or experiments_per_task < 1):
         raise ValueError(f"experiments_per_task must be a positive integer, got {experiments_per_task!r}.")
     checked = sweep_settings(window=window, degrees=degrees, method=method,
-                             closed_loop=closed_loop, covariance=covariance, experiments=ds)
+                             closed_loop=closed_loop, covariance=covariance, experiments=ds,
+                             denominator=denominator)
     methods = list(dict.fromkeys(m for m, _, _ in checked))
     degrees_list = list(dict.fromkeys(d for _, d, _ in checked))
     windows = list(dict.fromkeys(w for _, _, w in checked))
@@ -513,7 +526,8 @@ def sweep(experiments: xr.Dataset, *, window=(30,), degrees=None, method=("lrm",
             for w in windows:
                 s = checked[m, deg, w]
                 settings = dict(method=m, window=s.window, degrees=s.degrees,
-                                closed_loop=s.closed_loop, covariance=s.covariance)
+                                closed_loop=s.closed_loop, covariance=s.covariance,
+                                denominator=identify_denominator(s))
                 setting = {"method": m, "degrees": degrees_label(deg), "window": w}
                 if pools is None:
                     template = _setting_template(_with_error(result_template(ds, s), ds, lead),
@@ -539,6 +553,7 @@ def sweep(experiments: xr.Dataset, *, window=(30,), degrees=None, method=("lrm",
     used = [[checked[m, d, windows[0]].degrees for d in degrees_list] for m in methods]
     ppr = np.array([[parameters_per_row(nr_factor, d) for d in row] for row in used])
     rd = np.array([[d[2] for d in row] for row in used])
+    fits = np.array([[checked[m, d, windows[0]].denominator for d in degrees_list] for m in methods])
     out = out.assign_coords({
         "method": ("method", methods, {"units": "1", "long_name": "local model (lrm: rational, lpm: polynomial)"}),
         "degrees": ("degrees", [degrees_label(d) for d in degrees_list],
@@ -551,6 +566,9 @@ def sweep(experiments: xr.Dataset, *, window=(30,), degrees=None, method=("lrm",
                              {"units": "1", "long_name": "transient degree Rm"}),
         "denominator_degree": (("method", "degrees"), rd,
                                {"units": "1", "long_name": "denominator degree Rd used (0 for lpm)"}),
+        "denominator_fit": (("method", "degrees"), fits,
+                            {"units": "1", "long_name": "how the denominator is estimated "
+                                                        "(ls, iv; none without one)"}),
         "parameters_per_row": (("method", "degrees"), ppr,
                                {"units": "1", "long_name": "local parameters per row of Z"}),
     })
