@@ -168,37 +168,44 @@ def report_experiments(var):
     print_slopes(var, "E")
 
 
-def disturbances_pooled(groups: int, n_exp: int = 8):
-    """Median relative error per band and coverage: ``n_exp`` pooled against one."""
+def disturbances_pooled(groups: int, n_exp: int = 8, denominators=("ls", "iv")):
+    """Median relative error per band and coverage: ``n_exp`` pooled against one, for each
+    way of estimating the LRM's denominator (least squares, instrumental variables)."""
     from lcmr_xr.demo import BANDS_HZ, band_table
 
-    stats = {"pooled": [], "one": []}
+    stats = {(name, d): [] for d in denominators for name in ("pooled", "one")}
     for g in range(groups):
         exps = [hdd.simulate(N, case=CASE, seed=500 + n_exp * g + e) for e in range(n_exp)]
-        pooled = lcmr_xr.identify(xr.concat(exps, "experiment"), combine="experiment",
-                                  errors="ignore")
-        truth = hdd.true_frf(pooled.frequency[1:], case=CASE).reindex(frequency=pooled.frequency)
-        for name, frf in (("pooled", pooled), ("one", lcmr_xr.identify(exps[0], errors="ignore"))):
-            t = band_table(frf, truth).isel(output=0).transpose("band", "input")
-            stats[name].append(np.stack([t.median_error.values, t.coverage.values], axis=-1))
+        for d in denominators:
+            pooled = lcmr_xr.identify(xr.concat(exps, "experiment"), combine="experiment",
+                                      errors="ignore", denominator=d)
+            truth = hdd.true_frf(pooled.frequency[1:], case=CASE).reindex(frequency=pooled.frequency)
+            one = lcmr_xr.identify(exps[0], errors="ignore", denominator=d)
+            for name, frf in (("pooled", pooled), ("one", one)):
+                t = band_table(frf, truth).isel(output=0).transpose("band", "input")
+                stats[name, d].append(np.stack([t.median_error.values, t.coverage.values], axis=-1))
         print(f"  disturbances: group {g + 1}/{groups}", flush=True)
     return BANDS_HZ, {k: np.array(v) for k, v in stats.items()}
 
 
 def report_disturbances(bands, stats, n_exp=8):
-    groups = stats["pooled"].shape[0]
+    denominators = list(dict.fromkeys(d for _, d in stats))
+    groups = stats["pooled", denominators[0]].shape[0]
     print(f"\n5. benchmark disturbances, window 'auto': {n_exp} experiments pooled vs one "
           f"({groups} groups; goal: error below 500 Hz >= 2.5x lower, coverage 0.90-0.99 per band)")
-    print(f"   {'band (Hz)':<15}" + "".join(f"{h:>11}" for h in (
-        "err 1 VCM", "err 8 VCM", "ratio", "err 1 PZT", "err 8 PZT", "ratio", "cov 8 VCM",
-        "cov 8 PZT", "cov 1 VCM", "cov 1 PZT")))
-    for b, (lo, hi) in enumerate(bands):
-        e1 = np.median(stats["one"][:, b, :, 0], axis=0)
-        e8 = np.median(stats["pooled"][:, b, :, 0], axis=0)
-        c8 = stats["pooled"][:, b, :, 1].mean(axis=0)
-        c1 = stats["one"][:, b, :, 1].mean(axis=0)
-        cells = [e1[0], e8[0], e1[0] / e8[0], e1[1], e8[1], e1[1] / e8[1], c8[0], c8[1], c1[0], c1[1]]
-        print(f"   {f'{lo:g}-{hi:g}':<15}" + "".join(f"{c:>11.3g}" for c in cells))
+    for d in denominators:
+        print(f"   denominator={d!r}")
+        print(f"   {'band (Hz)':<15}" + "".join(f"{h:>11}" for h in (
+            "err 1 VCM", "err 8 VCM", "ratio", "err 1 PZT", "err 8 PZT", "ratio", "cov 8 VCM",
+            "cov 8 PZT", "cov 1 VCM", "cov 1 PZT")))
+        for b, (lo, hi) in enumerate(bands):
+            e1 = np.median(stats["one", d][:, b, :, 0], axis=0)
+            e8 = np.median(stats["pooled", d][:, b, :, 0], axis=0)
+            c8 = stats["pooled", d][:, b, :, 1].mean(axis=0)
+            c1 = stats["one", d][:, b, :, 1].mean(axis=0)
+            cells = [e1[0], e8[0], e1[0] / e8[0], e1[1], e8[1], e1[1] / e8[1], c8[0], c8[1],
+                     c1[0], c1[1]]
+            print(f"   {f'{lo:g}-{hi:g}':<15}" + "".join(f"{c:>11.3g}" for c in cells))
 
 
 def window0_exactness_f3():
@@ -254,7 +261,14 @@ def main(argv=None):
                         help="groups of 8 experiments with the benchmark disturbances (default 6)")
     parser.add_argument("--skip-experiments", action="store_true",
                         help="skip goals 4 and 5 (the longest)")
+    parser.add_argument("--denominator", nargs="+", default=["ls", "iv"], choices=["ls", "iv"],
+                        help="how the LRM denominator is estimated in goal 5 (default: both)")
+    parser.add_argument("--only-disturbances", action="store_true",
+                        help="run goal 5 alone")
     args = parser.parse_args(argv)
+    if args.only_disturbances:
+        report_disturbances(*disturbances_pooled(args.groups, denominators=args.denominator))
+        return
     if args.seeds < 3:
         parser.error(f"--seeds must be at least 3 to estimate a variance, got {args.seeds}")
 
@@ -278,7 +292,7 @@ def main(argv=None):
 
     if not args.skip_experiments:
         report_experiments(variance_against_experiments(args.seeds))
-        bands, stats = disturbances_pooled(args.groups)
+        bands, stats = disturbances_pooled(args.groups, denominators=args.denominator)
         report_disturbances(bands, stats)
     worst, n_ok, n_all = window0_exactness_f3()
     print(f"\n6. window 0 at F = 3 (SISO loop, E = 4 noiseless periodic experiments): largest "

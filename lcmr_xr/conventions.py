@@ -94,11 +94,14 @@ DEGREES = "degrees"
 N_SAMPLES = "n_samples"
 PARAMETERS_PER_ROW = "parameters_per_row"
 COVARIANCE = "covariance"
+DENOMINATOR = "denominator"  # "ls", "iv" or "none": how the LRM's denominator was estimated
 TITLE = "title"
 FRF_ATTRS = (
     CONVENTIONS_ATTR, METHOD, CLOSED_LOOP, WINDOW, WINDOW_BINS, DEGREES, FACTOR,
-    SAMPLING_PERIOD, SLOW_NYQUIST, N_SAMPLES, PARAMETERS_PER_ROW, COVARIANCE, TITLE,
+    SAMPLING_PERIOD, SLOW_NYQUIST, N_SAMPLES, PARAMETERS_PER_ROW, COVARIANCE, DENOMINATOR, TITLE,
 )
+# Added to FRF_ATTRS by denominator="iv": the half-width of the first fit (instruments).
+IV_FIRST_WINDOW = "iv_first_window"
 # Added to FRF_ATTRS by window="auto" (then WINDOW and WINDOW_BINS are the string "auto").
 CANDIDATE_WINDOWS = "candidate_windows"  # int array: the half-widths chosen from
 # Added to FRF_ATTRS by a pooled estimate.

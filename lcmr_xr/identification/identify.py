@@ -32,8 +32,8 @@ from lcmr_xr.kernels.identification import (
 from lcmr_xr.identification import _guards
 from lcmr_xr.kernels.adaptive import candidate_windows
 from lcmr_xr.kernels.local_models import parameters_per_row
-from lcmr_xr.settings import (AUTO_WINDOW, DEFAULT_WINDOW, as_bool, auto_window_range,
-                              check_window_fits, estimator_settings)
+from lcmr_xr.settings import (AUTO_WINDOW, DEFAULT_WINDOW, NO_DENOMINATOR, as_bool,
+                              auto_window_range, check_window_fits, estimator_settings)
 from lcmr_xr.transforms._coords import even_spacing
 
 
@@ -285,8 +285,8 @@ def _settings_attrs(ds, s, *, factor, th) -> dict:
         "n_samples": ds.sizes[cv.TIME],
         "parameters_per_row": parameters_per_row(factor * ds.sizes[cv.INPUT], s.degrees),
         "covariance": int(s.covariance),
-        "denominator": s.denominator,
-        **({"iv_first_window": first_fit_window(factor * ds.sizes[cv.INPUT], s.degrees)}
+        cv.DENOMINATOR: s.denominator,
+        **({cv.IV_FIRST_WINDOW: first_fit_window(factor * ds.sizes[cv.INPUT], s.degrees)}
            if s.denominator == "iv" else {}),
         "title": f"lifted {s.closed_loop} closed-loop {s.method.upper()} FRF estimate",
     } if s.window > 0 else {  # window 0: no local model, G = Z R^+ per bin (nr parameters per row)
@@ -294,7 +294,7 @@ def _settings_attrs(ds, s, *, factor, th) -> dict:
         "window": 0, "window_bins": 1, "degrees": np.array([0, -1, 0]), "factor": factor,
         "sampling_period": th, "slow_nyquist": 1.0 / (2 * factor * th),
         "n_samples": ds.sizes[cv.TIME], "parameters_per_row": factor * ds.sizes[cv.INPUT],
-        "covariance": int(s.covariance), "denominator": "none",
+        "covariance": int(s.covariance), cv.DENOMINATOR: NO_DENOMINATOR,
         "title": f"lifted {s.closed_loop} closed-loop FRF, bin by bin over experiments",
     }
 
@@ -788,8 +788,8 @@ def identify_single_rate(experiment: xr.Dataset, *, method: str = "lrm", window:
     attrs = _settings_attrs(ds, s, factor=factor, th=th)
     for key in ("parameters_per_row", "covariance"):  # not recorded for this estimate
         attrs.pop(key)
-    if "iv_first_window" in attrs:  # F = 1: nu excitation channels, not F nu
-        attrs["iv_first_window"] = first_fit_window(ds.sizes[cv.INPUT], s.degrees)
+    if cv.IV_FIRST_WINDOW in attrs:  # F = 1: nu excitation channels, not F nu
+        attrs[cv.IV_FIRST_WINDOW] = first_fit_window(ds.sizes[cv.INPUT], s.degrees)
     attrs.update({"closed_loop": "single-rate indirect",
                   "title": f"single-rate closed-loop {s.method.upper()} FRF estimate (ignores lifting)"})
     out.attrs.update(attrs)

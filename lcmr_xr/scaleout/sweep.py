@@ -48,7 +48,7 @@ SETTING_DIMS = ("method", "degrees", "window")
 # ``period`` (repeated periods, averaged by identify) belongs to one experiment's record
 _CORE_DIMS = (cv.TIME, cv.SLOW_TIME, cv.INPUT, cv.OUTPUT, cv.PERIOD)
 _PER_SETTING_ATTRS = ("method", "window", "window_bins", "degrees", "parameters_per_row", "title",
-                      "denominator", "iv_first_window")
+                      cv.DENOMINATOR, cv.IV_FIRST_WINDOW)
 
 
 def _as_list(value, what: str) -> list:
