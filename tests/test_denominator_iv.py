@@ -154,8 +154,9 @@ def test_auto_window_and_pooled_record_the_setting():
     ds = _pooled_noisy(0, n_exp=2, n=480, noise=0.01)
     auto = identify(ds.isel(experiment=0), denominator="iv")
     assert auto.attrs["denominator"] == "iv" and auto.attrs["iv_first_window"] == 8
-    pooled = identify(ds, window=20, combine="experiment", denominator="iv")
-    assert pooled.attrs["denominator"] == "iv"
+    pooled = identify(ds, window=20, combine="experiment")  # the pooled default
+    assert pooled.attrs["denominator"] == settings.POOLED_DEFAULT_DENOMINATOR == "iv"
+    assert identify(ds, window=20, combine="experiment", denominator="ls").attrs["denominator"] == "ls"
     assert identify(ds.isel(experiment=0), window=20).attrs["denominator"] == settings.DEFAULT_DENOMINATOR
     assert identify(ds.isel(experiment=0), method="lpm", window=20).attrs["denominator"] == "none"
 
@@ -180,3 +181,39 @@ def test_window0_refuses_iv():
     with pytest.raises(ValueError, match="window=0 fits no local model"):
         identify(_pooled_noisy(0, n_exp=2, n=240, noise=0.0), window=0, combine="experiment",
                  denominator="iv")
+
+
+def test_sweep_passes_and_records_the_denominator():
+    from lcmr_xr.scaleout import sweep
+    from lcmr_xr.scaleout.sweep import sweep_settings
+
+    ds = _pooled_noisy(0, n_exp=2, n=480, noise=0.01)
+    res = sweep(ds, window=[20], method=["lrm", "lpm"], degrees=["2-2-0"]).compute()
+    assert res.denominator_fit.values.tolist() == [["none"], ["none"]]
+    res = sweep(ds, window=[20], denominator="iv").compute()
+    assert res.denominator_fit.values.tolist() == [["iv"]]
+    direct = identify(ds.isel(experiment=1), window=20, denominator="iv", errors="ignore")
+    np.testing.assert_allclose(res.P.isel(method=0, degrees=0, window=0, experiment=1).values,
+                               direct.P.values, rtol=1e-12)
+    pooled = sweep(ds, window=[20], pool=[2]).compute()  # pooled: identify's pooled default
+    assert pooled.denominator_fit.values.tolist() == [["iv"]]
+    with pytest.raises(ValueError, match=r"method=lpm.*denominator='iv'"):
+        sweep_settings(window=[20], method=["lrm", "lpm"], degrees=["3-3-0"], denominator="iv")
+
+
+def test_command_lines_take_the_denominator(tmp_path, capsys):
+    from lcmr_xr.cli import _parser, main
+    from lcmr_xr.io import open_frf, save
+
+    exp = _pooled_noisy(0, n_exp=1, n=480, noise=0.01).isel(experiment=0, drop=True)
+    save(exp, tmp_path / "e.nc")
+    assert main(["identify", str(tmp_path / "e.nc"), "-o", str(tmp_path / "f.nc"),
+                 "--window", "20", "--denominator", "iv"]) == 0
+    assert open_frf(tmp_path / "f.nc").attrs["denominator"] == "iv"
+    assert main(["identify", str(tmp_path / "e.nc"), "-o", str(tmp_path / "g.nc"),
+                 "--method", "lpm", "--denominator", "iv"]) == 2
+    assert "Rd = 0" in capsys.readouterr().err
+    args = _parser().parse_args(["sweep", "a.nc", "-o", "r.nc", "--denominator", "ls"])
+    assert args.denominator == "ls"
+    with pytest.raises(SystemExit):
+        _parser().parse_args(["identify", "a.nc", "-o", "r.nc", "--denominator", "tls"])

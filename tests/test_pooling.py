@@ -383,12 +383,16 @@ def test_combine_different_excitations_is_one_local_model():
     assert pooled.attrs["pooled_experiments"] == 3 and pooled.attrs["noise_estimate"] == "residual"
     assert "experiment" not in pooled.P.dims
     assert pooled.transient_y.sizes["experiment"] == 3
-    # the labelled result is the pooled kernel's fit (proven against the stacked oracle)
-    from lcmr_xr.kernels.identification import experiment_spectra
+    # the labelled result is the pooled kernel's fit (proven against the stacked oracle),
+    # with the instruments of the pooled default denominator="iv"
+    from lcmr_xr.kernels.identification import denominator_instruments, experiment_spectra
     from lcmr_xr.kernels.local_models import local_model
 
+    assert pooled.attrs["denominator"] == "iv"
     R, Z = experiment_spectra(exps.r.values, exps.u.values, exps.y.values, factor=2)
-    fit = local_model(R, Z, half_width=15, degrees=(2, 2, 2), experiment_axis=0)
+    fit = local_model(R, Z, half_width=15, degrees=(2, 2, 2), experiment_axis=0,
+                      instruments=denominator_instruments(R, Z, degrees=(2, 2, 2),
+                                                          experiment_axis=0))
     np.testing.assert_allclose(pooled.G.values, fit.G, rtol=1e-9, atol=1e-12)
     np.testing.assert_allclose(pooled.transient_y.transpose("experiment", ...).values[..., 0],
                                fit.T[..., -1], rtol=1e-9, atol=1e-12)

@@ -251,7 +251,7 @@ def sweep_to_disk(experiments: xr.Dataset, output, *, window=(30,), degrees=None
     from lcmr_xr.scaleout import sweep as sweep_lazily
     from lcmr_xr.settings import degrees_label
     from lcmr_xr.scaleout.sweep import (ERROR_VAR, SETTING_DIMS, _chunked, _identify_block,
-                                        identify_denominator, sweep_settings)
+                                        sweep_settings)
 
     if scheduler not in ("threads", "processes", "synchronous"):
         raise ValueError(f"scheduler must be 'threads', 'processes' or 'synchronous', got "
@@ -290,7 +290,7 @@ def sweep_to_disk(experiments: xr.Dataset, output, *, window=(30,), degrees=None
                      int(lazy["window"].values[iw])]
         settings = dict(method=st.method, window=st.window, degrees=st.degrees,
                         closed_loop=st.closed_loop, covariance=st.covariance, source=source,
-                        denominator=identify_denominator(st))
+                        denominator=denominator)
         block = ds.isel({cv.EXPERIMENT: slice(a, b)})
         tasks.append(dask.delayed(_identify_block, pure=True)(block, **settings))
     finished = (_run_client(tasks, client) if client is not None

@@ -31,7 +31,8 @@ from lcmr_xr.settings import (
     AUTO_WINDOW,
     CLOSED_LOOP,
     METHODS,
-    NO_DENOMINATOR,
+    DEFAULT_DENOMINATOR,
+    POOLED_DEFAULT_DENOMINATOR,
     as_bool,
     as_choice,
     as_integer,
@@ -131,11 +132,6 @@ def _pools(pool, ds: xr.Dataset):
         raise ValueError(f"pool={too_big} is more than the {n_exp} experiments; use pool <= "
                          f"{n_exp} or add experiments.")
     return sorted(pools)
-
-
-def identify_denominator(s) -> str | None:
-    """``identify``'s ``denominator`` for checked settings ``s`` (None: the model has none)."""
-    return None if s.denominator == NO_DENOMINATOR else s.denominator
 
 
 def _pooled(ds: xr.Dataset, pools, settings) -> xr.Dataset:
@@ -452,7 +448,8 @@ def sweep(experiments: xr.Dataset, *, window=(30,), degrees=None, method=("lrm",
     denominator : {None, "ls", "iv"}, optional
         Passed to :func:`lcmr_xr.identify` for every setting with a denominator (``"iv"``
         with a method or degrees without one, ``Rd = 0``, is an invalid combination);
-        recorded as the coordinate ``denominator_fit`` (``"ls"``, ``"iv"`` or ``"none"``).
+        recorded as the coordinate ``denominator_fit`` (``"ls"``, ``"iv"`` or ``"none"``;
+        with ``pool`` and the default, ``"iv"``: identify's default for pooled experiments).
 
     Returns
     -------
@@ -527,7 +524,7 @@ def sweep(experiments: xr.Dataset, *, window=(30,), degrees=None, method=("lrm",
                 s = checked[m, deg, w]
                 settings = dict(method=m, window=s.window, degrees=s.degrees,
                                 closed_loop=s.closed_loop, covariance=s.covariance,
-                                denominator=identify_denominator(s))
+                                denominator=denominator)
                 setting = {"method": m, "degrees": degrees_label(deg), "window": w}
                 if pools is None:
                     template = _setting_template(_with_error(result_template(ds, s), ds, lead),
@@ -554,6 +551,8 @@ def sweep(experiments: xr.Dataset, *, window=(30,), degrees=None, method=("lrm",
     ppr = np.array([[parameters_per_row(nr_factor, d) for d in row] for row in used])
     rd = np.array([[d[2] for d in row] for row in used])
     fits = np.array([[checked[m, d, windows[0]].denominator for d in degrees_list] for m in methods])
+    if pools is not None and denominator is None:  # identify's default for pooled experiments
+        fits = np.where(fits == DEFAULT_DENOMINATOR, POOLED_DEFAULT_DENOMINATOR, fits)
     out = out.assign_coords({
         "method": ("method", methods, {"units": "1", "long_name": "local model (lrm: rational, lpm: polynomial)"}),
         "degrees": ("degrees", [degrees_label(d) for d in degrees_list],
