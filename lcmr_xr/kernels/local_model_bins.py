@@ -245,9 +245,9 @@ def _lu_solve(a, k, ipiv, x):
 
 
 @numba.njit(**_JIT)
-def _chol_logdet(s, k, scratch):
+def _chol_logdet(s, k, floor, scratch):
     """``log det`` of the leading ``k x k`` block of the small Hermitian ``s`` by an
-    unpivoted Cholesky (``-inf`` when a pivot is not positive); ``s`` is kept,
+    unpivoted Cholesky (``-inf`` when a pivot is not above ``floor``); ``s`` is kept,
     ``scratch`` overwritten."""
     for a in range(k):
         for c in range(k):
@@ -255,7 +255,7 @@ def _chol_logdet(s, k, scratch):
     logdet = 0.0
     for j in range(k):
         p = scratch[j, j].real
-        if not p > 0.0:
+        if not p > floor:
             return -np.inf
         logdet += math.log(p)
         for a in range(j + 1, k):
@@ -267,7 +267,7 @@ def _chol_logdet(s, k, scratch):
 
 @numba.njit(**_JIT)
 def _iv_row(m, q, nx, i, rk, perm, low, tsc, wx, ww, twc, siv, ipiv, gw, scratch, dsol,
-            delta):
+            delta, drop_tol):
     """Instrumental-variable denominator of row ``i`` on its kept columns (``perm[:rk]``).
 
     ``m`` holds ``[L^H | Y_X | Y_W]`` after the shared Cholesky (``Y_W = L^-1 A~^H W``,
@@ -279,7 +279,9 @@ def _iv_row(m, q, nx, i, rk, perm, low, tsc, wx, ww, twc, siv, ipiv, gw, scratch
     the IV solution.  Returns ``log`` of the geometric mean of the squared canonical
     correlations between the projected instruments and regressors,
     ``|det S|^2 / (det W~^H W~ det X~^H X~)`` to the power ``1 / rk`` (scale-free, 0 for
-    ``W = X``; ``-inf`` when ``S`` or the instruments' Gram is singular).
+    ``W = X``; ``-inf`` when ``S`` is singular or an instrument is within ``drop_tol``
+    (squared sine, unit-norm columns) of the span of the shared columns and the other
+    instruments: numerically in it, as least squares drops such a column).
     """
     rd1 = wx.shape[1]
     c0 = i * rd1
@@ -309,7 +311,7 @@ def _iv_row(m, q, nx, i, rk, perm, low, tsc, wx, ww, twc, siv, ipiv, gw, scratch
         for a in range(q):
             acc -= m[a, cw + s1].conjugate() * m[a, cx]
         dsol[j1] = -acc * twc[s1 - 1]
-    log_w = _chol_logdet(gw, rk, scratch)
+    log_w = _chol_logdet(gw, rk, drop_tol, scratch)
     log_x = 0.0
     for j in range(rk):
         log_x += 2.0 * math.log(low[j, j].real)
@@ -879,7 +881,8 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
                         ill = True
                 if iv is not None:  # the kept columns' coefficients by IV instead
                     corr = _iv_row(m, q, nx, i, rk, perm[i], low[i], tsc[i], wxm, wwm,
-                                   twc[i], siv[i], ipiv[i], gwv, gws, dsol, delta[i])
+                                   twc[i], siv[i], ipiv[i], gwv, gws, dsol, delta[i],
+                                   drop_tol)
                     if not corr > -np.inf:
                         iv_failed = True
                     elif corr < 2.0 * math.log(iv[2]):
