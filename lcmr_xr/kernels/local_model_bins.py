@@ -41,6 +41,30 @@ estimate is scale-free:
                 + tr((U_j^H U_i)(U_i^H diag(c_ij) U_j)),   c_ij = d_i conj(d_j)
 
    (``lev``, ``nu_i`` the squared row norms of ``Q_A``, ``U_i``).
+
+Instrumental variables (``iv`` not None; ``local_model(..., instruments=)``): the
+denominator columns ``B_i`` get the instruments ``W_i = -rho^s Zhat_i`` (``A`` is its
+own instrument), the normal equations become ``[A, W_i]^H [A, B_i] theta = [A, W_i]^H
+Z_i``.  ``Zhat`` is ``nz`` more bases of the moment table (``zt`` holds ``[Z, Zhat]``):
+``A^H W`` rides through the shared Cholesky as more right-hand sides (``Y_W =
+L^-1 A~^H W``), and per row the IV Schur complement ``S_i = W~_i^H B~_i = W^H X - Y_W^H
+Y_X`` (non-Hermitian) is solved by LU with partial pivoting on the columns that the
+least-squares factorisation of step 2 keeps (so rank decisions, dropped terms and the
+``G`` sensitivity check are those of least squares, and exactly modelled noiseless data
+still give ``G``).  An instrument within ``drop_tol`` of the span of the shared columns
+fails the bin; a geometric-mean canonical correlation between projected instruments and
+regressors below ``weak_limit`` flags it.  ``G``, ``T`` and the residual cross products
+follow from ``delta_i`` as in steps 3 (``v_i = Y_i delta_i``: ``A`` given ``D`` is least
+squares either way).  Covariance: ``delta theta_A = Gaa^-1 A^H (I - B S^-1 W~^H) e``,
+so the gains are ``h_i = ds_g wa^H (Q_A^H - Y_B Y_i^H) D_i`` with ``Y_i = W~_i S_i^-H``,
+and the residual projector ``Pi_i = P - X_i Y_i^H`` (``P = I - Q_A Q_A^H``, ``X_i = P
+B~_i``, ``Y_i^H X_i = I``) is oblique::
+
+    tau_ij = sum_r c_ij(r) (1 - lev(r) - x_i(r) - conj(x_j(r)))
+             + tr((X_j^H X_i)(Y_i^H diag(c_ij) Y_j)),   x_i(r) = sum_t conj(Y_i(r,t)) X_i(r,t)
+
+(least squares: ``Y = X S^-1``, ``x_i = nu_i``).  Pooled: the instruments' moments are
+projected off each experiment's transient columns like the others.
 """
 
 from __future__ import annotations

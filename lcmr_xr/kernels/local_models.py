@@ -712,7 +712,10 @@ def _fit_chunk(rt, zt, n, degrees, mode, sel, out_offset, m, dof, out, n_exp=1, 
                   DROP_TOLERANCE, CONDITION_LIMIT, G_SENSITIVITY_LIMIT,
                   out["G"], out["T"], out["noise_covariance"], out["condition"],
                   out["ill_posed"], out["dropped"], out["G_cov"], out["G_var"],
-                  None if n_exp == 1 else int(n_exp), iv_arg)
+                  # IV: always the pooled code (one record: E = 1), so that one compiled
+                  # IV version serves both (each costs about as much to compile as the
+                  # least-squares one)
+                  None if n_exp == 1 and not iv else int(n_exp), iv_arg)
 
 
 def _restart_interval(half_width: int) -> int:
