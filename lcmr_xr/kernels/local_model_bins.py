@@ -1123,22 +1123,8 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
                     wgt = 1.0 - lev[r] - nuv[i, r] - nuv[j, r]
                     accr += (dwr[i, r] * dwr[j, r] + dwi[i, r] * dwi[j, r]) * wgt
                     acci += (dwi[i, r] * dwr[j, r] - dwr[i, r] * dwi[j, r]) * wgt
-                acc = complex(accr, acci)
-                for s in range(rank[j]):
-                    for t in range(rank[i]):
-                        ujr = 0.0  # (U_j^H U_i)[s, t]
-                        uji = 0.0
-                        ucr = 0.0  # (V_i^H V_j)[t, s] = (U_i^H diag(c_ij) U_j)[t, s]
-                        uci = 0.0
-                        for r in range(width):
-                            ujr += umr[j, s, r] * umr[i, t, r] + umi[j, s, r] * umi[i, t, r]
-                            uji += umr[j, s, r] * umi[i, t, r] - umi[j, s, r] * umr[i, t, r]
-                            ucr += vmr[i, t, r] * vmr[j, s, r] + vmi[i, t, r] * vmi[j, s, r]
-                            uci += vmr[i, t, r] * vmi[j, s, r] - vmi[i, t, r] * vmr[j, s, r]
-                        acc += complex(ujr, uji) * complex(ucr, uci)
-                tau[i, j] = acc
-                scov[i, j] = ehe[i, j].conjugate() / acc
-                scov[j, i] = scov[i, j].conjugate()
+                _tau_trace(complex(accr, acci), i, j, rank, umr, umi, vmr, vmi, ehe, tau,
+                           scov)
         for i in range(nz):
             for j in range(nz):
                 out_ncov[o, i, j] = scov[i, j]
@@ -1279,6 +1265,29 @@ def _iv_row_gains(rt, zt, b, k, i, nz, rk, perm, tsc, twc, siv, ipiv, m, q, nx, 
 
 
 @numba.njit(**_JIT)
+def _tau_trace(acc, i, j, rank, umr, umi, vmr, vmi, ehe, tau, scov):
+    """``tau_ij = acc + tr((U_j^H U_i)(V_i^H V_j))`` over the kept columns (least squares:
+    ``U`` orthonormal, ``V = U conj(d)``; IV: ``U`` the projected regressors ``X``, ``V =
+    Y conj(d)``), and ``scov_ij = conj(ehe_ij) / tau_ij`` (with its mirror)."""
+    width = umr.shape[2]
+    for s in range(rank[j]):
+        for t in range(rank[i]):
+            ujr = 0.0  # (U_j^H U_i)[s, t]
+            uji = 0.0
+            ucr = 0.0  # (V_i^H V_j)[t, s] = (U_i^H diag(c_ij) U_j)[t, s] (least squares)
+            uci = 0.0
+            for r in range(width):
+                ujr += umr[j, s, r] * umr[i, t, r] + umi[j, s, r] * umi[i, t, r]
+                uji += umr[j, s, r] * umi[i, t, r] - umi[j, s, r] * umr[i, t, r]
+                ucr += vmr[i, t, r] * vmr[j, s, r] + vmi[i, t, r] * vmi[j, s, r]
+                uci += vmr[i, t, r] * vmi[j, s, r] - vmi[i, t, r] * vmr[j, s, r]
+            acc += complex(ujr, uji) * complex(ucr, uci)
+    tau[i, j] = acc
+    scov[i, j] = ehe[i, j].conjugate() / acc
+    scov[j, i] = scov[i, j].conjugate()
+
+
+@numba.njit(**_JIT)
 def _iv_tau(rank, lev, dwr, dwi, umr, umi, ymr, ymi, ncr, nci, vmr, vmi, ehe, tau, scov):
     """``tau_ij = tr(D_j^H Pi_j^H Pi_i D_i)`` of the IV residual projector
     ``Pi_i = P - X_i Y_i^H`` (oblique, ``Y_i^H X_i = I``; ``X``, ``Y`` in ``umr``/``ymr``
@@ -1317,22 +1326,7 @@ def _iv_tau(rank, lev, dwr, dwi, umr, umi, ymr, ymi, ncr, nci, vmr, vmi, ehe, ta
                 wi = nci[j, r] - nci[i, r]
                 accr += cr * wr - ci * wi
                 acci += cr * wi + ci * wr
-            acc = complex(accr, acci)
-            for s in range(rank[j]):
-                for t in range(rank[i]):
-                    xjr = 0.0  # (X_j^H X_i)[s, t]
-                    xji = 0.0
-                    vcr = 0.0  # (V_i^H V_j)[t, s] = (Y_i^H diag(c) Y_j)[t, s]
-                    vci = 0.0
-                    for r in range(width):
-                        xjr += umr[j, s, r] * umr[i, t, r] + umi[j, s, r] * umi[i, t, r]
-                        xji += umr[j, s, r] * umi[i, t, r] - umi[j, s, r] * umr[i, t, r]
-                        vcr += vmr[i, t, r] * vmr[j, s, r] + vmi[i, t, r] * vmi[j, s, r]
-                        vci += vmr[i, t, r] * vmi[j, s, r] - vmi[i, t, r] * vmr[j, s, r]
-                    acc += complex(xjr, xji) * complex(vcr, vci)
-            tau[i, j] = acc
-            scov[i, j] = ehe[i, j].conjugate() / acc
-            scov[j, i] = scov[i, j].conjugate()
+            _tau_trace(complex(accr, acci), i, j, rank, umr, umi, vmr, vmi, ehe, tau, scov)
 
 
 @numba.njit(**_JIT)

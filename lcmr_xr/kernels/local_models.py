@@ -48,8 +48,8 @@ regressors ``-rho^s Z_i`` carry the noise on ``Z``, so least squares is biased b
 same way in every experiment (pooling does not shrink it; measured on the HDD benchmark,
 docs/uncertainty.md).  Given a noise-free prediction ``Zhat`` of ``Z``, the denominator
 columns get the instruments ``-rho^s Zhat_i``; the instruments are ``nz`` more channels
-of the same moment recurrence and the same compiled loop (one compiled version for
-single records and pooled experiments), the per-row Schur complement becomes
+of the same moment recurrence and the same compiled loop (compiled apart from least
+squares, on first use), the per-row Schur complement becomes
 non-Hermitian (LU), and the covariance and ``tau`` those of the IV estimate (an oblique
 residual projector).  Tested against a per-bin ``numpy.linalg.solve`` IV oracle to
 1e-9.
@@ -383,7 +383,10 @@ def local_model(R, Z, *, half_width, degrees=(3, 3, 3), circular: bool = True,
         pooling experiments does not shrink); with instruments the fit solves
         ``[A, W_i]^H [A, B_i] theta = [A, W_i]^H Z_i`` with ``W_i = -rho^s Zhat_i`` instead
         (see Notes).  Default None: least squares.  Ignored for the LPM (``Rd = 0``,
-        nothing to instrument).
+        nothing to instrument).  Spectra of real signals are fitted on half the bins and
+        mirrored only if the instruments are conjugate-symmetric too (to rounding); a
+        fitted ``G_hat R + T_hat`` is so only to the fit's rounding: symmetrise it,
+        ``(Zhat + Zhat[(-k) % M].conj()) / 2``, to keep the half cost.
 
     Returns
     -------
@@ -756,10 +759,9 @@ def _fit_chunk(rt, zt, n, degrees, mode, sel, out_offset, m, dof, out, n_exp=1, 
                   DROP_TOLERANCE, CONDITION_LIMIT, G_SENSITIVITY_LIMIT,
                   out["G"], out["T"], out["noise_covariance"], out["condition"],
                   out["ill_posed"], out["dropped"], out["G_cov"], out["G_var"],
-                  # IV: always the pooled code (one record: E = 1), so that one compiled
-                  # IV version serves both (each costs about as much to compile as the
-                  # least-squares one)
-                  None if n_exp == 1 and not iv else int(n_exp), iv_arg)
+                  # (one record through the pooled code, E = 1, would spare the IV
+                  # single-record compilation but costs 2x per bin: measured)
+                  None if n_exp == 1 else int(n_exp), iv_arg)
 
 
 def _restart_interval(half_width: int) -> int:
