@@ -5,9 +5,10 @@ M = 1800 slow bins, nz = 5, nr = 4, n = 30, degrees (3, 3, 3)), with the instrum
 first fit's prediction ``G_hat R + T_hat`` (least squares, the same window, made
 conjugate-symmetric as the data, so that both fit half the bins and mirror): kernel
 times with covariance "full" and None (best of a few repeats, wall / CPU, ratios in the
-same process); and the first call of each compiled version in a new process with an
-empty numba cache (least squares, IV on one record, IV pooled: each compiled version on
-its own; ``--no-compile`` skips it).  Default thread settings, as users run it.
+same process); the IV fit at window n = 100 against n = 10; and the first call of each
+compiled version in a new process with an empty numba cache (least squares, IV on one
+record, IV pooled: each compiled version on its own; ``--no-compile`` skips it).
+Default thread settings, as users run it.
 """
 
 import argparse
@@ -76,6 +77,13 @@ def main(argv=None):
         rows.append((f"HDD kernel, covariance={cov}: IV [s]", f"{iv[0]:.3f} / {iv[1]:.3f}"))
         rows.append((f"HDD kernel, covariance={cov}: IV / least squares",
                      f"{iv[0] / ls[0]:.2f} / {iv[1] / ls[1]:.2f}"))
+    wide = {}
+    for n in (10, 100):  # the fit's cost must not grow with the window (moments by recurrence)
+        kw = {"half_width": n, "degrees": KW["degrees"], "covariance": None}
+        local_model(R, Z, instruments=Zhat, **kw)
+        wide[n] = best_time(lambda: local_model(R, Z, instruments=Zhat, **kw))
+    rows.append(("HDD IV fit (covariance None), window n = 100 / n = 10",
+                 f"{wide[100][0] / wide[10][0]:.2f} / {wide[100][1] / wide[10][1]:.2f}"))
     fit = local_model(R, Z, instruments=Zhat, **KW)
     ls = local_model(R, Z, **KW)
     rows.append(("HDD flagged bins: least squares / IV",
