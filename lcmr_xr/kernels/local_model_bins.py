@@ -41,6 +41,30 @@ estimate is scale-free:
                 + tr((U_j^H U_i)(U_i^H diag(c_ij) U_j)),   c_ij = d_i conj(d_j)
 
    (``lev``, ``nu_i`` the squared row norms of ``Q_A``, ``U_i``).
+
+Instrumental variables (``iv`` not None; ``local_model(..., instruments=)``): the
+denominator columns ``B_i`` get the instruments ``W_i = -rho^s Zhat_i`` (``A`` is its
+own instrument), the normal equations become ``[A, W_i]^H [A, B_i] theta = [A, W_i]^H
+Z_i``.  ``Zhat`` is ``nz`` more bases of the moment table (``zt`` holds ``[Z, Zhat]``):
+``A^H W`` rides through the shared Cholesky as more right-hand sides (``Y_W =
+L^-1 A~^H W``), and per row the IV Schur complement ``S_i = W~_i^H B~_i = W^H X - Y_W^H
+Y_X`` (non-Hermitian) is solved by LU with partial pivoting on the columns that the
+least-squares factorisation of step 2 keeps (so rank decisions, dropped terms and the
+``G`` sensitivity check are those of least squares, and exactly modelled noiseless data
+still give ``G``).  An instrument within ``drop_tol`` of the span of the shared columns
+fails the bin; a geometric-mean canonical correlation between projected instruments and
+regressors below ``weak_limit`` flags it.  ``G``, ``T`` and the residual cross products
+follow from ``delta_i`` as in steps 3 (``v_i = Y_i delta_i``: ``A`` given ``D`` is least
+squares either way).  Covariance: ``delta theta_A = Gaa^-1 A^H (I - B S^-1 W~^H) e``,
+so the gains are ``h_i = ds_g wa^H (Q_A^H - Y_B Y_i^H) D_i`` with ``Y_i = W~_i S_i^-H``,
+and the residual projector ``Pi_i = P - X_i Y_i^H`` (``P = I - Q_A Q_A^H``, ``X_i = P
+B~_i``, ``Y_i^H X_i = I``) is oblique::
+
+    tau_ij = sum_r c_ij(r) (1 - lev(r) - x_i(r) - conj(x_j(r)))
+             + tr((X_j^H X_i)(Y_i^H diag(c_ij) Y_j)),   x_i(r) = sum_t conj(Y_i(r,t)) X_i(r,t)
+
+(least squares: ``Y = X S^-1``, ``x_i = nu_i``).  Pooled: the instruments' moments are
+projected off each experiment's transient columns like the others.
 """
 
 from __future__ import annotations
@@ -245,9 +269,9 @@ def _lu_solve(a, k, ipiv, x):
 
 
 @numba.njit(**_JIT)
-def _chol_logdet(s, k, scratch):
+def _chol_logdet(s, k, floor, scratch):
     """``log det`` of the leading ``k x k`` block of the small Hermitian ``s`` by an
-    unpivoted Cholesky (``-inf`` when a pivot is not positive); ``s`` is kept,
+    unpivoted Cholesky (``-inf`` when a pivot is not above ``floor``); ``s`` is kept,
     ``scratch`` overwritten."""
     for a in range(k):
         for c in range(k):
@@ -255,7 +279,7 @@ def _chol_logdet(s, k, scratch):
     logdet = 0.0
     for j in range(k):
         p = scratch[j, j].real
-        if not p > 0.0:
+        if not p > floor:
             return -np.inf
         logdet += math.log(p)
         for a in range(j + 1, k):
@@ -267,7 +291,7 @@ def _chol_logdet(s, k, scratch):
 
 @numba.njit(**_JIT)
 def _iv_row(m, q, nx, i, rk, perm, low, tsc, wx, ww, twc, siv, ipiv, gw, scratch, dsol,
-            delta):
+            delta, drop_tol):
     """Instrumental-variable denominator of row ``i`` on its kept columns (``perm[:rk]``).
 
     ``m`` holds ``[L^H | Y_X | Y_W]`` after the shared Cholesky (``Y_W = L^-1 A~^H W``,
@@ -279,7 +303,9 @@ def _iv_row(m, q, nx, i, rk, perm, low, tsc, wx, ww, twc, siv, ipiv, gw, scratch
     the IV solution.  Returns ``log`` of the geometric mean of the squared canonical
     correlations between the projected instruments and regressors,
     ``|det S|^2 / (det W~^H W~ det X~^H X~)`` to the power ``1 / rk`` (scale-free, 0 for
-    ``W = X``; ``-inf`` when ``S`` or the instruments' Gram is singular).
+    ``W = X``; ``-inf`` when ``S`` is singular or an instrument is within ``drop_tol``
+    (squared sine, unit-norm columns) of the span of the shared columns and the other
+    instruments: numerically in it, as least squares drops such a column).
     """
     rd1 = wx.shape[1]
     c0 = i * rd1
@@ -309,7 +335,7 @@ def _iv_row(m, q, nx, i, rk, perm, low, tsc, wx, ww, twc, siv, ipiv, gw, scratch
         for a in range(q):
             acc -= m[a, cw + s1].conjugate() * m[a, cx]
         dsol[j1] = -acc * twc[s1 - 1]
-    log_w = _chol_logdet(gw, rk, scratch)
+    log_w = _chol_logdet(gw, rk, drop_tol, scratch)
     log_x = 0.0
     for j in range(rk):
         log_x += 2.0 * math.log(low[j, j].real)
@@ -879,7 +905,8 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
                         ill = True
                 if iv is not None:  # the kept columns' coefficients by IV instead
                     corr = _iv_row(m, q, nx, i, rk, perm[i], low[i], tsc[i], wxm, wwm,
-                                   twc[i], siv[i], ipiv[i], gwv, gws, dsol, delta[i])
+                                   twc[i], siv[i], ipiv[i], gwv, gws, dsol, delta[i],
+                                   drop_tol)
                     if not corr > -np.inf:
                         iv_failed = True
                     elif corr < 2.0 * math.log(iv[2]):
@@ -1096,22 +1123,8 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
                     wgt = 1.0 - lev[r] - nuv[i, r] - nuv[j, r]
                     accr += (dwr[i, r] * dwr[j, r] + dwi[i, r] * dwi[j, r]) * wgt
                     acci += (dwi[i, r] * dwr[j, r] - dwr[i, r] * dwi[j, r]) * wgt
-                acc = complex(accr, acci)
-                for s in range(rank[j]):
-                    for t in range(rank[i]):
-                        ujr = 0.0  # (U_j^H U_i)[s, t]
-                        uji = 0.0
-                        ucr = 0.0  # (V_i^H V_j)[t, s] = (U_i^H diag(c_ij) U_j)[t, s]
-                        uci = 0.0
-                        for r in range(width):
-                            ujr += umr[j, s, r] * umr[i, t, r] + umi[j, s, r] * umi[i, t, r]
-                            uji += umr[j, s, r] * umi[i, t, r] - umi[j, s, r] * umr[i, t, r]
-                            ucr += vmr[i, t, r] * vmr[j, s, r] + vmi[i, t, r] * vmi[j, s, r]
-                            uci += vmr[i, t, r] * vmi[j, s, r] - vmi[i, t, r] * vmr[j, s, r]
-                        acc += complex(ujr, uji) * complex(ucr, uci)
-                tau[i, j] = acc
-                scov[i, j] = ehe[i, j].conjugate() / acc
-                scov[j, i] = scov[i, j].conjugate()
+                _tau_trace(complex(accr, acci), i, j, rank, umr, umi, vmr, vmi, ehe, tau,
+                           scov)
         for i in range(nz):
             for j in range(nz):
                 out_ncov[o, i, j] = scov[i, j]
@@ -1252,6 +1265,29 @@ def _iv_row_gains(rt, zt, b, k, i, nz, rk, perm, tsc, twc, siv, ipiv, m, q, nx, 
 
 
 @numba.njit(**_JIT)
+def _tau_trace(acc, i, j, rank, umr, umi, vmr, vmi, ehe, tau, scov):
+    """``tau_ij = acc + tr((U_j^H U_i)(V_i^H V_j))`` over the kept columns (least squares:
+    ``U`` orthonormal, ``V = U conj(d)``; IV: ``U`` the projected regressors ``X``, ``V =
+    Y conj(d)``), and ``scov_ij = conj(ehe_ij) / tau_ij`` (with its mirror)."""
+    width = umr.shape[2]
+    for s in range(rank[j]):
+        for t in range(rank[i]):
+            ujr = 0.0  # (U_j^H U_i)[s, t]
+            uji = 0.0
+            ucr = 0.0  # (V_i^H V_j)[t, s] = (U_i^H diag(c_ij) U_j)[t, s] (least squares)
+            uci = 0.0
+            for r in range(width):
+                ujr += umr[j, s, r] * umr[i, t, r] + umi[j, s, r] * umi[i, t, r]
+                uji += umr[j, s, r] * umi[i, t, r] - umi[j, s, r] * umr[i, t, r]
+                ucr += vmr[i, t, r] * vmr[j, s, r] + vmi[i, t, r] * vmi[j, s, r]
+                uci += vmr[i, t, r] * vmi[j, s, r] - vmi[i, t, r] * vmr[j, s, r]
+            acc += complex(ujr, uji) * complex(ucr, uci)
+    tau[i, j] = acc
+    scov[i, j] = ehe[i, j].conjugate() / acc
+    scov[j, i] = scov[i, j].conjugate()
+
+
+@numba.njit(**_JIT)
 def _iv_tau(rank, lev, dwr, dwi, umr, umi, ymr, ymi, ncr, nci, vmr, vmi, ehe, tau, scov):
     """``tau_ij = tr(D_j^H Pi_j^H Pi_i D_i)`` of the IV residual projector
     ``Pi_i = P - X_i Y_i^H`` (oblique, ``Y_i^H X_i = I``; ``X``, ``Y`` in ``umr``/``ymr``
@@ -1290,22 +1326,7 @@ def _iv_tau(rank, lev, dwr, dwi, umr, umi, ymr, ymi, ncr, nci, vmr, vmi, ehe, ta
                 wi = nci[j, r] - nci[i, r]
                 accr += cr * wr - ci * wi
                 acci += cr * wi + ci * wr
-            acc = complex(accr, acci)
-            for s in range(rank[j]):
-                for t in range(rank[i]):
-                    xjr = 0.0  # (X_j^H X_i)[s, t]
-                    xji = 0.0
-                    vcr = 0.0  # (V_i^H V_j)[t, s] = (Y_i^H diag(c) Y_j)[t, s]
-                    vci = 0.0
-                    for r in range(width):
-                        xjr += umr[j, s, r] * umr[i, t, r] + umi[j, s, r] * umi[i, t, r]
-                        xji += umr[j, s, r] * umi[i, t, r] - umi[j, s, r] * umr[i, t, r]
-                        vcr += vmr[i, t, r] * vmr[j, s, r] + vmi[i, t, r] * vmi[j, s, r]
-                        vci += vmr[i, t, r] * vmi[j, s, r] - vmi[i, t, r] * vmr[j, s, r]
-                    acc += complex(xjr, xji) * complex(vcr, vci)
-            tau[i, j] = acc
-            scov[i, j] = ehe[i, j].conjugate() / acc
-            scov[j, i] = scov[i, j].conjugate()
+            _tau_trace(complex(accr, acci), i, j, rank, umr, umi, vmr, vmi, ehe, tau, scov)
 
 
 @numba.njit(**_JIT)
