@@ -53,6 +53,11 @@ def test_noiseless_periodic_lifted_g_is_exact_with_iv():
     u, y = periodic_experiment(P, C, Fi, factor, r)
     exp = experiment(r, u, y, factor=factor, sampling_period=TH)
     ls, iv = (identify(exp, window=12, denominator=d) for d in ("ls", "iv"))
+    # spectra of real signals: the instruments are conjugate-symmetric exactly (the main
+    # fit then fits half the bins and mirrors them)
+    R, Z = kid.experiment_spectra(exp.r.values, exp.u.values, exp.y.values, factor=factor)
+    zhat = kid.denominator_instruments(R, Z, degrees=(3, 3, 3))
+    np.testing.assert_array_equal(zhat[(-np.arange(n // factor)) % (n // factor)], zhat.conj())
     assert _median_rel(iv.P.values[:, 0, 0], P[: n // 2 + 1, 0, 0]) < 1e-4
     assert _median_rel(iv.P.values[:, 0, 0], ls.P.values[:, 0, 0]) < 1e-6
 

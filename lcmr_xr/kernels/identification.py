@@ -13,7 +13,7 @@ from lcmr_xr.kernels.adaptive import (nonlinearity_factor, select_windows, small
                                       weak_direction)
 from lcmr_xr.kernels.closed_loop import frf_variance_from_first_row, indirect_first_row
 from lcmr_xr.kernels.lifting import frf_from_first_block_row, lift
-from lcmr_xr.kernels.local_models import local_model, parameters_per_row
+from lcmr_xr.kernels.local_models import _hermitian, local_model, parameters_per_row
 from lcmr_xr.kernels.pooling import (mean_and_covariance, pooled_least_squares,
                                      rescale_covariance, window_mean)
 
@@ -69,6 +69,8 @@ def denominator_instruments(R, Z, *, degrees=(3, 3, 3), half_width: int | None =
     Where the first fit gives no prediction (failed or flagged bins, and the ``half_width``
     bins at each end with ``circular=False``) the instrument is ``Z`` itself: least squares
     for those regressors.
+    Spectra of real signals (conjugate-symmetric ``Z``) get a conjugate-symmetric
+    prediction, so that the main fit still fits half the bins and mirrors them.
 
     Returns
     -------
@@ -86,8 +88,13 @@ def denominator_instruments(R, Z, *, degrees=(3, 3, 3), half_width: int | None =
         zhat = np.einsum("...mip,...emp->...emi", first.G,
                          np.moveaxis(R, experiment_axis, -3)) + first.T
         zhat = np.moveaxis(zhat, -3, experiment_axis)
-    Zb = np.broadcast_to(Z, zhat.shape)
-    return np.where(np.isfinite(zhat), zhat, Zb)
+    zhat = np.where(np.isfinite(zhat), zhat, np.broadcast_to(Z, zhat.shape))
+    m = zhat.shape[-2]
+    if circular and _hermitian(np.broadcast_to(Z, zhat.shape).reshape(-1, m, zhat.shape[-1])):
+        # real signals: the prediction is conjugate-symmetric to the first fit's rounding;
+        # exactly so, the main fit keeps its half-bins-and-mirror shortcut
+        zhat = (zhat + np.conj(np.take(zhat, (-np.arange(m)) % m, axis=-2))) / 2
+    return zhat
 
 
 def lifted_spectra(x: np.ndarray, factor: int) -> np.ndarray:
