@@ -218,6 +218,16 @@ def test_leading_experiment_dim_broadcasts_and_dask_stays_lazy():
     xr.testing.assert_allclose(lazy.compute(), eager)
 
 
+def assert_same_result(actual, expected, rtol=1e-7):
+    """Every variable of two identify results equal (flags exactly, numbers to ``rtol``)."""
+    for name in expected.data_vars:
+        if expected[name].dtype == bool:
+            np.testing.assert_array_equal(actual[name].values, expected[name].values)
+        else:
+            np.testing.assert_allclose(actual[name].values, expected[name].values, rtol=rtol,
+                                       atol=1e-12 * float(np.nanmax(np.abs(expected[name]))))
+
+
 def test_frequency_chunked_fit_is_lazy_and_equals_in_memory():
     """Chunks along slow frequency get wrapped halos of `window` bins: same answer."""
     import dask
@@ -234,13 +244,7 @@ def test_frequency_chunked_fit_is_lazy_and_equals_in_memory():
     with dask.config.set(scheduler=count):
         lazy = identify(stacked.chunk({"experiment": 1}), window=15, frequency_chunks=40)
         assert lazy.P.chunks is not None and not calls
-    computed = lazy.compute()
-    for name in eager.data_vars:
-        if eager[name].dtype == bool:
-            np.testing.assert_array_equal(computed[name].values, eager[name].values)
-        else:
-            np.testing.assert_allclose(computed[name].values, eager[name].values,
-                                       rtol=1e-7, atol=1e-12 * float(np.nanmax(np.abs(eager[name]))))
+    assert_same_result(lazy.compute(), eager)
     with pytest.raises(ValueError, match="frequency_chunks >= 15"):
         identify(stacked, window=15, frequency_chunks=10)
 

@@ -237,7 +237,8 @@ Returns
                             closed_loop=s.closed_loop, covariance=s.covariance,
                             frequency_chunks=frequency_chunks)
         s = s._replace(window=0) if window0 else s
-        if denominator is None and plan.experiments and s.denominator == DEFAULT_DENOMINATOR:
+        if denominator is None and plan.experiments and not window0 \
+                and s.denominator == DEFAULT_DENOMINATOR:
             # one local model over experiments: least squares' bias does not pool away
             s = s._replace(denominator=POOLED_DEFAULT_DENOMINATOR)
     if s.degrees[1] < 0 and (plan is None or plan.attrs[cv.TRANSIENT_PERIODS] < 1):
@@ -796,8 +797,6 @@ def identify_single_rate(experiment: xr.Dataset, *, method: str = "lrm", window:
     attrs = _settings_attrs(ds, s, factor=factor, th=th)
     for key in ("parameters_per_row", "covariance"):  # not recorded for this estimate
         attrs.pop(key)
-    if cv.IV_FIRST_WINDOW in attrs:  # F = 1: nu excitation channels, not F nu
-        attrs[cv.IV_FIRST_WINDOW] = first_fit_window(ds.sizes[cv.INPUT], s.degrees)
     attrs.update({"closed_loop": "single-rate indirect",
                   "title": f"single-rate closed-loop {s.method.upper()} FRF estimate (ignores lifting)"})
     out.attrs.update(attrs)
