@@ -1062,13 +1062,8 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
             # w_B = -L_s^-1 Y~_B^H w_A; gain g~(r) = conj(Q_A w_A + U_i w_B)(r)
             for p in range(nr):
                 g = q - nr + p
-                for a in range(q):
-                    wa[a] = 0j
-                for a in range(g, q):
-                    acc = 1.0 + 0j if a == g else 0j
-                    for c in range(g, a):
-                        acc -= m[c, a].conjugate() * wa[c]
-                    wa[a] = acc / m[a, a].real
+                x = i * nr + p
+                _gain_shared(m, q, g, qhr, qhi, wa, hgr, hgi, x)
                 for j in range(rk):
                     acc = 0j
                     for a in range(g, q):
@@ -1076,29 +1071,13 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
                     for c in range(j):
                         acc -= low[i, j, c] * wb[c]
                     wb[j] = acc / low[i, j, j].real
-                x = i * nr + p
-                for r in range(width):
-                    hgr[x, r] = 0.0
-                    hgi[x, r] = 0.0
-                for a in range(g, q):  # += qh[a] conj(wa[a])
-                    fr = wa[a].real
-                    fi = -wa[a].imag
-                    for r in range(width):
-                        hgr[x, r] += qhr[a, r] * fr - qhi[a, r] * fi
-                        hgi[x, r] += qhr[a, r] * fi + qhi[a, r] * fr
                 for j in range(rk):  # += conj(um[j]) conj(wb[j])
                     fr = wb[j].real
                     fi = -wb[j].imag
                     for r in range(width):
                         hgr[x, r] += umr[i, j, r] * fr + umi[i, j, r] * fi
                         hgi[x, r] += umr[i, j, r] * fi - umi[i, j, r] * fr
-                sc = ds[g]
-                for r in range(width):  # *= ds[g] d_i(r)
-                    fr = sc * dwr[i, r]
-                    fi = sc * dwi[i, r]
-                    hr = hgr[x, r]
-                    hgr[x, r] = hr * fr - hgi[x, r] * fi
-                    hgi[x, r] = hr * fi + hgi[x, r] * fr
+                _gain_scale(hgr, hgi, x, ds[g], dwr[i], dwi[i])
         if iv is not None:  # the oblique residual projector's tau (_iv_tau)
             _iv_tau(rank, lev, dwr, dwi, umr, umi, ymr, ymi, ncr, nci, vmr, vmi, ehe, tau,
                     scov)
@@ -1149,6 +1128,42 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
                 out_gcov[o, x, y] = acc
                 out_gcov[o, y, x] = acc.conjugate()
     return 0
+
+
+@numba.njit(**_JIT)
+def _gain_shared(m, q, g, qhr, qhi, wa, hgr, hgi, x):
+    """``wa = L^-1 e_g`` (non-zero from entry ``g`` on: ``G`` is last in ``A``) and the
+    shared columns' part of the gain row ``x``: ``conj(Q_A wa)(r) = sum_a qh[a, r]
+    conj(wa[a])`` (the rows' own columns are added by the caller)."""
+    for a in range(q):
+        wa[a] = 0j
+    for a in range(g, q):
+        acc = 1.0 + 0j if a == g else 0j
+        for c in range(g, a):
+            acc -= m[c, a].conjugate() * wa[c]
+        wa[a] = acc / m[a, a].real
+    width = qhr.shape[1]
+    for r in range(width):
+        hgr[x, r] = 0.0
+        hgi[x, r] = 0.0
+    for a in range(g, q):  # += qh[a] conj(wa[a])
+        fr = wa[a].real
+        fi = -wa[a].imag
+        for r in range(width):
+            hgr[x, r] += qhr[a, r] * fr - qhi[a, r] * fi
+            hgi[x, r] += qhr[a, r] * fi + qhi[a, r] * fr
+
+
+@numba.njit(**_JIT)
+def _gain_scale(hgr, hgi, x, sc, dwr, dwi):
+    """Gain row ``x`` times ``sc d(r)`` (the column scale of ``G``, and the equation error
+    ``d V``)."""
+    for r in range(hgr.shape[1]):
+        fr = sc * dwr[r]
+        fi = sc * dwi[r]
+        hr = hgr[x, r]
+        hgr[x, r] = hr * fr - hgi[x, r] * fi
+        hgi[x, r] = hr * fi + hgi[x, r] * fr
 
 
 @numba.njit(**_JIT)
@@ -1227,41 +1242,20 @@ def _iv_row_gains(rt, zt, b, k, i, nz, rk, perm, tsc, twc, siv, ipiv, m, q, nx, 
                 ymi[t, r] += wmr[u, r] * fi + wmi[u, r] * fr
     for p in range(nr):
         g = q - nr + p
-        for a in range(q):  # wa = L^-1 e_g (non-zero on the trailing entries only)
-            wa[a] = 0j
-        for a in range(g, q):
-            acc = 1.0 + 0j if a == g else 0j
-            for c in range(g, a):
-                acc -= m[c, a].conjugate() * wa[c]
-            wa[a] = acc / m[a, a].real
+        xg = i * nr + p
+        _gain_shared(m, q, g, qhr, qhi, wa, hgr, hgi, xg)
         for j in range(rk):  # wb = Y_B^H wa
             acc = 0j
             for a in range(g, q):
                 acc += ybk[a, j].conjugate() * wa[a]
             wb[j] = acc
-        xg = i * nr + p
-        for r in range(width):
-            hgr[xg, r] = 0.0
-            hgi[xg, r] = 0.0
-        for a in range(g, q):  # += qh[a] conj(wa[a])
-            fr = wa[a].real
-            fi = -wa[a].imag
-            for r in range(width):
-                hgr[xg, r] += qhr[a, r] * fr - qhi[a, r] * fi
-                hgi[xg, r] += qhr[a, r] * fi + qhi[a, r] * fr
         for j in range(rk):  # -= conj(Y(r, j)) conj(wb[j])
             br = wb[j].real
             bi = wb[j].imag
             for r in range(width):
                 hgr[xg, r] -= ymr[j, r] * br - ymi[j, r] * bi
                 hgi[xg, r] += ymr[j, r] * bi + ymi[j, r] * br
-        sc = ds[g]
-        for r in range(width):  # *= ds[g] d_i(r)
-            fr = sc * dwr[r]
-            fi = sc * dwi[r]
-            hr = hgr[xg, r]
-            hgr[xg, r] = hr * fr - hgi[xg, r] * fi
-            hgi[xg, r] = hr * fi + hgi[xg, r] * fr
+        _gain_scale(hgr, hgi, xg, ds[g], dwr, dwi)
 
 
 @numba.njit(**_JIT)
