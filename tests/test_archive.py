@@ -189,6 +189,69 @@ def test_sweep_to_disk_identifies_each_experiment_once(tmp_path, monkeypatch):
     arc.close()
 
 
+def test_sweep_to_disk_tasks_write_their_parts_or_hand_them_back(tmp_path, monkeypatch):
+    """Tasks that see the parts directory write their parts and return only the name; a
+    worker that does not (a remote cluster without the file system) returns the result
+    and the caller writes it: the same file either way, bad experiment flagged in both."""
+    import importlib
+
+    stream = importlib.import_module("lcmr_xr.scaleout.stream")
+    save_archive([_labelled(i) for i in range(4)], tmp_path / "dir", layout="files")
+    with netCDF4.Dataset(tmp_path / "dir" / "run3.nc", "a") as nc:  # a sample lost on disk
+        nc["y"][5, 0] = np.nan
+    arc = open_archive(tmp_path / "dir")
+    settings = dict(window=[12], degrees=["2-2-2", "3-3-3"], experiments_per_task=3)
+    returned = []
+    real = stream._identify_to_part
+
+    def recorded(*args, **kwargs):
+        out = real(*args, **kwargs)
+        returned.append(out)
+        return out
+
+    monkeypatch.setattr(stream, "_identify_to_part", recorded)
+    a = sweep_to_disk(arc, tmp_path / "a.nc", **settings, progress=False)
+    assert len(returned) == 4 and all(isinstance(r, str) for r in returned)  # names only
+    returned.clear()
+    monkeypatch.setattr(stream, "_sees_parts", lambda parts, run_id: False)
+    b = sweep_to_disk(arc, tmp_path / "b.nc", **settings, progress=False)
+    assert len(returned) == 4 and all(isinstance(r, xr.Dataset) for r in returned)
+    want = sweep(arc, **settings).compute(scheduler="synchronous")  # chunks of 3 and 1
+    for out in (a, b):
+        got = open_dataset(out)
+        xr.testing.assert_identical(got, want)
+        errors = got.experiment_error.values
+        assert (errors[..., 3] != "").all() and (np.delete(errors, 3, axis=-1) == "").all()
+        assert "run3.nc" in str(errors[0, 1, 0, 3]) and "NaN or inf" in str(errors[0, 1, 0, 3])
+    arc.close()
+
+
+def test_sweep_to_disk_resumes_parts_of_a_manifest_without_run_id(tmp_path):
+    """Parts directories written before the run id (the manifest of an earlier version)
+    are resumed, not refused."""
+    import json
+
+    exps = _stack(["a", "b", "c"])
+    out = tmp_path / "s.nc"
+
+    def crash(done, total, rate):
+        raise _Crash
+
+    with pytest.raises(_Crash):
+        sweep_to_disk(exps, out, window=[12], experiments_per_task=1, workers=1, progress=crash)
+    manifest = parts_directory(out) / "manifest.json"
+    found = json.loads(manifest.read_text())
+    assert len(found.pop("id")) == 32
+    manifest.write_text(json.dumps(found))
+    kept = len(list(parts_directory(out).glob("*.nc")))
+    seen = []
+    sweep_to_disk(exps, out, window=[12], experiments_per_task=1,
+                  progress=lambda d, t, r: seen.append(d))
+    assert seen[0] == kept + 1 and seen[-1] == 3
+    xr.testing.assert_identical(open_dataset(out), sweep(exps, window=[12], experiments_per_task=1)
+                                .compute(scheduler="synchronous"))
+
+
 def test_sweep_to_disk_never_writes_into_or_over_its_archive(tmp_path):
     save_archive([_labelled(i) for i in range(2)], tmp_path / "dir", layout="files")
     save_archive([_labelled(i) for i in range(2)], tmp_path / "a.nc")
