@@ -343,10 +343,12 @@ def throughput(path: Path, n: int, tmp: Path, per_task: int) -> None:
             wall, client_cpu = time.perf_counter() - t0, time.process_time() - c0
             rows.append((name, wall, client_cpu + _workers_cpu(client) - cpu0))
     print(f"identify throughput, {n} experiments (window {WINDOW}, 3-3-3, P_std; goal >= 15 "
-          "experiments/s on the 2-core machine):")
+          "experiments/s on the 2-core machine; 'x one thread': the rate against the plain "
+          f"calls on one worker thread, in this run; load {os.getloadavg()[0]:.1f} at its end):")
+    base = rows[1][1]
     for name, wall, cpu in rows:
         print(f"  {name:<62}: {n / wall:6.2f} experiments/s ({wall:6.2f} s wall, {cpu:6.2f} s CPU, "
-              f"{cpu / n * 1e3:5.0f} ms CPU per experiment)")
+              f"{cpu / n * 1e3:5.0f} ms CPU per experiment, {base / wall:4.2f} x one thread)")
     arc.close()
 
 
