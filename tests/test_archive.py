@@ -16,7 +16,7 @@ import xarray as xr
 
 from lcmr_xr.cli import main as cli_main
 from lcmr_xr.identification import identify
-from lcmr_xr.io import open_dataset
+from lcmr_xr.io import open_dataset, save
 from lcmr_xr.scaleout import (append_to_archive, consolidate_archive, local_cluster, open_archive,
                               save_archive, sweep, sweep_to_disk)
 from lcmr_xr.scaleout.consolidated import COUNT_ATTR, append_rows, metadata_of
@@ -250,6 +250,32 @@ def test_sweep_to_disk_resumes_parts_of_a_manifest_without_run_id(tmp_path):
     assert seen[0] == kept + 1 and seen[-1] == 3
     xr.testing.assert_identical(open_dataset(out), sweep(exps, window=[12], experiments_per_task=1)
                                 .compute(scheduler="synchronous"))
+
+
+def test_part_reader_decodes_like_xarray(tmp_path):
+    """The assembly reads parts with netCDF4 directly; values must be xarray's decoded
+    ones, also for an encoding a sweep result does not use (then xarray decodes)."""
+    from lcmr_xr.scaleout.stream import _read_part
+
+    ds = xr.Dataset({"c": (("experiment", "f"), np.array([[1 + 2j, np.nan], [3j, 4]])),
+                     "x": (("experiment", "f"), np.array([[np.nan, 1.5], [2.0, -1.0]])),
+                     "b": (("f", "experiment"), np.array([[True, False], [False, True]])),
+                     "s": (("experiment",), np.array(["", "bad: NaN"], dtype=object)),
+                     "i": (("experiment", "f"), np.array([[1, -7], [3, 4]]))})
+    ds["i"].encoding["_FillValue"] = -7  # masked on read: xarray decodes it to NaN
+    path = save(ds, tmp_path / "p.nc")
+    want = open_dataset(path)
+    dims = {"c": ("window", "experiment", "f"), "x": ("window", "experiment", "f"),
+            "b": ("window", "experiment", "f"), "s": ("window", "experiment"),
+            "i": ("window", "experiment", "f")}
+    for names in (["c", "x", "b", "s"], ["c", "i"]):  # plain, then one needing xarray
+        dtypes = {n: want[n].dtype for n in names}
+        got = _read_part(path, names, dims, dtypes)
+        for n in names:
+            expected = want[n].expand_dims("window").transpose(*dims[n]).values
+            assert got[n].dtype == expected.dtype and got[n].shape == expected.shape
+            np.testing.assert_array_equal(got[n], expected)
+    assert np.isnan(got["i"][0, 0, 1])
 
 
 def test_sweep_to_disk_never_writes_into_or_over_its_archive(tmp_path):
