@@ -196,11 +196,11 @@ def test_sweep_to_disk_tasks_write_their_parts_or_hand_them_back(tmp_path, monke
     import importlib
 
     stream = importlib.import_module("lcmr_xr.scaleout.stream")
-    save_archive([_labelled(i) for i in range(4)], tmp_path / "dir", layout="files")
-    with netCDF4.Dataset(tmp_path / "dir" / "run3.nc", "a") as nc:  # a sample lost on disk
+    save_archive([_labelled(i) for i in range(3)], tmp_path / "dir", layout="files")
+    with netCDF4.Dataset(tmp_path / "dir" / "run2.nc", "a") as nc:  # a sample lost on disk
         nc["y"][5, 0] = np.nan
     arc = open_archive(tmp_path / "dir")
-    settings = dict(window=[12], degrees=["2-2-2", "3-3-3"], experiments_per_task=3)
+    settings = dict(window=[12], degrees=["2-2-2", "3-3-3"], experiments_per_task=2)
     returned = []
     real = stream._identify_to_part
 
@@ -216,13 +216,13 @@ def test_sweep_to_disk_tasks_write_their_parts_or_hand_them_back(tmp_path, monke
     monkeypatch.setattr(stream, "_sees_parts", lambda parts, run_id: False)
     b = sweep_to_disk(arc, tmp_path / "b.nc", **settings, progress=False)
     assert len(returned) == 4 and all(isinstance(r, xr.Dataset) for r in returned)
-    want = sweep(arc, **settings).compute(scheduler="synchronous")  # chunks of 3 and 1
+    want = sweep(arc, **settings).compute(scheduler="synchronous")  # chunks of 2 and 1
     for out in (a, b):
         got = open_dataset(out)
         xr.testing.assert_identical(got, want)
         errors = got.experiment_error.values
-        assert (errors[..., 3] != "").all() and (np.delete(errors, 3, axis=-1) == "").all()
-        assert "run3.nc" in str(errors[0, 1, 0, 3]) and "NaN or inf" in str(errors[0, 1, 0, 3])
+        assert (errors[..., 2] != "").all() and (np.delete(errors, 2, axis=-1) == "").all()
+        assert "run2.nc" in str(errors[0, 1, 0, 2]) and "NaN or inf" in str(errors[0, 1, 0, 2])
     arc.close()
 
 
