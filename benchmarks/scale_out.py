@@ -33,9 +33,10 @@ distributed's defaults); 48 experiments: 9.5 experiments/s on one core (105 ms C
 11.6 on 2 workers reduced on the workers, 4.3 through sweep_to_disk on 2 workers (the
 client writing and assembling the results was the bottleneck).  Since the tasks write
 their own parts and the result is assembled reading each part once (64 experiments, 8
-per task, load 4-7 from other jobs, same hour): sweep_to_disk on 2 workers 2.1-2.6 ->
-3.7-3.8 experiments/s, client CPU 8 -> 3 s; on one core 125 ms CPU per experiment
-against 87 ms for plain calls in the same run (part files and assembly ~25 ms); memory of one identify
+per task; old and new code back to back): sweep_to_disk on 2 workers 5.5-6.3 -> 8.1-10.2
+experiments/s at load 1-1.7 (2.1-2.6 -> 3.7-3.8 at load 4-7), client CPU 5.4-6.2 -> 1.8-2.2
+s; 13.6 reduced on the workers in the same run; on one core 117 ms CPU per experiment
+against 90 ms for plain calls (part files, assembly, sweep graph); memory of one identify
 26 MB traced, 28 MB resident.  Part 7 did NOT complete: 23 141 experiments (4.0 GB, 5x
 2 x 400 MB), without P_std, workers grew from 320 MB to 355-382 MB within minutes,
 paused (90 %) or were killed (95 %), and every restart lost the results kept in worker
