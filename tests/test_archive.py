@@ -16,7 +16,7 @@ import xarray as xr
 
 from lcmr_xr.cli import main as cli_main
 from lcmr_xr.identification import identify
-from lcmr_xr.io import open_dataset
+from lcmr_xr.io import open_dataset, save
 from lcmr_xr.scaleout import (append_to_archive, consolidate_archive, local_cluster, open_archive,
                               save_archive, sweep, sweep_to_disk)
 from lcmr_xr.scaleout.consolidated import COUNT_ATTR, append_rows, metadata_of
@@ -187,6 +187,95 @@ def test_sweep_to_disk_identifies_each_experiment_once(tmp_path, monkeypatch):
     res = open_dataset(out)
     np.testing.assert_array_equal(res.seed.values, arc.seed.values)
     arc.close()
+
+
+def test_sweep_to_disk_tasks_write_their_parts_or_hand_them_back(tmp_path, monkeypatch):
+    """Tasks that see the parts directory write their parts and return only the name; a
+    worker that does not (a remote cluster without the file system) returns the result
+    and the caller writes it: the same file either way, bad experiment flagged in both."""
+    import importlib
+
+    stream = importlib.import_module("lcmr_xr.scaleout.stream")
+    save_archive([_labelled(i) for i in range(3)], tmp_path / "dir", layout="files")
+    with netCDF4.Dataset(tmp_path / "dir" / "run2.nc", "a") as nc:  # a sample lost on disk
+        nc["y"][5, 0] = np.nan
+    arc = open_archive(tmp_path / "dir")
+    settings = dict(window=[12], degrees=["2-2-2", "3-3-3"], experiments_per_task=2)
+    returned = []
+    real = stream._identify_to_part
+
+    def recorded(*args, **kwargs):
+        out = real(*args, **kwargs)
+        returned.append(out)
+        return out
+
+    monkeypatch.setattr(stream, "_identify_to_part", recorded)
+    a = sweep_to_disk(arc, tmp_path / "a.nc", **settings, progress=False)
+    assert len(returned) == 4 and all(isinstance(r, str) for r in returned)  # names only
+    returned.clear()
+    monkeypatch.setattr(stream, "_sees_parts", lambda parts, run_id: False)
+    b = sweep_to_disk(arc, tmp_path / "b.nc", **settings, progress=False)
+    assert len(returned) == 4 and all(isinstance(r, xr.Dataset) for r in returned)
+    want = sweep(arc, **settings).compute(scheduler="synchronous")  # chunks of 2 and 1
+    for out in (a, b):
+        got = open_dataset(out)
+        xr.testing.assert_identical(got, want)
+        errors = got.experiment_error.values
+        assert (errors[..., 2] != "").all() and (np.delete(errors, 2, axis=-1) == "").all()
+        assert "run2.nc" in str(errors[0, 1, 0, 2]) and "NaN or inf" in str(errors[0, 1, 0, 2])
+    arc.close()
+
+
+def test_sweep_to_disk_resumes_parts_of_a_manifest_without_run_id(tmp_path):
+    """Parts directories written before the run id (the manifest of an earlier version)
+    are resumed, not refused."""
+    import json
+
+    exps = _stack(["a", "b", "c"])
+    out = tmp_path / "s.nc"
+
+    def crash(done, total, rate):
+        raise _Crash
+
+    with pytest.raises(_Crash):
+        sweep_to_disk(exps, out, window=[12], experiments_per_task=1, workers=1, progress=crash)
+    manifest = parts_directory(out) / "manifest.json"
+    found = json.loads(manifest.read_text())
+    assert len(found.pop("id")) == 32
+    manifest.write_text(json.dumps(found))
+    kept = len(list(parts_directory(out).glob("*.nc")))
+    seen = []
+    sweep_to_disk(exps, out, window=[12], experiments_per_task=1,
+                  progress=lambda d, t, r: seen.append(d))
+    assert seen[0] == kept + 1 and seen[-1] == 3
+    xr.testing.assert_identical(open_dataset(out), sweep(exps, window=[12], experiments_per_task=1)
+                                .compute(scheduler="synchronous"))
+
+
+def test_part_reader_decodes_like_xarray(tmp_path):
+    """The assembly reads parts with netCDF4 directly; values must be xarray's decoded
+    ones, also for an encoding a sweep result does not use (then xarray decodes)."""
+    from lcmr_xr.scaleout.stream import _read_part
+
+    ds = xr.Dataset({"c": (("experiment", "f"), np.array([[1 + 2j, np.nan], [3j, 4]])),
+                     "x": (("experiment", "f"), np.array([[np.nan, 1.5], [2.0, -1.0]])),
+                     "b": (("f", "experiment"), np.array([[True, False], [False, True]])),
+                     "s": (("experiment",), np.array(["", "bad: NaN"], dtype=object)),
+                     "i": (("experiment", "f"), np.array([[1, -7], [3, 4]]))})
+    ds["i"].encoding["_FillValue"] = -7  # masked on read: xarray decodes it to NaN
+    path = save(ds, tmp_path / "p.nc")
+    want = open_dataset(path)
+    dims = {"c": ("window", "experiment", "f"), "x": ("window", "experiment", "f"),
+            "b": ("window", "experiment", "f"), "s": ("window", "experiment"),
+            "i": ("window", "experiment", "f")}
+    for names in (["c", "x", "b", "s"], ["c", "i"]):  # plain, then one needing xarray
+        dtypes = {n: want[n].dtype for n in names}
+        got = _read_part(path, names, dims, dtypes)
+        for n in names:
+            expected = want[n].expand_dims("window").transpose(*dims[n]).values
+            assert got[n].dtype == expected.dtype and got[n].shape == expected.shape
+            np.testing.assert_array_equal(got[n], expected)
+    assert np.isnan(got["i"][0, 0, 1])
 
 
 def test_sweep_to_disk_never_writes_into_or_over_its_archive(tmp_path):

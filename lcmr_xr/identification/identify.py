@@ -657,7 +657,9 @@ def _first_fit_halo(s, n_excitation: int) -> int:
 
 
 def _is_lazy(ds):
-    return any(v.chunks is not None for v in ds.data_vars.values())
+    # the data's own attribute: ``Variable.chunks`` checks a runtime Protocol (~0.1 ms per
+    # variable, 2 ms per identify result)
+    return any(hasattr(ds.variables[name].data, "chunks") for name in ds.data_vars)
 
 
 def _check_excitation_rank(R, name: str) -> None:
