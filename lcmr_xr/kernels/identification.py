@@ -13,7 +13,7 @@ from lcmr_xr.kernels.adaptive import (nonlinearity_factor, select_windows, small
                                       weak_direction)
 from lcmr_xr.kernels.closed_loop import frf_variance_from_first_row, indirect_first_row
 from lcmr_xr.kernels.lifting import frf_from_first_block_row, lift
-from lcmr_xr.kernels.local_models import _hermitian, local_model, parameters_per_row
+from lcmr_xr.kernels.local_models import hermitian, local_model, parameters_per_row
 from lcmr_xr.kernels.pooling import (mean_and_covariance, pooled_least_squares,
                                      rescale_covariance, window_mean)
 
@@ -90,7 +90,7 @@ def denominator_instruments(R, Z, *, degrees=(3, 3, 3), half_width: int | None =
         zhat = np.moveaxis(zhat, -3, experiment_axis)
     zhat = np.where(np.isfinite(zhat), zhat, np.broadcast_to(Z, zhat.shape))
     m = zhat.shape[-2]
-    if circular and _hermitian(np.broadcast_to(Z, zhat.shape).reshape(-1, m, zhat.shape[-1])):
+    if circular and hermitian(np.broadcast_to(Z, zhat.shape).reshape(-1, m, zhat.shape[-1])):
         # real signals: the prediction is conjugate-symmetric to the first fit's rounding;
         # exactly so, the main fit keeps its half-bins-and-mirror shortcut
         zhat = (zhat + np.conj(np.take(zhat, (-np.arange(m)) % m, axis=-2))) / 2
