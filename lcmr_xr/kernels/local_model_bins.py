@@ -79,7 +79,11 @@ COV_NONE, COV_DIAG, COV_FULL = 0, 1, 2
 
 _JIT = {"cache": True, "nogil": True, "error_model": "numpy", "boundscheck": False,
         "fastmath": {"reassoc", "contract"}}
-#: Helpers only called from compiled code: no CPython or C-callback wrapper.
+#: Helpers only called from compiled code: built without the CPython and C-callback
+#: wrappers that numba otherwise compiles for every function (measured: about a tenth of
+#: the first call's compile time).  Such a function must NOT be called from Python (numba
+#: then jumps into a missing wrapper and the interpreter crashes): whatever Python calls,
+#: tests included, is decorated with ``_JIT``.
 _INNER = dict(_JIT, no_cpython_wrapper=True, no_cfunc_wrapper=True)
 
 
@@ -186,7 +190,7 @@ def pivoted_cholesky(s, drop_tol, low, perm, piv):
     return k
 
 
-@numba.njit(**_INNER)
+@numba.njit(**_JIT)  # (called by the tests)
 def _natural_min_pivot(s, scratch):
     """Smallest pivot of the unpivoted Cholesky of the small Hermitian ``s`` (0 when one
     is not positive); ``s`` is kept, ``scratch`` (k, k) overwritten."""
@@ -207,7 +211,7 @@ def _natural_min_pivot(s, scratch):
     return best
 
 
-@numba.njit(**_INNER)
+@numba.njit(**_JIT)  # (called by the tests)
 def _chol_solve(low, rank, b, x):
     """``x = (L L^H)^-1 b`` on the leading ``rank`` entries (``b``, ``x`` may alias)."""
     for j in range(rank):
