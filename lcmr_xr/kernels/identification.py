@@ -280,7 +280,7 @@ def fit_packed(R, Z, *, half_width: int, degrees=(3, 3, 3), circular: bool = Tru
 
 
 def _fit(R, Z, *, half_width, degrees, circular, covariance, noise_covariance, experiment_axis,
-         denominator="ls", instruments=None, spread=True):
+         denominator="ls", instruments=None, halves_instruments=None):
     """The local model's outputs that :func:`fit_packed` packs (``T`` (..., E, M, nz)
     pooled), ``G_cov`` rebuilt from a known noise covariance when one is given.
     ``instruments``: those of ``denominator="iv"`` when the caller has them already."""
@@ -296,43 +296,67 @@ def _fit(R, Z, *, half_width, degrees, circular, covariance, noise_covariance, e
         G_cov = rescale_covariance(G_cov, fit.noise_covariance, known)
     out = {"G": fit.G, "T": fit.T, "noise_variance": fit.noise_variance,
            "condition": fit.condition, "ill_posed": fit.ill_posed, "G_cov": G_cov}
-    if spread and covariance and (_n_experiments(R, Z, experiment_axis) or 0) >= 2:
+    if covariance and (_n_experiments(R, Z, experiment_axis) or 0) >= 2:
+        G_var = np.real(np.diagonal(G_cov, axis1=-2, axis2=-1)).reshape(fit.G.shape)
         out["spread_ratio"] = split_half_spread(
-            R, Z, half_width=half_width, degrees=degrees, circular=circular,
-            noise_covariance=noise_covariance, experiment_axis=experiment_axis,
-            denominator=denominator)
+            R, Z, G_var, half_width=half_width, degrees=degrees, circular=circular,
+            experiment_axis=experiment_axis, denominator=denominator,
+            instruments=halves_instruments)
     return out
 
 
-def split_half_spread(R, Z, *, half_width, degrees, circular=True, noise_covariance=None,
-                      experiment_axis: int, denominator="ls") -> np.ndarray:
-    """Per bin, how far the two halves of pooled experiments disagree, in their variances.
+def split_half_spread(R, Z, G_var, *, half_width, degrees, circular=True,
+                      experiment_axis: int, denominator="ls", instruments=None) -> np.ndarray:
+    """Per bin, the random-group variance of a pooled fit over the variance it reports.
 
     The even- and odd-numbered experiments (:func:`lcmr_xr.kernels.pooling.split_halves`)
     are each fitted as ``identify`` would fit them pooled (same window, degrees and
-    denominator; IV from each half's own first fit), and
-    :func:`lcmr_xr.kernels.pooling.spread_ratio` compares their difference with the sum
-    of their reported variances.  The experiments are independent replicates, so this is
-    a model-free check of the local model's covariance (random groups): on the HDD
-    benchmark it reads 1.6-1.9 below 500 Hz, where the kernel's first-order covariance
-    is too small (docs/uncertainty.md, "Pooled experiments").
+    denominator; IV from each half's own first fit; no covariance), and
+    :func:`lcmr_xr.kernels.pooling.spread_ratio` compares the variance their difference
+    implies for the whole pool with ``G_var``, the variances of ``vec(G)`` the pooled fit
+    reports.  The experiments are independent replicates, so this checks the local
+    model's covariance without its noise model: on the HDD benchmark it reads about 2
+    below 500 Hz, where the first-order covariance is too small (docs/uncertainty.md,
+    "Pooled experiments").
+
+    ``instruments``: the halves' own (:func:`half_instruments`) when the caller has them.
 
     Returns
     -------
     ndarray, real, shape (..., M)
     """
+    R, Z = _broadcast_leading(R, Z)
+    if instruments is None:
+        instruments = half_instruments(R, Z, degrees=degrees, circular=circular,
+                                       experiment_axis=experiment_axis, denominator=denominator)
+    n_exp = (R.shape[:-2] + (0, 0))[experiment_axis]
+    halves = split_halves(n_exp)
+    G = [local_model(np.take(R, idx, axis=experiment_axis), np.take(Z, idx, axis=experiment_axis),
+                     half_width=half_width, degrees=tuple(degrees), circular=circular,
+                     covariance=None, experiment_axis=experiment_axis, instruments=zhat).G
+         for idx, zhat in zip(halves, instruments)]
+    return spread_ratio(G[0], G[1], G_var, halves[0].size * halves[1].size / n_exp ** 2)
+
+
+def half_instruments(R, Z, *, degrees, circular=True, experiment_axis: int,
+                     denominator="ls") -> tuple:
+    """The instruments of the two halves of :func:`split_half_spread` (each half's own
+    first fit; ``(None, None)`` for least squares)."""
+    if not check_denominator(denominator, degrees):
+        return None, None
+    R, Z = _broadcast_leading(R, Z)
+    return tuple(denominator_instruments(np.take(R, idx, axis=experiment_axis),
+                                         np.take(Z, idx, axis=experiment_axis),
+                                         degrees=degrees, circular=circular,
+                                         experiment_axis=experiment_axis)
+                 for idx in split_halves((R.shape[:-2] + (0, 0))[experiment_axis]))
+
+
+def _broadcast_leading(R, Z):
+    """``R`` and ``Z`` with their leading dims broadcast to each other."""
     lead = np.broadcast_shapes(np.shape(R)[:-2], np.shape(Z)[:-2])
-    R = np.broadcast_to(R, lead + np.shape(R)[-2:])
-    Z = np.broadcast_to(Z, lead + np.shape(Z)[-2:])
-    halves = []
-    for idx in split_halves((lead + (0, 0))[experiment_axis]):
-        fit = _fit(np.take(R, idx, axis=experiment_axis), np.take(Z, idx, axis=experiment_axis),
-                   half_width=half_width, degrees=degrees, circular=circular, covariance=True,
-                   noise_covariance=noise_covariance, experiment_axis=experiment_axis,
-                   denominator=denominator, spread=False)
-        var = np.real(np.diagonal(fit["G_cov"], axis1=-2, axis2=-1)).reshape(fit["G"].shape)
-        halves.append((fit["G"], var))
-    return spread_ratio(*halves[0], *halves[1])
+    return (np.broadcast_to(R, lead + np.shape(R)[-2:]),
+            np.broadcast_to(Z, lead + np.shape(Z)[-2:]))
 
 
 def finish_packed(packed, *, nz: int, nr: int, n_fast: int, factor: int, nu: int, ny: int,
@@ -394,13 +418,13 @@ def _finish(fit: dict, *, n_fast, factor, nu, ny, closed_loop, dof) -> dict:
 
 def _fit_and_finish(R, Z, *, half_width, degrees, covariance, noise_covariance, experiment_axis,
                     n_fast, factor, nu, ny, closed_loop, n_exp, denominator="ls",
-                    instruments=None) -> dict:
+                    instruments=None, halves_instruments=None) -> dict:
     """:func:`fit_packed` then :func:`finish_packed` without the packed copy (eager data:
     the (nz nr)^2 covariance columns, the bulk of the memory, are held once, not twice)."""
     fit = _fit(R, Z, half_width=half_width, degrees=degrees, circular=True,
                covariance=covariance, noise_covariance=noise_covariance,
                experiment_axis=experiment_axis, denominator=denominator,
-               instruments=instruments)
+               instruments=instruments, halves_instruments=halves_instruments)
     if n_exp is not None:  # as finish_packed returns it: (..., M, E, nz)
         fit["T"] = np.moveaxis(fit["T"], -3, -2)
     return _finish(fit, n_fast=n_fast, factor=factor, nu=nu, ny=ny, closed_loop=closed_loop,
@@ -517,11 +541,15 @@ def identify_spectra_auto(R, Z, *, n_fast: int, factor: int, nu: int, windows,
     # fitted (one candidate's covariance in memory at a time).  A kernel taking half_width
     # per bin replaces the gather by a single fit at the chosen windows.
     n_exp = _n_experiments(R, Z, experiment_axis)
+    # the split halves' first fits (pooled experiments, IV) also serve every candidate
+    halves = half_instruments(R, Z, degrees=degrees, experiment_axis=experiment_axis,
+                              denominator=denominator) if (n_exp or 0) >= 2 else None
     outs = [_fit_and_finish(R, Z, half_width=w, degrees=degrees, covariance=True,
                             noise_covariance=noise_covariance, experiment_axis=experiment_axis,
                             n_fast=n_fast, factor=factor, nu=nu, ny=ny,
                             closed_loop=closed_loop, n_exp=n_exp, denominator=denominator,
-                            instruments=instruments) for w in windows]
+                            instruments=instruments, halves_instruments=halves)
+            for w in windows]
     return _choose_windows(outs, np.asarray(windows, dtype=int), R.shape[-2])
 
 

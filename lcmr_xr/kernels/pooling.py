@@ -288,25 +288,29 @@ def split_halves(n_exp: int) -> tuple[np.ndarray, np.ndarray]:
     return np.arange(0, int(n_exp), 2), np.arange(1, int(n_exp), 2)
 
 
-def spread_ratio(G_a: np.ndarray, var_a: np.ndarray, G_b: np.ndarray, var_b: np.ndarray
+def spread_ratio(G_a: np.ndarray, G_b: np.ndarray, var: np.ndarray, weight: float = 0.25
                  ) -> np.ndarray:
-    """Spread between two independent estimates over the spread their variances predict.
+    """The random-group variance of a pooled estimate over the variance it reports.
 
     Random groups (Mahalanobis 1946; Wolter, *Introduction to Variance Estimation*, 2nd
     ed., Springer 2007, ch. 2): the experiments of a pooled fit are split into two groups
-    fitted apart.  The groups share no noise, so ``E|G_a - G_b|^2 = var_a + var_b`` for
-    every entry when the reported variances are right, whatever the noise is (coloured,
-    leaking, correlated over bins) and however the local model misdescribes it.  Per bin,
-    the mean over the entries of ``|G_a - G_b|^2 / (var_a + var_b)`` (1 if calibrated;
-    each term is ``Exp(1)`` for Gaussian errors).  A bias common to both groups cancels
-    in the difference: the ratio sees misstated noise, not model error.
+    of ``n_a`` and ``n_b`` experiments fitted apart.  The groups share no noise, and the
+    pooled estimate is about their ``n``-weighted mean, so ``weight |G_a - G_b|^2`` with
+    ``weight = n_a n_b / (n_a + n_b)^2`` (1/4 for equal halves) estimates the variance of
+    every entry of the pooled ``G`` whatever the noise is (coloured, leaking, correlated
+    over bins) and however the local model misdescribes it.  Per bin, the mean over the
+    entries of that estimate over the reported ``var`` (1 if calibrated; each term is
+    ``Exp(1)``-distributed for Gaussian errors).  A bias common to both groups cancels in
+    the difference: the ratio sees misstated noise, not model error.
 
     Parameters
     ----------
     G_a, G_b : ndarray, complex, shape (..., M, nz, nr)
         The two groups' estimates.
-    var_a, var_b : ndarray, real, shape (..., M, nz, nr)
-        Their reported variances.
+    var : ndarray, real, shape (..., M, nz, nr)
+        The variances the pooled fit reports for its ``G``.
+    weight : float, default 0.25
+        ``n_a n_b / (n_a + n_b)^2``.
 
     Returns
     -------
@@ -315,13 +319,13 @@ def spread_ratio(G_a: np.ndarray, var_a: np.ndarray, G_b: np.ndarray, var_b: np.
 
     Examples
     --------
-    >>> g = np.zeros((1, 1, 1)); v = np.full((1, 1, 1), 0.5)
-    >>> spread_ratio(g + 2.0, v, g, v).tolist()
-    [4.0]
+    >>> g = np.zeros((1, 1, 1))
+    >>> spread_ratio(g + 2.0, g, g + 0.5).tolist()
+    [2.0]
     """
     with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-        d2 = np.abs(np.asarray(G_a) - np.asarray(G_b)) ** 2
-        v = np.asarray(var_a) + np.asarray(var_b)
+        d2 = weight * np.abs(np.asarray(G_a) - np.asarray(G_b)) ** 2
+        v = np.asarray(var)
         ok = np.isfinite(d2) & np.isfinite(v) & (v > 0)
         terms = np.where(ok, d2 / np.where(ok, v, 1.0), 0.0).sum(axis=(-2, -1))
         count = ok.sum(axis=(-2, -1))
