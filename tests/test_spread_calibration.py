@@ -121,14 +121,26 @@ def test_calibration_keeps_calibrated_bands_and_restores_understated_ones(resona
         assert cov_cal > cov_raw, stats
 
 
-def test_identify_pooled_returns_the_factor_chunked_and_with_odd_counts():
-    """Three experiments (halves of 2 and 1): finite factors >= 1 on every slow bin; the
-    single record and window 0 have no such variable / NaN."""
-    ds = _pooled(7, False, n_exp=3, n=480)
+def test_identify_pooled_returns_the_factor_with_odd_counts_and_in_chunks():
+    """Five experiments (halves of 3 and 2): finite factors >= 1 on every slow bin, the
+    same in frequency chunks as eager; fewer than MIN_SPLIT_EXPERIMENTS (halves of one
+    record), no covariance or one record: no factor (NaN, or no variable)."""
+    from lcmr_xr.kernels.pooling import MIN_SPLIT_EXPERIMENTS
+
+    ds = _pooled(7, True, n_exp=5, n=480)
     frf = identify(ds, window=20, combine="experiment")
     c = frf[cv.SPREAD_CALIBRATION]
     assert c.dims == (cv.SLOW_FREQUENCY,) and c.attrs["units"] == "1"
-    assert np.all(np.isfinite(c.values)) and np.all(c.values >= 1)
+    assert np.all(np.isfinite(c.values)) and np.all(c.values >= 1) and c.values.max() > 1
+    chunked = identify(ds.chunk({"experiment": 1}), window=20, combine="experiment",
+                       frequency_chunks=40).compute()
+    # 1e-6 as test_denominator_iv's chunked test: the moments of a haloed block are summed
+    # in another order and the IV normal equations (of the pool and of each half) amplify it
+    for name in (cv.SPREAD_CALIBRATION, "P_std"):
+        np.testing.assert_allclose(chunked[name].values, frf[name].values, rtol=1e-6)
+    few = identify(ds.isel(experiment=slice(0, MIN_SPLIT_EXPERIMENTS - 1)), window=20,
+                   combine="experiment")
+    assert np.all(np.isnan(few[cv.SPREAD_CALIBRATION].values))
     assert cv.SPREAD_CALIBRATION not in identify(ds.isel(experiment=0), window=20)
     none = identify(ds, window=20, combine="experiment", covariance=False)
     assert np.all(np.isnan(none[cv.SPREAD_CALIBRATION].values))

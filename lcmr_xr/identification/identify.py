@@ -146,7 +146,9 @@ def identify(experiment: xr.Dataset, *, method: str = "lrm", window=DEFAULT_WIND
         local model: ``G`` and the denominator shared, a transient term per experiment
         (``transient_y``/``transient_u`` keep the ``experiment`` dim), one noise
         covariance with ``E (2n + 1) - p`` degrees of freedom; attribute
-        ``pooled_experiments``.  Lazy data work along the other leading dims (not with
+        ``pooled_experiments``.  With a covariance, the even- and odd-numbered
+        experiments are also fitted apart and the covariance is scaled per slow bin by
+        their spread (variable ``spread_calibration``, at least 1; docs/uncertainty.md).  Lazy data work along the other leading dims (not with
         ``frequency_chunks``).  ``degrees`` with ``Rm = -1`` (no transient term) is
         accepted only for steady-state periodic records (a ``period`` dim, transient
         periods dropped).

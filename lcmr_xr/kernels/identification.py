@@ -14,7 +14,8 @@ from lcmr_xr.kernels.adaptive import (nonlinearity_factor, select_windows, small
 from lcmr_xr.kernels.closed_loop import frf_variance_from_first_row, indirect_first_row
 from lcmr_xr.kernels.lifting import frf_from_first_block_row, lift
 from lcmr_xr.kernels.local_models import _hermitian, local_model, parameters_per_row
-from lcmr_xr.kernels.pooling import (mean_and_covariance, pooled_least_squares,
+from lcmr_xr.kernels.pooling import (MIN_SPLIT_EXPERIMENTS, mean_and_covariance,
+                                     pooled_least_squares,
                                      rescale_covariance, split_halves, spread_calibration,
                                      spread_ratio, window_mean)
 
@@ -233,8 +234,9 @@ def recover_frf(G, G_cov, *, n_fast: int, factor: int, nu: int, ny: int,
 
 def packed_width(nz: int, nr: int, covariance: bool, n_exp: int = 1) -> int:
     """Length of the last axis of :func:`fit_packed`'s output (``n_exp`` transients; with
-    ``n_exp >= 2`` and ``covariance``, one more column for the split-half spread ratio)."""
-    spread = 1 if covariance and n_exp >= 2 else 0
+    ``n_exp >= MIN_SPLIT_EXPERIMENTS`` and ``covariance``, one more column for the
+    split-half spread ratio)."""
+    spread = 1 if covariance and n_exp >= MIN_SPLIT_EXPERIMENTS else 0
     return nz * nr + (n_exp + 1) * nz + 2 + spread + ((nz * nr) ** 2 if covariance else 0)
 
 
@@ -246,7 +248,8 @@ def fit_packed(R, Z, *, half_width: int, degrees=(3, 3, 3), circular: bool = Tru
     One array (rather than a tuple) so that a frequency-chunked dask computation can run
     the fit with ``map_overlap``-style halos: columns are ``vec(G)`` (``nz nr``), ``T``
     (``nz``), the noise variances (``nz``), the condition number, the ill-posed flag and,
-    with ``covariance``, the split-half spread ratio (pooled experiments, ``E >= 2``:
+    with ``covariance``, the split-half spread ratio (pooled experiments,
+    ``E >= MIN_SPLIT_EXPERIMENTS``:
     :func:`split_half_spread`) and ``vec(G_cov)``.  :func:`finish_packed` unpacks it.
 
     ``noise_covariance`` (..., M, nz, nz), optional: a noise covariance known per bin
@@ -296,7 +299,7 @@ def _fit(R, Z, *, half_width, degrees, circular, covariance, noise_covariance, e
         G_cov = rescale_covariance(G_cov, fit.noise_covariance, known)
     out = {"G": fit.G, "T": fit.T, "noise_variance": fit.noise_variance,
            "condition": fit.condition, "ill_posed": fit.ill_posed, "G_cov": G_cov}
-    if covariance and (_n_experiments(R, Z, experiment_axis) or 0) >= 2:
+    if covariance and (_n_experiments(R, Z, experiment_axis) or 0) >= MIN_SPLIT_EXPERIMENTS:
         G_var = np.real(np.diagonal(G_cov, axis1=-2, axis2=-1)).reshape(fit.G.shape)
         out["spread_ratio"] = split_half_spread(
             R, Z, G_var, half_width=half_width, degrees=degrees, circular=circular,
@@ -384,7 +387,7 @@ def finish_packed(packed, *, nz: int, nr: int, n_fast: int, factor: int, nu: int
     fit = {"G": G, "T": T, "noise_variance": noise_variance, "condition": condition,
            "ill_posed": ill_posed}
     o += nz + 2
-    if covariance and ne >= 2:
+    if covariance and ne >= MIN_SPLIT_EXPERIMENTS:
         fit["spread_ratio"] = packed[..., o].real.copy()
         o += 1
     fit["G_cov"] = packed[..., o:].reshape(lead_m + (g, g)) if covariance else None
@@ -543,7 +546,8 @@ def identify_spectra_auto(R, Z, *, n_fast: int, factor: int, nu: int, windows,
     n_exp = _n_experiments(R, Z, experiment_axis)
     # the split halves' first fits (pooled experiments, IV) also serve every candidate
     halves = half_instruments(R, Z, degrees=degrees, experiment_axis=experiment_axis,
-                              denominator=denominator) if (n_exp or 0) >= 2 else None
+                              denominator=denominator) \
+        if (n_exp or 0) >= MIN_SPLIT_EXPERIMENTS else None
     outs = [_fit_and_finish(R, Z, half_width=w, degrees=degrees, covariance=True,
                             noise_covariance=noise_covariance, experiment_axis=experiment_axis,
                             n_fast=n_fast, factor=factor, nu=nu, ny=ny,

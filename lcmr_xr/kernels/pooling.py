@@ -37,7 +37,7 @@ import numpy as np
 
 from lcmr_xr.kernels.local_models import CONDITION_LIMIT
 
-__all__ = ["PooledFit", "SPREAD_SMOOTHING", "mean_and_covariance", "pooled_least_squares",
+__all__ = ["MIN_SPLIT_EXPERIMENTS", "PooledFit", "SPREAD_SMOOTHING", "mean_and_covariance", "pooled_least_squares",
            "rescale_covariance", "split_halves", "spread_calibration", "spread_ratio",
            "window_mean"]
 
@@ -45,6 +45,13 @@ __all__ = ["PooledFit", "SPREAD_SMOOTHING", "mean_and_covariance", "pooled_least
 #: experiments is averaged (a bin alone has a few degrees of freedom; the local model's
 #: misstatement changes slowly with frequency).
 SPREAD_SMOOTHING = 6
+#: Fewest pooled experiments whose covariance is checked by split halves: halves of at
+#: least two experiments each.  A half of ONE record is a single-record fit, whose IV
+#: estimate has a heavy tail (docs/uncertainty.md, "Instrumental variables": 1 % of the
+#: entries carry 84 % of the mean squared error), so its difference from the other half
+#: says little about the pool's variance; and at 2 degrees of freedom in its first fit
+#: it amplifies rounding (eager and frequency-chunked results then differ by 1e-5).
+MIN_SPLIT_EXPERIMENTS = 4
 
 
 def mean_and_covariance(Z: np.ndarray, n_pool_axes: int = 1) -> tuple[np.ndarray, np.ndarray]:
