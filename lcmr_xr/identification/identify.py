@@ -146,9 +146,10 @@ def identify(experiment: xr.Dataset, *, method: str = "lrm", window=DEFAULT_WIND
         local model: ``G`` and the denominator shared, a transient term per experiment
         (``transient_y``/``transient_u`` keep the ``experiment`` dim), one noise
         covariance with ``E (2n + 1) - p`` degrees of freedom; attribute
-        ``pooled_experiments``.  With a covariance, the even- and odd-numbered
-        experiments are also fitted apart and the covariance is scaled per slow bin by
-        their spread (variable ``spread_calibration``, at least 1; docs/uncertainty.md).  Lazy data work along the other leading dims (not with
+        ``pooled_experiments``.  With a covariance and at least 4 experiments, the even-
+        and odd-numbered experiments are also fitted apart and the covariance is scaled
+        per slow bin by their spread (variable ``spread_calibration``, at least 1;
+        docs/uncertainty.md).  Lazy data work along the other leading dims (not with
         ``frequency_chunks``).  ``degrees`` with ``Rm = -1`` (no transient term) is
         accepted only for steady-state periodic records (a ``period`` dim, transient
         periods dropped).
@@ -434,7 +435,7 @@ def _split(out: dict, specs, *, factor: int, nu: int, ny: int, closed_loop: str)
         pieces["s_singular"] = out["s_singular"]
         pieces["s_weak_rel_std"] = out["s_weak_rel_std"]
     # pooled experiments: the split-half factor on the covariance (NaN where none was
-    # computed: no covariance, or window 0, whose covariance is not a local model's)
+    # computed: no covariance, fewer than 4 experiments, or window 0, no local model)
     pieces[cv.SPREAD_CALIBRATION] = out.get("spread_calibration", np.full(lead_m, np.nan))
     if "window" in out:  # window="auto"
         pieces["P_bias"] = out["P_bias"]

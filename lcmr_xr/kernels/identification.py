@@ -15,9 +15,8 @@ from lcmr_xr.kernels.closed_loop import frf_variance_from_first_row, indirect_fi
 from lcmr_xr.kernels.lifting import frf_from_first_block_row, lift
 from lcmr_xr.kernels.local_models import _hermitian, local_model, parameters_per_row
 from lcmr_xr.kernels.pooling import (MIN_SPLIT_EXPERIMENTS, mean_and_covariance,
-                                     pooled_least_squares,
-                                     rescale_covariance, split_halves, spread_calibration,
-                                     spread_ratio, window_mean)
+                                     pooled_least_squares, rescale_covariance, split_halves,
+                                     spread_calibration, spread_ratio, window_mean)
 
 #: The lifted excitation counts as rank deficient when its smallest singular value
 #: (over all bins) is below this fraction of its largest.
@@ -249,8 +248,7 @@ def fit_packed(R, Z, *, half_width: int, degrees=(3, 3, 3), circular: bool = Tru
     the fit with ``map_overlap``-style halos: columns are ``vec(G)`` (``nz nr``), ``T``
     (``nz``), the noise variances (``nz``), the condition number, the ill-posed flag and,
     with ``covariance``, the split-half spread ratio (pooled experiments,
-    ``E >= MIN_SPLIT_EXPERIMENTS``:
-    :func:`split_half_spread`) and ``vec(G_cov)``.  :func:`finish_packed` unpacks it.
+    ``E >= MIN_SPLIT_EXPERIMENTS``: :func:`split_half_spread`) and ``vec(G_cov)``.  :func:`finish_packed` unpacks it.
 
     ``noise_covariance`` (..., M, nz, nz), optional: a noise covariance known per bin
     (e.g. from the spread over periods, :func:`lcmr_xr.kernels.pooling.mean_and_covariance`).
@@ -320,7 +318,7 @@ def split_half_spread(R, Z, G_var, *, half_width, degrees, circular=True,
     reports.  The experiments are independent replicates, so this checks the local
     model's covariance without its noise model: on the HDD benchmark it reads about 2
     below 500 Hz, where the first-order covariance is too small (docs/uncertainty.md,
-    "Pooled experiments").
+    "Pooled bands: the covariance checked by split halves").
 
     ``instruments``: the halves' own (:func:`half_instruments`) when the caller has them.
 
