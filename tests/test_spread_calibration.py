@@ -178,7 +178,8 @@ def test_ill_posed_halves_leave_the_covariance_alone(eps):
     where its factorisation still succeeds (every bin at 1e-6, 7 % at 3e-8) but
     meaningless; its difference from the other half must not be read as spread (it made
     the factor about 1e11 and every bin undetermined, or smeared the finite bins' huge
-    ratios over their neighbours): no ratio there, the factor is 1 and the band is the local model's."""
+    ratios over their neighbours): no ratio there, the factor is 1 and the band is the local
+    model's."""
     n, factor = 480, 2
     exps = []
     for e in range(4):
@@ -186,7 +187,8 @@ def test_ill_posed_halves_leave_the_covariance_alone(eps):
         r = random_phase_multisine(n, 1, np.arange(1, n // 2 + 1), 1.0, rng)
         if e % 2 == 0:
             r[1::2] = r[0::2] + eps * rng.standard_normal(r[0::2].shape)
-        exps.append(_simulate(_siso_loop(factor), r, factor, d_y=0.05 * rng.standard_normal((n, 1))))
+        noise = 0.05 * rng.standard_normal((n, 1))
+        exps.append(_simulate(_siso_loop(factor), r, factor, d_y=noise))
     ds = xr.concat(exps, "experiment")
     R, Z = kid.experiment_spectra(ds.r.values, ds.u.values, ds.y.values, factor=factor)
     even = local_model(R[0::2], Z[0::2], half_width=20, covariance=None, experiment_axis=-3)

@@ -248,7 +248,8 @@ def fit_packed(R, Z, *, half_width: int, degrees=(3, 3, 3), circular: bool = Tru
     the fit with ``map_overlap``-style halos: columns are ``vec(G)`` (``nz nr``), ``T``
     (``nz``), the noise variances (``nz``), the condition number, the ill-posed flag and,
     with ``covariance``, the split-half spread ratio (pooled experiments,
-    ``E >= MIN_SPLIT_EXPERIMENTS``: :func:`split_half_spread`) and ``vec(G_cov)``.  :func:`finish_packed` unpacks it.
+    ``E >= MIN_SPLIT_EXPERIMENTS``: :func:`split_half_spread`) and ``vec(G_cov)``.
+    :func:`finish_packed` unpacks it.
 
     ``noise_covariance`` (..., M, nz, nz), optional: a noise covariance known per bin
     (e.g. from the spread over periods, :func:`lcmr_xr.kernels.pooling.mean_and_covariance`).
