@@ -19,6 +19,7 @@ from lcmr_xr import conventions as cv
 from lcmr_xr.identification import identify
 from lcmr_xr.kernels import identification as kid
 from lcmr_xr.kernels.excitation import random_phase_multisine
+from lcmr_xr.kernels.local_models import local_model
 from lcmr_xr.kernels.pooling import split_halves, spread_calibration, spread_ratio
 from test_identify import PLANT, _siso_loop, _simulate, _true_frf
 
@@ -167,3 +168,47 @@ def test_hdd_pooled_band_below_500_hz_covers(group):
     assert ok.mean(axis=0).min() >= 0.9, ok.mean(axis=0)
     sf = frf.slow_frequency.values
     assert np.median(frf[cv.SPREAD_CALIBRATION].values[(sf > 0) & (sf < 500)]) > 1.3
+
+
+@pytest.mark.parametrize("eps", [1e-6, 3e-8])
+def test_ill_posed_halves_leave_the_covariance_alone(eps):
+    """Four experiments; in the even-numbered ones the two lifted phases of ``r`` differ by
+    ``eps`` only, so that half is ill-posed (flagged) at every bin while the pool, with the
+    odd-numbered experiments, is well determined.  The ill-posed half's ``G`` is finite
+    where its factorisation still succeeds (every bin at 1e-6, 7 % at 3e-8) but
+    meaningless; its difference from the other half must not be read as spread (it made
+    the factor about 1e11 and every bin undetermined, or smeared the finite bins' huge
+    ratios over their neighbours): no ratio there, the factor is 1 and the band is the local
+    model's."""
+    n, factor = 480, 2
+    exps = []
+    for e in range(4):
+        rng = np.random.default_rng(50 + e)
+        r = random_phase_multisine(n, 1, np.arange(1, n // 2 + 1), 1.0, rng)
+        if e % 2 == 0:
+            r[1::2] = r[0::2] + eps * rng.standard_normal(r[0::2].shape)
+        noise = 0.05 * rng.standard_normal((n, 1))
+        exps.append(_simulate(_siso_loop(factor), r, factor, d_y=noise))
+    ds = xr.concat(exps, "experiment")
+    R, Z = kid.experiment_spectra(ds.r.values, ds.u.values, ds.y.values, factor=factor)
+    even = local_model(R[0::2], Z[0::2], half_width=20, covariance=None, experiment_axis=-3)
+    assert np.all(even.ill_posed) and np.isfinite(even.G).all(axis=(-2, -1)).any()
+    frf = identify(ds, window=20, combine="experiment", denominator="ls")
+    assert np.array_equal(frf[cv.SPREAD_CALIBRATION].values, np.ones(n // factor))
+    assert not frf.P_undetermined.values.any() and not frf.ill_posed.values.any()
+    assert np.all(np.isfinite(frf.P_std.values))
+
+
+def test_auto_window_in_frequency_chunks_equals_eager():
+    """``window="auto"`` pooled over 4 experiments: every candidate window's fit carries its
+    own ratio, and the factor is applied once per candidate before the choice, whether the
+    candidates are fitted eagerly or in haloed frequency chunks (measured: 1e-8 apart)."""
+    ds = _pooled(7, True, n_exp=4, n=480)
+    frf = identify(ds, combine="experiment")
+    chunked = identify(ds.chunk({"experiment": 1}), combine="experiment",
+                       frequency_chunks=60).compute()
+    c = frf[cv.SPREAD_CALIBRATION].values
+    assert np.all(c >= 1) and c.max() > 1.5  # the resonance is seen
+    np.testing.assert_array_equal(chunked["local_window"].values, frf["local_window"].values)
+    for name in (cv.SPREAD_CALIBRATION, "P_std", "S_std", "P"):
+        np.testing.assert_allclose(chunked[name].values, frf[name].values, rtol=1e-6)

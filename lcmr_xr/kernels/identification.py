@@ -248,7 +248,8 @@ def fit_packed(R, Z, *, half_width: int, degrees=(3, 3, 3), circular: bool = Tru
     the fit with ``map_overlap``-style halos: columns are ``vec(G)`` (``nz nr``), ``T``
     (``nz``), the noise variances (``nz``), the condition number, the ill-posed flag and,
     with ``covariance``, the split-half spread ratio (pooled experiments,
-    ``E >= MIN_SPLIT_EXPERIMENTS``: :func:`split_half_spread`) and ``vec(G_cov)``.  :func:`finish_packed` unpacks it.
+    ``E >= MIN_SPLIT_EXPERIMENTS``: :func:`split_half_spread`) and ``vec(G_cov)``.
+    :func:`finish_packed` unpacks it.
 
     ``noise_covariance`` (..., M, nz, nz), optional: a noise covariance known per bin
     (e.g. from the spread over periods, :func:`lcmr_xr.kernels.pooling.mean_and_covariance`).
@@ -299,6 +300,8 @@ def _fit(R, Z, *, half_width, degrees, circular, covariance, noise_covariance, e
            "condition": fit.condition, "ill_posed": fit.ill_posed, "G_cov": G_cov}
     if covariance and (_n_experiments(R, Z, experiment_axis) or 0) >= MIN_SPLIT_EXPERIMENTS:
         G_var = np.real(np.diagonal(G_cov, axis1=-2, axis2=-1)).reshape(fit.G.shape)
+        # the pool's own ill-posed bins (P_bad) have no variance to check
+        G_var = np.where(fit.ill_posed[..., None, None], np.nan, G_var)
         out["spread_ratio"] = split_half_spread(
             R, Z, G_var, half_width=half_width, degrees=degrees, circular=circular,
             experiment_axis=experiment_axis, denominator=denominator,
@@ -332,10 +335,16 @@ def split_half_spread(R, Z, G_var, *, half_width, degrees, circular=True,
                                        experiment_axis=experiment_axis, denominator=denominator)
     n_exp = (R.shape[:-2] + (0, 0))[experiment_axis]
     halves = split_halves(n_exp)
-    G = [local_model(np.take(R, idx, axis=experiment_axis), np.take(Z, idx, axis=experiment_axis),
-                     half_width=half_width, degrees=tuple(degrees), circular=circular,
-                     covariance=None, experiment_axis=experiment_axis, instruments=zhat).G
-         for idx, zhat in zip(halves, instruments)]
+    fits = [local_model(np.take(R, idx, axis=experiment_axis),
+                        np.take(Z, idx, axis=experiment_axis), half_width=half_width,
+                        degrees=tuple(degrees), circular=circular, covariance=None,
+                        experiment_axis=experiment_axis, instruments=zhat)
+            for idx, zhat in zip(halves, instruments)]
+    # A half flagged ill-posed (e.g. its experiments excite two lifted channels nearly
+    # alike, which the pool's others tell apart) returns a finite G of no meaning: its
+    # difference from the other half is no spread of the pool, and the smoothing would
+    # carry it to the neighbouring bins.  Such bins give no ratio (NaN).
+    G = [np.where(f.ill_posed[..., None, None], np.nan, f.G) for f in fits]
     return spread_ratio(G[0], G[1], G_var, halves[0].size * halves[1].size / n_exp ** 2)
 
 

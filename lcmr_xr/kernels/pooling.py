@@ -37,9 +37,9 @@ import numpy as np
 
 from lcmr_xr.kernels.local_models import CONDITION_LIMIT
 
-__all__ = ["MIN_SPLIT_EXPERIMENTS", "PooledFit", "SPREAD_SMOOTHING", "mean_and_covariance", "pooled_least_squares",
-           "rescale_covariance", "split_halves", "spread_calibration", "spread_ratio",
-           "window_mean"]
+__all__ = ["MIN_SPLIT_EXPERIMENTS", "PooledFit", "SPREAD_SMOOTHING", "mean_and_covariance",
+           "pooled_least_squares", "rescale_covariance", "split_halves", "spread_calibration",
+           "spread_ratio", "window_mean"]
 
 #: Neighbouring slow bins (each side) over which the split-half spread ratio of pooled
 #: experiments is averaged (a bin alone has a few degrees of freedom; the local model's
@@ -291,7 +291,8 @@ def split_halves(n_exp: int) -> tuple[np.ndarray, np.ndarray]:
     [[0, 2, 4], [1, 3]]
     """
     if int(n_exp) < 2:
-        raise ValueError(f"splitting pooled experiments in two needs at least 2, got {n_exp}.")
+        raise ValueError(f"splitting pooled experiments in two needs at least 2, got {n_exp}; "
+                         f"pass n_exp >= 2 (identify splits only {MIN_SPLIT_EXPERIMENTS} or more).")
     return np.arange(0, int(n_exp), 2), np.arange(1, int(n_exp), 2)
 
 
@@ -309,6 +310,12 @@ def spread_ratio(G_a: np.ndarray, G_b: np.ndarray, var: np.ndarray, weight: floa
     entries of that estimate over the reported ``var`` (1 if calibrated; each term is
     ``Exp(1)``-distributed for Gaussian errors).  A bias common to both groups cancels in
     the difference: the ratio sees misstated noise, not model error.
+
+    The weight assumes every experiment carries the same information about ``G`` (the
+    same excitation design and level, interleaved over the halves).  Groups of unequal
+    information ``I_a``, ``I_b`` need ``I_a I_b / (I_a + I_b)^2`` instead: with the fixed
+    weight the ratio overstates by ``(I_a + I_b)^2 / (4 I_a I_b)`` for equal halves
+    (docs/uncertainty.md, "Pooled bands: the covariance checked by split halves").
 
     Parameters
     ----------
