@@ -169,21 +169,26 @@ def test_sweep_to_disk_identifies_each_experiment_once(tmp_path, monkeypatch):
     archive's metadata coordinates once came back through them)."""
     import importlib
 
-    sweep_module = importlib.import_module("lcmr_xr.scaleout.sweep")  # not the function sweep
+    identify_module = importlib.import_module("lcmr_xr.identification.identify")
     save_archive([_labelled(i) for i in range(3)], tmp_path / "a.nc")
     arc = open_archive(tmp_path / "a.nc")
     assert "seed" in arc.coords  # metadata along experiment: what pulled the tasks back
     calls = []
-    real = sweep_module._identify_or_flag
+    real = identify_module.record_kernel
 
-    def counted(one, source, settings):
-        calls.append(str(one.experiment.values.ravel()[0]))
-        return real(one, source, settings)
+    def counted(*args, **kwargs):  # the kernel of every identify, whichever path calls it
+        kernel = real(*args, **kwargs)
 
-    monkeypatch.setattr(sweep_module, "_identify_or_flag", counted)
+        def counting(r, u, y, *rest):
+            calls.append(float(np.asarray(r)[..., 0, 0].ravel()[0]))  # which experiment
+            return kernel(r, u, y, *rest)
+        return counting
+
+    monkeypatch.setattr(identify_module, "record_kernel", counted)
     out = sweep_to_disk(arc, tmp_path / "r.nc", window=[12, 20], experiments_per_task=2,
                         scheduler="synchronous", progress=False)
-    assert sorted(calls) == sorted(2 * [str(v) for v in arc.experiment.values])
+    first = [float(v) for v in arc.r.isel(time=0, input=0).values]
+    assert len(set(first)) == 3 and sorted(calls) == sorted(2 * first)
     res = open_dataset(out)
     np.testing.assert_array_equal(res.seed.values, arc.seed.values)
     arc.close()
@@ -287,6 +292,21 @@ def test_sweep_to_disk_never_writes_into_or_over_its_archive(tmp_path):
     with pytest.raises(ValueError, match="the input file"):
         sweep_to_disk(open_archive(tmp_path / "a.nc"), tmp_path / "a.nc", window=[12], overwrite=True)
     assert sorted(p.name for p in tmp_path.rglob("*")) == before  # no parts directory either
+
+
+def test_sweep_to_disk_keeps_only_the_variables_asked_for(tmp_path):
+    exps = _stack(["a", "b", "c"])
+    out = sweep_to_disk(exps, tmp_path / "s.nc", window=[12, 15], variables=["P_flag", "P"],
+                        experiments_per_task=2, scheduler="synchronous", progress=False)
+    got = open_dataset(out)
+    assert list(got.data_vars) == ["P", "P_flag", "experiment_error"]  # the sweep's order
+    want = sweep(exps, window=[12, 15]).compute(scheduler="synchronous")
+    xr.testing.assert_identical(got, want[["P", "P_flag", "experiment_error"]])
+    with pytest.raises(ValueError, match=r"\['Q'\] are not in this sweep's result; choose from"):
+        sweep_to_disk(exps, tmp_path / "t.nc", window=[12], variables=["P", "Q"])
+    with pytest.raises(ValueError, match="variables must be names"):
+        sweep_to_disk(exps, tmp_path / "t.nc", window=[12], variables=[])
+    assert not (tmp_path / "t.nc").exists() and not parts_directory(tmp_path / "t.nc").exists()
 
 
 def test_sweep_to_disk_prints_experiments_per_second(tmp_path, capsys):
