@@ -67,8 +67,6 @@ import numpy as np
 
 N = 3600
 WINDOW = 30
-#: Seconds a worker of the big run (part 7) lives before it is retired and restarted.
-LIFETIME = 90
 
 
 # ------------------------------------------------------------------ archives
@@ -497,22 +495,33 @@ class _RssSampler:
         self._thread.join()
 
 
+def _worker_state(dask_worker):
+    """What a worker holds: status, keys spilled to disk, its pid (restarts change it)."""
+    data = dask_worker.data
+    spilled = len(getattr(data, "slow", ()))
+    return {"status": str(dask_worker.status), "spilled": spilled, "pid": os.getpid()}
+
+
 def big_run(tmp_root: Path, memory_limit: str, factor: float, per_task: int,
-            covariance: bool = False, archive: Path | None = None) -> None:
+            covariance: bool = False, archive: Path | None = None,
+            lifetime: float | None = None) -> None:
     """Item 7: a 2-worker cluster with ``memory_limit`` each identifies an archive
-    ``factor`` times larger than the workers' memory together (``covariance``: with
-    ``P_std``)."""
+    ``factor`` times larger than the workers' memory together through ``sweep_to_disk``
+    (``covariance``: with ``P_std``), writing ``P``, ``P_flag`` (and ``P_std``)."""
     import dask
+    import xarray as xr
     from dask.utils import parse_bytes
     from distributed import Client
 
-    from lcmr_xr.scaleout import local_cluster, open_archive
+    from lcmr_xr.io import open_dataset
+    from lcmr_xr.scaleout import local_cluster, open_archive, sweep_to_disk
 
     limit = parse_bytes(memory_limit)
     base = _base(seed=7)
     per_exp = base[["r", "u", "y"]].nbytes
     n = int(np.ceil(factor * 2 * limit / per_exp))
     free = shutil.disk_usage(tmp_root).free
+    keep = ["P", "P_flag"] + (["P_std"] if covariance else [])
     if archive is None and free < 2 * n * per_exp:
         raise SystemExit(f"--big needs about {n * per_exp / 1e9:.1f} GB in {tmp_root} (twice that "
                          f"free), {free / 1e9:.1f} GB are free; pass --tmp DIR on a larger disk.")
@@ -531,62 +540,75 @@ def big_run(tmp_root: Path, memory_limit: str, factor: float, per_task: int,
             print(f"  written in {time.perf_counter() - t0:.0f} s; {path.stat().st_size / 1e9:.2f} "
                   "GB on disk", flush=True)
         truth = _truth_of(base)
-        # A safety net: a worker that grows over thousands of tasks (measured with the
-        # archive rechunked: from 320 MB after its first tasks to 355-370 MB within 4
-        # minutes) pauses at 360 MB (local_cluster's 90 % of 400 MB) and may stall for
-        # good.  distributed's remedy for slowly growing workers: retire and restart each
-        # after a lifetime (staggered), its tasks moved to the other worker first.
-        lifetime = {"distributed.worker.lifetime.duration": f"{LIFETIME} s",
-                    "distributed.worker.lifetime.stagger": f"{LIFETIME // 4} s",
-                    "distributed.worker.lifetime.restart": True}
-        with dask.config.set(lifetime), \
+        config = {} if not lifetime else {  # opt-in safety net: retire and restart workers
+            "distributed.worker.lifetime.duration": f"{lifetime} s",
+            "distributed.worker.lifetime.stagger": f"{lifetime / 4} s",
+            "distributed.worker.lifetime.restart": True}
+        output = tmp / "sweep.nc"
+        states = []
+        with dask.config.set(config), \
                 local_cluster(2, memory_limit=memory_limit, silence_logs=50) as cluster, \
                 Client(cluster) as client:
             pids = list(client.run(os.getpid).values())
-            # chunks of per_task experiments as read: root tasks that the scheduler queues
-            # (a rechunk of the archive's 16-experiment chunks let it assign 1 300 tasks at
-            # once, whose reads filled the workers until they paused)
             arc = open_archive(path, chunks={"experiment": per_task})
-            lazy = reduced_sweep(arc, truth, per_task, covariance)
-            result, failed = None, None
+            last = {"t": 0.0, "print": 0.0}
+
+            def watch(done, total, rate):  # every task: sample the workers every 5 s
+                now = time.perf_counter() - t0
+                if now - last["t"] < 5 and done < total:
+                    return
+                last["t"] = now
+                try:
+                    state = client.run(_worker_state)
+                except Exception:  # a worker restarting: next time
+                    return
+                states.extend(state.values())
+                sampler.add([st["pid"] for st in state.values()])
+                if now - last["print"] > 120 or done >= total:
+                    last["print"] = now
+                    print(f"    {now:5.0f} s: {done}/{total} experiments, {rate:.2f}/s, peak "
+                          f"worker RSS so far {max(sampler.peak.values()) / 1e6:.0f} MB, "
+                          f"worker processes {len(sampler.procs)}, statuses "
+                          f"{sorted({st['status'] for st in state.values()})}", flush=True)
+
+            failed = None
             with _RssSampler(pids) as sampler:
                 t0 = time.perf_counter()
-                future = client.compute(lazy)
-                last = 0.0
-                while result is None and failed is None:
-                    try:
-                        result = future.result(timeout=5)
-                    except TimeoutError:  # long work shows progress; restarted workers
-                        try:
-                            sampler.add(client.run(os.getpid).values())
-                        except Exception:  # a worker closing for its restart: ask again later
-                            pass
-                        if time.perf_counter() - t0 > last + 120:
-                            last = time.perf_counter() - t0
-                            print(f"    {last:5.0f} s, peak worker RSS so far "
-                                  f"{max(sampler.peak.values()) / 1e6:.0f} MB, worker "
-                                  f"processes so far {len(sampler.procs)}", flush=True)
-                    except Exception as exc:  # KilledWorker: the limit was too small; report it
-                        failed = f"{type(exc).__name__}: {str(exc)[:200]}"
+                try:
+                    sweep_to_disk(arc, output, window=[WINDOW], degrees=[(3, 3, 3)],
+                                  covariance=covariance, experiments_per_task=per_task,
+                                  client=client, progress=watch, variables=keep)
+                except Exception as exc:  # KilledWorker: the limit was too small; report it
+                    failed = f"{type(exc).__name__}: {str(exc)[:300]}"
                 wall = time.perf_counter() - t0
             cpu = sum(sampler.cpu.values()) - sum(sampler.cpu0.values())  # every worker process
             arc.close()
         worst = max(sampler.peak.values())
+        paused = sum("paus" in st["status"].lower() for st in states)
+        spilled = max((st["spilled"] for st in states), default=0)
         print(f"  archive: {n} experiments, {n * per_exp / 1e9:.2f} GB of data = "
               f"{n * per_exp / (2 * limit):.1f}x the two workers' {2 * limit / 1e6:.0f} MB")
         if failed:
             print(f"  FAILED after {wall:.0f} s: {failed}")
         else:
-            print(f"  identified ({'with' if covariance else 'without'} P_std) on 2 workers "
-                  f"({memory_limit} each, {per_task} experiments per task) "
-                  f"in {wall:.0f} s wall, {cpu:.0f} s worker CPU: {n / wall:.2f} experiments/s; "
-                  f"median error vs the true FRF {float(result.error.median()):.2e}, median "
-                  f"P_std/|P| {float(result.rel_std.median()):.2e}, bins flagged "
-                  f"{float(result.flagged.mean()):.1%}, "
-                  f"{int(np.isnan(result.error).sum())} experiments without a result")
+            res = open_dataset(output, chunks={"experiment": 500})
+            err = (abs(res.P.isel(method=0, degrees=0, window=0) - truth) / abs(truth)).median(
+                ["frequency", "output", "input"]).compute()
+            flagged = float(res.P_flag.mean().compute())
+            failed_exps = int((res.experiment_error != "").sum())
+            size = output.stat().st_size
+            res.close()
+            print(f"  identified ({'with' if covariance else 'without'} P_std) through "
+                  f"sweep_to_disk on 2 workers ({memory_limit} each, {per_task} experiments per "
+                  f"task) in {wall:.0f} s wall, {cpu:.0f} s worker CPU: {n / wall:.2f} "
+                  f"experiments/s; result {size / 1e9:.2f} GB ({', '.join(keep)}); median error "
+                  f"vs the true FRF {float(err.median()):.2e}, bins flagged {flagged:.1%}, "
+                  f"{failed_exps} experiments failed")
         print(f"  peak worker RSS {worst / 1e6:.0f} MB ({'under' if worst < limit else 'OVER'} the "
-              f"limit of {limit / 1e6:.0f} MB) over {len(sampler.procs)} worker processes (each "
-              f"restarted after about {LIFETIME} s)")
+              f"limit of {limit / 1e6:.0f} MB) over {len(sampler.procs)} worker processes "
+              f"({'restarted every ' + str(lifetime) + ' s' if lifetime else 'no restarts asked'}); "
+              f"worker samples {len(states)}, paused in {paused}, most keys spilled at once "
+              f"{spilled}")
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
 
@@ -613,6 +635,9 @@ def main(argv=None):
                          "above its ~320 MB of libraries and kernels, and reached the limit)")
     ap.add_argument("--big-archive", type=Path, default=None,
                     help="part 7 on this consolidated archive (kept) instead of writing one")
+    ap.add_argument("--big-lifetime", type=float, default=None,
+                    help="part 7: retire and restart each worker after this many seconds "
+                         "(default: never)")
     ap.add_argument("--tmp", type=Path, default=Path(tempfile.gettempdir()),
                     help="where part 7 writes its archive (deleted afterwards)")
     args = ap.parse_args(argv)
@@ -622,7 +647,7 @@ def main(argv=None):
           "(shared: compare numbers within the run)", flush=True)
     if args.big_only:
         big_run(args.tmp, args.memory_limit, args.big_factor, args.per_task, args.big_covariance,
-                args.big_archive)
+                args.big_archive, args.big_lifetime)
         return
     from lcmr_xr.scaleout import append_to_archive, open_archive, sweep
 
@@ -689,7 +714,7 @@ def main(argv=None):
         shutil.rmtree(tmp, ignore_errors=True)
     if args.big:
         big_run(args.tmp, args.memory_limit, args.big_factor, args.per_task, args.big_covariance,
-                args.big_archive)
+                args.big_archive, args.big_lifetime)
 
 
 if __name__ == "__main__":
