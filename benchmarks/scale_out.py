@@ -310,7 +310,20 @@ def _workers_cpu(client) -> float:
     return sum(client.run(lambda: sum(__import__("psutil").Process().cpu_times()[:2])).values())
 
 
-def throughput(path: Path, n: int, tmp: Path, per_task: int) -> None:
+_PATHS = {False: "per-experiment identify (old)", True: "kernel per experiment, labels once (new)"}
+
+
+def _use_stacked_tasks(on: bool) -> None:
+    """Sweep tasks label their block once (the library's path) or, ``on=False``, call
+    ``identify`` per experiment and concatenate (the path before it), in this process."""
+    import importlib
+
+    module = importlib.import_module("lcmr_xr.scaleout.sweep")  # not the function sweep
+    real = module.__dict__.setdefault("_identify_stacked_real", module._identify_stacked)
+    module._identify_stacked = real if on else (lambda *args: None)
+
+
+def throughput(path: Path, n: int, tmp: Path, per_task: int, rounds: int = 2) -> None:
     """Item 5: experiments per second on one core and on a 2-worker local_cluster."""
     from distributed import Client
 
@@ -338,21 +351,34 @@ def throughput(path: Path, n: int, tmp: Path, per_task: int) -> None:
     worker.join()
     rows.append(("plain identify calls, one worker thread (one core)", time.perf_counter() - t0,
                  time.process_time() - c0))
-    t0, c0 = time.perf_counter(), time.process_time()
-    sweep_to_disk(arc, tmp / "one.nc", window=[WINDOW], scheduler="synchronous", progress=False,
-                  experiments_per_task=per_task)
-    rows.append((f"sweep_to_disk, synchronous (one core), {per_task} per task",
-                 time.perf_counter() - t0, time.process_time() - c0))
+    for stacked in (False, True):  # the task path before and after labelling once per block
+        _use_stacked_tasks(stacked)
+        t0, c0 = time.perf_counter(), time.process_time()
+        sweep_to_disk(arc, tmp / "one.nc", window=[WINDOW], scheduler="synchronous",
+                      progress=False, experiments_per_task=per_task, overwrite=True)
+        rows.append((f"sweep_to_disk, synchronous (one core), {per_task} per task, "
+                     f"{_PATHS[stacked]}", time.perf_counter() - t0, time.process_time() - c0))
     with local_cluster(2, silence_logs=50) as cluster, Client(cluster) as client:
         client.run(lambda: __import__("lcmr_xr.identification"))
         client.compute(reduced_sweep(arc.isel(experiment=slice(0, 2)), truth, 1)).result()  # warm
-        for name, run in (
-                (f"sweep_to_disk, 2-worker local_cluster, {per_task} per task",
-                 lambda: sweep_to_disk(arc, tmp / "two.nc", window=[WINDOW], client=client,
-                                       progress=False, overwrite=True,
-                                       experiments_per_task=per_task)),
-                (f"sweep reduced on 2 workers (nothing gathered), {per_task} per task",
-                 lambda: client.compute(reduced_sweep(arc, truth, per_task)).result())):
+
+        def streamed(stacked, variables=None):
+            client.run(_use_stacked_tasks, stacked)
+            return sweep_to_disk(arc, tmp / "two.nc", window=[WINDOW], client=client,
+                                 progress=False, overwrite=True, experiments_per_task=per_task,
+                                 variables=variables)
+
+        runs = []
+        for rnd in range(rounds):  # old and new alternate: the machine's load drifts
+            for stacked in (False, True):
+                runs.append((f"sweep_to_disk, 2-worker local_cluster, {per_task} per task, "
+                             f"{_PATHS[stacked]} (round {rnd + 1})",
+                             lambda stacked=stacked: streamed(stacked)))
+        runs.append((f"sweep_to_disk, 2 workers, {_PATHS[True]}, variables P, P_std, P_flag",
+                     lambda: streamed(True, ["P", "P_std", "P_flag"])))
+        runs.append((f"sweep reduced on 2 workers (nothing gathered), {per_task} per task, "
+                     f"{_PATHS[True]}", lambda: client.compute(reduced_sweep(arc, truth, per_task)).result()))
+        for name, run in runs:
             cpu0 = _workers_cpu(client)
             t0, c0 = time.perf_counter(), time.process_time()
             run()
@@ -363,7 +389,7 @@ def throughput(path: Path, n: int, tmp: Path, per_task: int) -> None:
           f"calls on one worker thread, in this run; load {os.getloadavg()[0]:.1f} at its end):")
     base = rows[1][1]
     for name, wall, cpu in rows:
-        print(f"  {name:<62}: {n / wall:6.2f} experiments/s ({wall:6.2f} s wall, {cpu:6.2f} s CPU, "
+        print(f"  {name:<86}: {n / wall:6.2f} experiments/s ({wall:6.2f} s wall, {cpu:6.2f} s CPU, "
               f"{cpu / n * 1e3:5.0f} ms CPU per experiment, {base / wall:4.2f} x one thread)")
     arc.close()
 
@@ -623,6 +649,8 @@ def main(argv=None):
     ap.add_argument("--identify", type=int, default=64, help="experiments per throughput run")
     ap.add_argument("--per-task", type=int, default=8, help="experiments per sweep task")
     ap.add_argument("--skip-throughput", action="store_true", help="skip parts 4 to 6")
+    ap.add_argument("--throughput-only", action="store_true",
+                    help="of parts 4 to 6, only part 5 (throughput)")
     ap.add_argument("--quick", action="store_true", help="sizes 20 100, 8 experiments identified")
     ap.add_argument("--big", action="store_true",
                     help="also part 7: an archive larger than the workers' memory (~30 min)")
@@ -707,9 +735,11 @@ def main(argv=None):
         del lazy
 
         if not args.skip_throughput:
-            per_call(path)
+            if not args.throughput_only:
+                per_call(path)
             throughput(path, args.identify, tmp, args.per_task)
-            memory(path, args.per_task)
+            if not args.throughput_only:
+                memory(path, args.per_task)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     if args.big:

@@ -105,6 +105,84 @@ def _check_parts(parts: Path, manifest: dict) -> str:
     return run_id
 
 
+class _PartTask:
+    """What one task of :func:`sweep_to_disk` writes: experiments ``[start, stop)``.
+
+    A plain class, not a tuple: dask looks inside the tuples of a task for keys."""
+
+    __slots__ = ("start", "stop", "parts", "name", "run_id", "keep", "settings")
+
+    def __init__(self, start, stop, parts, name, run_id, keep, settings):
+        self.start, self.stop, self.parts, self.name = int(start), int(stop), parts, name
+        self.run_id, self.keep, self.settings = run_id, keep, settings
+
+    def __dask_tokenize__(self):
+        return (self.start, self.stop, self.parts, self.name, self.run_id, self.keep,
+                sorted(self.settings.items()))
+
+
+class _Frame:
+    """The experiments without their data (coordinates, metadata) and, per data variable
+    along ``experiment``, its name, dims and attributes: what a task adds its chunks to."""
+
+    __slots__ = ("dataset", "variables")
+
+    def __init__(self, dataset, variables):
+        self.dataset, self.variables = dataset, variables
+
+
+def _part_from_chunks(frame: _Frame, task: _PartTask, *chunks):
+    """A task of :func:`sweep_to_disk` built by :func:`_part_tasks`: the block of
+    experiments from the shared ``frame`` and its data ``chunks``, then
+    :func:`_identify_to_part`."""
+    block = frame.dataset.isel({cv.EXPERIMENT: slice(task.start, task.stop)}).assign(
+        {n: xr.Variable(dims, data, attrs) for (n, dims, attrs), data in zip(frame.variables, chunks)})
+    return _identify_to_part(block, task.parts, task.name, task.run_id, task.keep, **task.settings)
+
+
+def _part_tasks(ds: xr.Dataset, chunks, specs: list) -> list:
+    """One delayed task per :class:`_PartTask` of ``specs``, on the dask data of ``ds``.
+
+    The graph is written directly: each task reads its chunk of every data variable along
+    ``experiment`` and one object shared by all tasks, the experiments without their data
+    (coordinates and metadata, loaded once here).  Why not ``dask.delayed`` of
+    ``ds.isel(...)`` per block: that cost about 34 ms per block in this process (``isel``
+    and dask's traversal and culling of the whole archive graph for every block; measured:
+    98 s and 420 MB before the first task of a sweep of 23 141 experiments in 2 893
+    blocks).  Data not chunked along ``experiment`` alone take that path.
+    """
+    import dask
+    from dask.base import tokenize
+    from dask.delayed import Delayed
+    from dask.highlevelgraph import HighLevelGraph
+
+    names = [n for n in ds.data_vars if cv.EXPERIMENT in ds[n].dims]
+    keys, arrays = {}, []
+    for n in names:
+        var = ds[n].variable
+        axis = var.get_axis_num(cv.EXPERIMENT) if var.chunks is not None else None
+        if axis is None or tuple(var.chunks[axis]) != tuple(chunks) or any(
+                len(c) > 1 for i, c in enumerate(var.chunks) if i != axis):
+            return [dask.delayed(_identify_to_part, pure=True)(
+                ds.isel({cv.EXPERIMENT: slice(t.start, t.stop)}), t.parts, t.name, t.run_id,
+                t.keep, **t.settings) for t in specs]
+        keys[n] = [(var.data.name,) + tuple(j if d == axis else 0 for d in range(var.ndim))
+                   for j in range(len(chunks))]
+        arrays.append(var.data)
+    frame = _Frame(ds.drop_vars(names).compute(),
+                   tuple((n, ds[n].dims, dict(ds[n].attrs)) for n in names))
+    token = tokenize(frame.dataset, [a.name for a in arrays], specs)
+    frame_key, layer_name = f"sweep-frame-{token}", f"sweep-part-{token}"
+    starts = np.concatenate([[0], np.cumsum(chunks)]).astype(int)
+    block = {int(a): i for i, a in enumerate(starts[:-1])}
+    layer = {frame_key: frame}
+    for i, task in enumerate(specs):
+        j = block[task.start]
+        layer[(layer_name, i)] = (_part_from_chunks, frame_key, task, *[keys[n][j] for n in names])
+    graph = HighLevelGraph.from_collections(layer_name, layer, dependencies=arrays)
+    return [Delayed((layer_name, i), graph, layer=layer_name) for i in range(len(specs))]
+
+
 def _kept_variables(lazy: xr.Dataset, variables) -> tuple[str, ...] | None:
     """The checked ``variables=`` of :func:`sweep_to_disk` plus ``experiment_error``, in the
     sweep's order (None: all)."""
@@ -460,16 +538,15 @@ def sweep_to_disk(experiments: xr.Dataset, output, *, window=(30,), degrees=None
     total = len(pieces) and sum(b - a for _, _, (a, b) in pieces)
     bar = _Progress(progress, total, total - sum(b - a for _, _, (a, b) in todo))
 
-    tasks = []
+    specs = []
     for name, (im, idg, iw), (a, b) in todo:
         st = checked[str(lazy["method"].values[im]), str(lazy["degrees"].values[idg]),
                      int(lazy["window"].values[iw])]
         settings = dict(method=st.method, window=st.window, degrees=st.degrees,
                         closed_loop=st.closed_loop, covariance=st.covariance, source=source,
                         denominator=denominator)
-        block = ds.isel({cv.EXPERIMENT: slice(a, b)})
-        tasks.append(dask.delayed(_identify_to_part, pure=True)(
-            block, str(parts.resolve()), name, run_id, keep, **settings))
+        specs.append(_PartTask(a, b, str(parts.resolve()), name, run_id, keep, settings))
+    tasks = _part_tasks(ds, chunks, specs)
     finished = (_run_client(tasks, client) if client is not None
                 else _run_local(tasks, workers or os.cpu_count() or 1, scheduler))
     for i, result in finished:
