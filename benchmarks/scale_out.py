@@ -4,7 +4,9 @@ HDD experiments, N = 3600 (173 kB of data each), window 30, degrees 3-3-3, with 
 
 1. ``open_archive`` time and client memory (RSS growth of a fresh process) for 100, 1 600
    and 10 000 experiments, consolidated and as a directory of files (the directory form
-   up to ``--files-max`` experiments: it costs ~70 ms per file to open);
+   up to ``--files-max`` experiments: it costs ~85 ms per file to open on a quiet machine,
+   ~0.4 s at load 4-6), and the time ``consolidate_archive`` takes for the largest
+   directory opened;
 2. ``append_to_archive`` of one experiment into the largest consolidated archive;
 3. the time to build the graph of a sweep of the largest archive x 3 windows;
 4. one ``identify`` per call (wall, CPU of the calling thread, page faults): in a plain
@@ -18,29 +20,34 @@ HDD experiments, N = 3600 (173 kB of data each), window 30, degrees 3-3-3, with 
 6. peak memory of one task in a fresh process: ``tracemalloc`` (numpy's allocations) and
    the growth of the resident high-water mark (``VmHWM``, everything: numba's and the
    allocator's too), for one experiment and for one sweep task of ``--per-task``;
-7. opt-in (``--big``, about half an hour): a 2-worker cluster with ``--memory-limit`` per
-   worker (default 400 MB) identifies a consolidated archive ``--big-factor`` (default 5)
-   times larger than the workers' memory together, each task reducing its experiments to
-   their median relative error against the true FRF (and, with ``--big-covariance``, their
-   median ``P_std / |P|``: not the default, see its help); the workers' RSS is sampled
-   every 50 ms.  The archive is written to ``--tmp``
-   (checked for space first) and deleted afterwards.
+7. opt-in (``--big``, long): a 2-worker cluster with ``--memory-limit`` per worker
+   (default 400 MB) runs ``sweep_to_disk`` over a consolidated archive ``--big-factor``
+   (default 5) times larger than the workers' memory together, writing ``P`` and
+   ``P_flag`` (and ``P_std`` with ``--big-covariance``); the workers' RSS is sampled every
+   50 ms, their status (paused?) and spilled keys every 5 s.  The archive is written to
+   ``--tmp`` (checked for space first) and deleted afterwards, or reused with
+   ``--big-archive``; ``--big-lifetime`` restarts workers periodically (off by default).
 
-Measured here (2 cores shared with other jobs, load 1-4): open 10 000 consolidated in
-0.16 s +7.8 MB; append 25 ms; sweep graph of 10 005 x 3 in 1.1 s (92 000 tasks); one
-identify in a local_cluster worker 0.99-1.01x a plain process (1.19-1.21x with
-distributed's defaults); 48 experiments: 9.5 experiments/s on one core (105 ms CPU each),
-11.6 on 2 workers reduced on the workers, 4.3 through sweep_to_disk on 2 workers (the
-client writing and assembling the results was the bottleneck).  Since the tasks write
-their own parts and the result is assembled reading each part once (64 experiments, 8
-per task; old and new code back to back): sweep_to_disk on 2 workers 5.5-6.3 -> 8.1-10.2
-experiments/s at load 1-1.7 (2.1-2.6 -> 3.7-3.8 at load 4-7), client CPU 5.4-6.2 -> 1.8-2.2
-s; 13.6 reduced on the workers in the same run; on one core 117 ms CPU per experiment
-against 90 ms for plain calls (part files, assembly, sweep graph); memory of one identify
-26 MB traced, 28 MB resident.  Part 7 did NOT complete: 23 141 experiments (4.0 GB, 5x
-2 x 400 MB), without P_std, workers grew from 320 MB to 355-382 MB within minutes,
-paused (90 %) or were killed (95 %), and every restart lost the results kept in worker
-memory until the end, so the run started over; 463 experiments (0.1x) ran through.
+Measured here in earlier sessions (2 cores shared with other jobs, load 1-4): open 10 000
+consolidated in 0.16 s +7.8 MB; append 25 ms; sweep graph of 10 005 x 3 in 1.1 s (92 000
+tasks); one identify in a local_cluster worker 0.99-1.01x a plain process (1.19-1.21x with
+distributed's defaults); sweep_to_disk on 2 workers 5.5-6.3 -> 8.1-10.2 experiments/s
+when the tasks began writing their own parts.
+
+Measured in this session (load 4-6 throughout: the numbers on 2 workers are bounded by the
+other jobs, compare within a run): directory of files, 100: 8.5 s (73 s at load 6), +80
+MB; 1 600: 604 s, +270 MB (consolidated 1 600: 0.6 s, +4.9 MB); consolidate_archive of
+100 files 17 s.  Task path labelling each block once (``--throughput-only``, old and new
+back to back): sweep_to_disk on one core 144 -> 101 and 142 -> 127 ms CPU per experiment
+in two runs (plain identify calls 99-100 ms); on 2 workers 3.2-7.6 experiments/s for both
+paths at load 4-6, and writing only P, P_std, P_flag cut the CPU per experiment from
+214 to 161 ms.  One identify 17 MB traced / 19 MB resident (was 20 / 28); a task of 8
+26 / 36 MB (was 36 / 38).  Part 7 did NOT complete: 23 141 experiments (4.0 GB, 5x
+2 x 400 MB) without P_std: a worker holds 299 MB after its first identify, 366 MB after
+its first 64 experiments through sweep_to_disk, and grows about 50 MB per 1 000
+experiments that malloc_trim does not give back; both workers paused at 90 % (360 MB),
+one was killed at 95 % and restarted, and the run stalled after 736 experiments (2.5/s
+until then).  Without P_std one worker with a 2 GB limit streamed 11-18 experiments/s.
 
 The experiments are copies of one simulated experiment with a small random perturbation
 (cheap to make; identify costs the same).  Everything is written to a temporary directory
@@ -469,9 +476,9 @@ def memory(path: Path, per_task: int) -> None:
           f"{task['hwm_mb']:6.1f} MB resident growth; data {task['data_mb']:.2f} MB, result "
           f"{task['result_mb']:.2f} MB")
     print(f"  where it goes: the local model's full covariance of G, M (nz nr)^2 complex "
-          f"(M = {m}, nz = {nz}, nr = {nr}) = {cov:.1f} MB, held twice while it is packed with the "
-          f"estimates (fit_packed); the process itself holds {one['rss_mb']:.0f} MB after the call "
-          "(numba and its kernels included)")
+          f"(M = {m}, nz = {nz}, nr = {nr}) = {cov:.1f} MB, as the compiled kernel returns it; the "
+          f"process itself holds {one['rss_mb']:.0f} MB after the call (numba and its kernels "
+          "included)")
 
 
 # ------------------------------------------------------------------ the big run
