@@ -309,6 +309,15 @@ def test_sweep_to_disk_keeps_only_the_variables_asked_for(tmp_path):
     assert not (tmp_path / "t.nc").exists() and not parts_directory(tmp_path / "t.nc").exists()
 
 
+def test_sweep_to_disk_of_experiments_without_labels(tmp_path):
+    """No coordinate along experiment (a plain xr.concat): the tasks cut nothing but data."""
+    exps = xr.concat([_experiment(i) for i in range(3)], "experiment")
+    out = sweep_to_disk(exps, tmp_path / "s.nc", window=[12], experiments_per_task=2,
+                        scheduler="synchronous", progress=False)
+    want = sweep(exps, window=[12]).compute(scheduler="synchronous")
+    xr.testing.assert_identical(open_dataset(out), want)
+
+
 def test_sweep_to_disk_prints_experiments_per_second(tmp_path, capsys):
     sweep_to_disk(_stack(["a", "b"]), tmp_path / "s.nc", window=[12], scheduler="synchronous")
     err = capsys.readouterr().err

@@ -135,7 +135,10 @@ def _part_from_chunks(frame: _Frame, task: _PartTask, *chunks):
     """A task of :func:`sweep_to_disk` built by :func:`_part_tasks`: the block of
     experiments from the shared ``frame`` and its data ``chunks``, then
     :func:`_identify_to_part`."""
-    block = frame.dataset.isel({cv.EXPERIMENT: slice(task.start, task.stop)}).assign(
+    block = frame.dataset
+    if cv.EXPERIMENT in block.dims:  # experiments without labels or metadata: nothing to cut
+        block = block.isel({cv.EXPERIMENT: slice(task.start, task.stop)})
+    block = block.assign(
         {n: xr.Variable(dims, data, attrs) for (n, dims, attrs), data in zip(frame.variables, chunks)})
     return _identify_to_part(block, task.parts, task.name, task.run_id, task.keep, **task.settings)
 
