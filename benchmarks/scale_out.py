@@ -36,8 +36,8 @@ when the tasks began writing their own parts.
 
 Measured in this session (load 4-6 throughout: the numbers on 2 workers are bounded by the
 other jobs, compare within a run): directory of files, 100: 8.5 s (73 s at load 6), +80
-MB; 1 600: 604 s, +270 MB (consolidated 1 600: 0.6 s, +4.9 MB); consolidate_archive of
-100 files 17 s.  Task path labelling each block once (``--throughput-only``, old and new
+MB; 1 600: 604 s, +270 MB; 10 000: 1 289 s, +1.2 GB (consolidated 10 000: 0.42 s, +8.2
+MB); consolidate_archive of 100 files 17 s (10 000 not timed).  Task path labelling each block once (``--throughput-only``, old and new
 back to back): sweep_to_disk on one core 144 -> 101 and 142 -> 127 ms CPU per experiment
 in two runs (plain identify calls 99-100 ms); on 2 workers 3.2-7.6 experiments/s for both
 paths at load 4-6, and writing only P, P_std, P_flag cut the CPU per experiment from
