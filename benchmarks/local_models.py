@@ -13,7 +13,9 @@ Everything issue 12 asks for, in one run, with the user's default thread setting
 * window n = 100 vs n = 10 (fit, covariance None);
 * M = 2**19 slow bins, covariance None, one thread, and 2 threads vs 1;
 * first call with an empty numba cache, and a new process with a warm cache to its first
-  ``identify`` result, split into its steps (median of 5 processes);
+  ``identify`` result, split into its steps (median of 5 processes); the compile time of
+  each version of the compiled loop (least squares, instrumental variables, pooled, pooled
+  with instrumental variables: what a cold ``make test`` pays);
 * ``identify`` with a second process keeping one core busy vs without (``--no-busy``
   skips it);
 * noiseless HDD experiments with N = 3600, 36000, 180000: flagged bins and median error
@@ -122,16 +124,25 @@ def oracle_section(rows, label, R, Z, every=10):
 
 
 #: A new process to its first ``identify`` result: the HDD experiment built from plain
-#: arrays (``lcmr_xr.experiment``), as a user's script would; each step timed.  The first
-#: xarray variable imports dask.array (xarray checks every array against dask's type when
-#: dask is installed); numba's first cached function sets up its target (its typing and
-#: lowering registries, scipy.linalg's BLAS) before the cache is read.
+#: arrays (``lcmr_xr.experiment``), as a user's script would; each step timed, in the
+#: order in which the steps happen anyway, each import made explicit: xarray and pandas
+#: (``import lcmr_xr`` registers the ``.lcmr`` accessor, so it imports xarray), the
+#: library's own modules, dask.array (xarray imports it the first time it builds a
+#: variable, to check whether the data are a dask array, whenever dask is installed),
+#: the experiment itself, numba with the compiled module, scipy.linalg (numba's CPU
+#: target imports it when it is set up, to find a BLAS), the rest of numba's target
+#: set-up (its typing and lowering registries) and the ``identify`` call itself (reading
+#: the cache and computing).
 _FIRST_IDENTIFY = """
 import time
 t0 = time.perf_counter()
 import numpy as np
+import xarray
+ta = time.perf_counter()
 import lcmr_xr
 t1 = time.perf_counter()
+import dask.array
+tb = time.perf_counter()
 d = np.load(PATH)
 exp = lcmr_xr.experiment(d["r"], d["u"], d["y"], factor=int(d["factor"]),
                          sampling_period=float(d["th"]))
@@ -139,12 +150,40 @@ t2 = time.perf_counter()
 import numba
 from lcmr_xr.kernels import local_model_bins
 t3 = time.perf_counter()
+import scipy.linalg
+tc = time.perf_counter()
 from numba.core.registry import cpu_target
 cpu_target.target_context.refresh()
 t4 = time.perf_counter()
 lcmr_xr.identify(exp, window=30)
 t5 = time.perf_counter()
-print(t5 - t0, t1 - t0, t2 - t1, t3 - t2, t4 - t3, t5 - t4, time.process_time())
+print(t5 - t0, ta - t0, t1 - ta, tb - t1, t2 - tb, t3 - t2, tc - t3, t4 - tc, t5 - t4,
+      time.process_time())
+"""
+#: An empty cache, each version of the compiled loop on its first call in one process,
+#: in the order ``make test`` meets them: least squares (everybody's first call),
+#: instrumental variables on one record, pooled experiments with least squares, pooled
+#: with instrumental variables (``identify``'s default for pooled experiments).  CPU
+#: seconds of each first call (compiling is single-threaded; the wall time waits for
+#: the cores on a shared machine).
+_COLD_VERSIONS = """
+import time
+import numpy as np
+from lcmr_xr.kernels.local_models import local_model
+rng = np.random.default_rng(0)
+R = np.exp(2j * np.pi * rng.random((2, 200, 4)))
+Z = rng.standard_normal((2, 200, 5)) + 0j
+kw = dict(half_width=30, degrees=(3, 3, 3), covariance="full")
+calls = [lambda: local_model(R[0], Z[0], **kw),
+         lambda: local_model(R[0], Z[0], instruments=0.9 * Z[0], **kw),
+         lambda: local_model(R, Z, experiment_axis=0, **kw),
+         lambda: local_model(R, Z, experiment_axis=0, instruments=0.9 * Z, **kw)]
+out = []
+for call in calls:
+    c0 = time.process_time()
+    call()
+    out.append(time.process_time() - c0)
+print(*out)
 """
 #: The kernel alone on plain arrays (no xarray variable, so no dask.array): what the goal
 #: was measured on before the first-identify split above.
@@ -163,10 +202,9 @@ print(time.perf_counter() - t0)
 
 def start_times(rows, exp, repeat=5):
     """First call in a new process: empty numba cache (compiles), then warm cache (median
-    of ``repeat`` fresh processes), split into ``import lcmr_xr`` (xarray, pandas), the
-    experiment from arrays (dask.array, imported by xarray), ``import numba`` with the
-    compiled module, numba's target set-up and the ``identify`` call itself (cache load
-    and compute); and the kernel alone on plain arrays (``local_model``)."""
+    of ``repeat`` fresh processes), split into the steps of ``_FIRST_IDENTIFY``; the
+    kernel alone on plain arrays (``local_model``); and the compile time of every version
+    of the compiled loop (``_COLD_VERSIONS``)."""
     with tempfile.TemporaryDirectory() as tmp:
         data = os.path.join(tmp, "exp.npz")
         np.savez(data, r=exp.r.values, u=exp.u.values, y=exp.y.values,
@@ -180,14 +218,22 @@ def start_times(rows, exp, repeat=5):
             [sys.executable, "-c", _FIRST_KERNEL], env=env, check=True, capture_output=True,
             text=True).stdout) for _ in range(repeat)])
     rows.append(("new process to first identify, empty cache (compiles) [s] (goal < 15)",
-                 f"{times[0][0]:.1f}"))
+                 f"{times[0][0]:.1f} (CPU {times[0][9]:.1f})"))
     warm = np.median(times[1:], axis=0)
     rows.append((f"new process to first identify, warm cache [s] (goal < 1; median of {repeat})",
-                 f"{warm[0]:.2f} (CPU {warm[6]:.2f})"))
-    rows.append(("  import lcmr_xr / experiment (dask.array) / import numba / numba target "
-                 "set-up / identify [s]", " / ".join(f"{t:.2f}" for t in warm[1:6])))
+                 f"{warm[0]:.2f} (CPU {warm[9]:.2f})"))
+    rows.append(("  xarray+pandas / lcmr_xr's own modules / dask.array (xarray's) / experiment "
+                 "/ numba + compiled module / scipy.linalg (numba's target) / numba target "
+                 "set-up / identify [s]", " / ".join(f"{t:.2f}" for t in warm[1:9])))
     rows.append(("new process to first local_model result (plain arrays), warm cache [s]",
                  f"{kernel:.2f}"))
+    with tempfile.TemporaryDirectory() as tmp:
+        env = dict(os.environ, NUMBA_CACHE_DIR=os.path.join(tmp, "numba"))
+        cold = [float(x) for x in subprocess.run(
+            [sys.executable, "-c", _COLD_VERSIONS], env=env, check=True, capture_output=True,
+            text=True).stdout.split()]
+    rows.append(("empty cache, first call CPU [s]: least squares / IV / pooled / pooled IV "
+                 "(one process, in this order)", " / ".join(f"{t:.1f}" for t in cold)))
 
 
 def busy_section(rows, exp):

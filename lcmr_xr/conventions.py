@@ -75,6 +75,11 @@ AUTO_WINDOW_VARIABLES = (P_BIAS, LOCAL_WINDOW)
 PERIOD_NOISE_VARIANCE_U = "period_noise_variance_u"
 PERIOD_NOISE_VARIANCE_Y = "period_noise_variance_y"
 POOLED_VARIABLES = (PERIOD_NOISE_VARIANCE_U, PERIOD_NOISE_VARIANCE_Y)
+# Experiments pooled in one local model (combine="experiment"): the factor on the
+# covariance from the spread between the even- and odd-numbered experiments' fits
+# (docs/uncertainty.md, "Pooled experiments"), per slow bin.
+SPREAD_CALIBRATION = "spread_calibration"
+COMBINED_VARIABLES = (SPREAD_CALIBRATION,)
 
 # Attribute names.
 CONVENTIONS_ATTR = "conventions"  # value CONVENTIONS, on experiment and FRF datasets

@@ -146,7 +146,10 @@ def identify(experiment: xr.Dataset, *, method: str = "lrm", window=DEFAULT_WIND
         local model: ``G`` and the denominator shared, a transient term per experiment
         (``transient_y``/``transient_u`` keep the ``experiment`` dim), one noise
         covariance with ``E (2n + 1) - p`` degrees of freedom; attribute
-        ``pooled_experiments``.  Lazy data work along the other leading dims (not with
+        ``pooled_experiments``.  With a covariance and at least 4 experiments, the even-
+        and odd-numbered experiments are also fitted apart and the covariance is scaled
+        per slow bin by their spread (variable ``spread_calibration``, at least 1;
+        docs/uncertainty.md).  Lazy data work along the other leading dims (not with
         ``frequency_chunks``).  ``degrees`` with ``Rm = -1`` (no transient term) is
         accepted only for steady-state periodic records (a ``period`` dim, transient
         periods dropped).
@@ -354,6 +357,8 @@ def output_specs(closed_loop: str, stacked: bool = False,
     ]
     if auto:
         specs += [("P_bias", [FQ, cv.OUTPUT, cv.INPUT], float), ("local_window", [SF], int)]
+    if pooled:
+        specs += [(cv.SPREAD_CALIBRATION, [SF], float)]
     if closed_loop == "indirect":
         specs += [
             ("S", [SF, LP, cv.INPUT, LP2, IN2], complex),
@@ -429,6 +434,9 @@ def _split(out: dict, specs, *, factor: int, nu: int, ny: int, closed_loop: str)
         pieces["s_condition"] = out["s_condition"]
         pieces["s_singular"] = out["s_singular"]
         pieces["s_weak_rel_std"] = out["s_weak_rel_std"]
+    # pooled experiments: the split-half factor on the covariance (NaN where none was
+    # computed: no covariance, fewer than 4 experiments, or window 0, no local model)
+    pieces[cv.SPREAD_CALIBRATION] = out.get("spread_calibration", np.full(lead_m, np.nan))
     if "window" in out:  # window="auto"
         pieces["P_bias"] = out["P_bias"]
         pieces["local_window"] = out["window"]
@@ -748,6 +756,7 @@ def _label(out, ds, *, factor, th):
         "P_undetermined": ("P not determined by the data (unbounded band)", "1"),
         "P_bias": ("estimated model error of P", p_units),
         "local_window": ("chosen local window half-width n", "1"),
+        cv.SPREAD_CALIBRATION: ("factor on the pooled covariance from the split-half spread", "1"),
         "G": ("lifted local model [S; PS] (rows: response, columns: excitation)",
               f"{_ratio_units(u_units, ru)} (u rows), {_ratio_units(y_units, ru)} (y rows)"),
         "G_std": ("standard deviation of G",

@@ -13,9 +13,10 @@ from lcmr_xr.kernels.adaptive import (nonlinearity_factor, select_windows, small
                                       weak_direction)
 from lcmr_xr.kernels.closed_loop import frf_variance_from_first_row, indirect_first_row
 from lcmr_xr.kernels.lifting import frf_from_first_block_row, lift
-from lcmr_xr.kernels.local_models import _hermitian, local_model, parameters_per_row
-from lcmr_xr.kernels.pooling import (mean_and_covariance, pooled_least_squares,
-                                     rescale_covariance, window_mean)
+from lcmr_xr.kernels.local_models import hermitian, local_model, parameters_per_row
+from lcmr_xr.kernels.pooling import (MIN_SPLIT_EXPERIMENTS, mean_and_covariance,
+                                     pooled_least_squares, rescale_covariance, split_halves,
+                                     spread_calibration, spread_ratio, window_mean)
 
 #: The lifted excitation counts as rank deficient when its smallest singular value
 #: (over all bins) is below this fraction of its largest.
@@ -90,7 +91,7 @@ def denominator_instruments(R, Z, *, degrees=(3, 3, 3), half_width: int | None =
         zhat = np.moveaxis(zhat, -3, experiment_axis)
     zhat = np.where(np.isfinite(zhat), zhat, np.broadcast_to(Z, zhat.shape))
     m = zhat.shape[-2]
-    if circular and _hermitian(np.broadcast_to(Z, zhat.shape).reshape(-1, m, zhat.shape[-1])):
+    if circular and hermitian(np.broadcast_to(Z, zhat.shape).reshape(-1, m, zhat.shape[-1])):
         # real signals: the prediction is conjugate-symmetric to the first fit's rounding;
         # exactly so, the main fit keeps its half-bins-and-mirror shortcut
         zhat = (zhat + np.conj(np.take(zhat, (-np.arange(m)) % m, axis=-2))) / 2
@@ -231,8 +232,11 @@ def recover_frf(G, G_cov, *, n_fast: int, factor: int, nu: int, ny: int,
 
 
 def packed_width(nz: int, nr: int, covariance: bool, n_exp: int = 1) -> int:
-    """Length of the last axis of :func:`fit_packed`'s output (``n_exp`` transients)."""
-    return nz * nr + (n_exp + 1) * nz + 2 + ((nz * nr) ** 2 if covariance else 0)
+    """Length of the last axis of :func:`fit_packed`'s output (``n_exp`` transients; with
+    ``n_exp >= MIN_SPLIT_EXPERIMENTS`` and ``covariance``, one more column for the
+    split-half spread ratio)."""
+    spread = 1 if covariance and n_exp >= MIN_SPLIT_EXPERIMENTS else 0
+    return nz * nr + (n_exp + 1) * nz + 2 + spread + ((nz * nr) ** 2 if covariance else 0)
 
 
 def fit_packed(R, Z, *, half_width: int, degrees=(3, 3, 3), circular: bool = True,
@@ -243,7 +247,8 @@ def fit_packed(R, Z, *, half_width: int, degrees=(3, 3, 3), circular: bool = Tru
     One array (rather than a tuple) so that a frequency-chunked dask computation can run
     the fit with ``map_overlap``-style halos: columns are ``vec(G)`` (``nz nr``), ``T``
     (``nz``), the noise variances (``nz``), the condition number, the ill-posed flag and,
-    with ``covariance``, ``vec(G_cov)``.  :func:`finish_packed` unpacks it.
+    with ``covariance``, the split-half spread ratio (pooled experiments,
+    ``E >= MIN_SPLIT_EXPERIMENTS``: :func:`split_half_spread`) and ``vec(G_cov)``.  :func:`finish_packed` unpacks it.
 
     ``noise_covariance`` (..., M, nz, nz), optional: a noise covariance known per bin
     (e.g. from the spread over periods, :func:`lcmr_xr.kernels.pooling.mean_and_covariance`).
@@ -268,13 +273,15 @@ def fit_packed(R, Z, *, half_width: int, degrees=(3, 3, 3), circular: bool = Tru
         np.moveaxis(fit["T"], -3, -2).reshape(lead_m + (-1,))
     parts = [fit["G"].reshape(lead_m + (-1,)), T, fit["noise_variance"],
              fit["condition"][..., None], fit["ill_posed"][..., None]]
+    if "spread_ratio" in fit:
+        parts.append(fit["spread_ratio"][..., None])
     if covariance:
         parts.append(fit["G_cov"].reshape(lead_m + (-1,)))
     return np.concatenate([np.asarray(p, dtype=complex) for p in parts], axis=-1)
 
 
 def _fit(R, Z, *, half_width, degrees, circular, covariance, noise_covariance, experiment_axis,
-         denominator="ls", instruments=None):
+         denominator="ls", instruments=None, halves_instruments=None):
     """The local model's outputs that :func:`fit_packed` packs (``T`` (..., E, M, nz)
     pooled), ``G_cov`` rebuilt from a known noise covariance when one is given.
     ``instruments``: those of ``denominator="iv"`` when the caller has them already."""
@@ -288,8 +295,69 @@ def _fit(R, Z, *, half_width, degrees, circular, covariance, noise_covariance, e
     if covariance and noise_covariance is not None:
         known = window_mean(np.asarray(noise_covariance), half_width, axis=-3, circular=circular)
         G_cov = rescale_covariance(G_cov, fit.noise_covariance, known)
-    return {"G": fit.G, "T": fit.T, "noise_variance": fit.noise_variance,
-            "condition": fit.condition, "ill_posed": fit.ill_posed, "G_cov": G_cov}
+    out = {"G": fit.G, "T": fit.T, "noise_variance": fit.noise_variance,
+           "condition": fit.condition, "ill_posed": fit.ill_posed, "G_cov": G_cov}
+    if covariance and (_n_experiments(R, Z, experiment_axis) or 0) >= MIN_SPLIT_EXPERIMENTS:
+        G_var = np.real(np.diagonal(G_cov, axis1=-2, axis2=-1)).reshape(fit.G.shape)
+        out["spread_ratio"] = split_half_spread(
+            R, Z, G_var, half_width=half_width, degrees=degrees, circular=circular,
+            experiment_axis=experiment_axis, denominator=denominator,
+            instruments=halves_instruments)
+    return out
+
+
+def split_half_spread(R, Z, G_var, *, half_width, degrees, circular=True,
+                      experiment_axis: int, denominator="ls", instruments=None) -> np.ndarray:
+    """Per bin, the random-group variance of a pooled fit over the variance it reports.
+
+    The even- and odd-numbered experiments (:func:`lcmr_xr.kernels.pooling.split_halves`)
+    are each fitted as ``identify`` would fit them pooled (same window, degrees and
+    denominator; IV from each half's own first fit; no covariance), and
+    :func:`lcmr_xr.kernels.pooling.spread_ratio` compares the variance their difference
+    implies for the whole pool with ``G_var``, the variances of ``vec(G)`` the pooled fit
+    reports.  The experiments are independent replicates, so this checks the local
+    model's covariance without its noise model: on the HDD benchmark it reads about 2
+    below 500 Hz, where the first-order covariance is too small (docs/uncertainty.md,
+    "Pooled bands: the covariance checked by split halves").
+
+    ``instruments``: the halves' own (:func:`half_instruments`) when the caller has them.
+
+    Returns
+    -------
+    ndarray, real, shape (..., M)
+    """
+    R, Z = _broadcast_leading(R, Z)
+    if instruments is None:
+        instruments = half_instruments(R, Z, degrees=degrees, circular=circular,
+                                       experiment_axis=experiment_axis, denominator=denominator)
+    n_exp = (R.shape[:-2] + (0, 0))[experiment_axis]
+    halves = split_halves(n_exp)
+    G = [local_model(np.take(R, idx, axis=experiment_axis), np.take(Z, idx, axis=experiment_axis),
+                     half_width=half_width, degrees=tuple(degrees), circular=circular,
+                     covariance=None, experiment_axis=experiment_axis, instruments=zhat).G
+         for idx, zhat in zip(halves, instruments)]
+    return spread_ratio(G[0], G[1], G_var, halves[0].size * halves[1].size / n_exp ** 2)
+
+
+def half_instruments(R, Z, *, degrees, circular=True, experiment_axis: int,
+                     denominator="ls") -> tuple:
+    """The instruments of the two halves of :func:`split_half_spread` (each half's own
+    first fit; ``(None, None)`` for least squares)."""
+    if not check_denominator(denominator, degrees):
+        return None, None
+    R, Z = _broadcast_leading(R, Z)
+    return tuple(denominator_instruments(np.take(R, idx, axis=experiment_axis),
+                                         np.take(Z, idx, axis=experiment_axis),
+                                         degrees=degrees, circular=circular,
+                                         experiment_axis=experiment_axis)
+                 for idx in split_halves((R.shape[:-2] + (0, 0))[experiment_axis]))
+
+
+def _broadcast_leading(R, Z):
+    """``R`` and ``Z`` with their leading dims broadcast to each other."""
+    lead = np.broadcast_shapes(np.shape(R)[:-2], np.shape(Z)[:-2])
+    return (np.broadcast_to(R, lead + np.shape(R)[-2:]),
+            np.broadcast_to(Z, lead + np.shape(Z)[-2:]))
 
 
 def finish_packed(packed, *, nz: int, nr: int, n_fast: int, factor: int, nu: int, ny: int,
@@ -314,16 +382,28 @@ def finish_packed(packed, *, nz: int, nr: int, n_fast: int, factor: int, nu: int
     noise_variance = packed[..., o: o + nz].real.copy()
     condition = packed[..., o + nz].real.copy()
     ill_posed = packed[..., o + nz + 1].real != 0
-    G_cov = packed[..., o + nz + 2:].reshape(lead_m + (g, g)) if covariance else None
-    return _finish({"G": G, "T": T, "noise_variance": noise_variance, "condition": condition,
-                    "ill_posed": ill_posed, "G_cov": G_cov}, n_fast=n_fast, factor=factor,
-                   nu=nu, ny=ny, closed_loop=closed_loop, dof=dof)
+    fit = {"G": G, "T": T, "noise_variance": noise_variance, "condition": condition,
+           "ill_posed": ill_posed}
+    o += nz + 2
+    if covariance and ne >= MIN_SPLIT_EXPERIMENTS:
+        fit["spread_ratio"] = packed[..., o].real.copy()
+        o += 1
+    fit["G_cov"] = packed[..., o:].reshape(lead_m + (g, g)) if covariance else None
+    return _finish(fit, n_fast=n_fast, factor=factor, nu=nu, ny=ny, closed_loop=closed_loop,
+                   dof=dof)
 
 
 def _finish(fit: dict, *, n_fast, factor, nu, ny, closed_loop, dof) -> dict:
     """The fast FRF and the per-bin outputs from a fit (``T`` as :func:`finish_packed`
-    returns it); ``fit["G_cov"]`` None: no covariance."""
+    returns it); ``fit["G_cov"]`` None: no covariance.  Pooled experiments
+    (``fit["spread_ratio"]``): ``G_cov`` is scaled per bin by
+    :func:`lcmr_xr.kernels.pooling.spread_calibration` before anything uses it, so the
+    band of ``P`` and the weak-direction test of ``S`` see the spread the halves show."""
     G, G_cov = fit["G"], fit["G_cov"]
+    calibration = None
+    if G_cov is not None and "spread_ratio" in fit:
+        calibration = spread_calibration(fit["spread_ratio"])
+        G_cov = G_cov * calibration[..., None, None]
     out = recover_frf(G, G_cov, n_fast=n_fast, factor=factor, nu=nu, ny=ny,
                       closed_loop=closed_loop, ill_posed=fit["ill_posed"], dof=dof)
     if G_cov is not None:
@@ -332,18 +412,20 @@ def _finish(fit: dict, *, n_fast, factor, nu, ny, closed_loop, dof) -> dict:
         G_var = np.full(G.shape, np.nan)
     out.update({"G": G, "G_var": G_var, "T": fit["T"], "noise_variance": fit["noise_variance"],
                 "condition": fit["condition"], "ill_posed": fit["ill_posed"]})
+    if calibration is not None:
+        out["spread_calibration"] = calibration
     return out
 
 
 def _fit_and_finish(R, Z, *, half_width, degrees, covariance, noise_covariance, experiment_axis,
                     n_fast, factor, nu, ny, closed_loop, n_exp, denominator="ls",
-                    instruments=None) -> dict:
+                    instruments=None, halves_instruments=None) -> dict:
     """:func:`fit_packed` then :func:`finish_packed` without the packed copy (eager data:
     the (nz nr)^2 covariance columns, the bulk of the memory, are held once, not twice)."""
     fit = _fit(R, Z, half_width=half_width, degrees=degrees, circular=True,
                covariance=covariance, noise_covariance=noise_covariance,
                experiment_axis=experiment_axis, denominator=denominator,
-               instruments=instruments)
+               instruments=instruments, halves_instruments=halves_instruments)
     if n_exp is not None:  # as finish_packed returns it: (..., M, E, nz)
         fit["T"] = np.moveaxis(fit["T"], -3, -2)
     return _finish(fit, n_fast=n_fast, factor=factor, nu=nu, ny=ny, closed_loop=closed_loop,
@@ -460,11 +542,16 @@ def identify_spectra_auto(R, Z, *, n_fast: int, factor: int, nu: int, windows,
     # fitted (one candidate's covariance in memory at a time).  A kernel taking half_width
     # per bin replaces the gather by a single fit at the chosen windows.
     n_exp = _n_experiments(R, Z, experiment_axis)
+    # the split halves' first fits (pooled experiments, IV) also serve every candidate
+    halves = half_instruments(R, Z, degrees=degrees, experiment_axis=experiment_axis,
+                              denominator=denominator) \
+        if (n_exp or 0) >= MIN_SPLIT_EXPERIMENTS else None
     outs = [_fit_and_finish(R, Z, half_width=w, degrees=degrees, covariance=True,
                             noise_covariance=noise_covariance, experiment_axis=experiment_axis,
                             n_fast=n_fast, factor=factor, nu=nu, ny=ny,
                             closed_loop=closed_loop, n_exp=n_exp, denominator=denominator,
-                            instruments=instruments) for w in windows]
+                            instruments=instruments, halves_instruments=halves)
+            for w in windows]
     return _choose_windows(outs, np.asarray(windows, dtype=int), R.shape[-2])
 
 

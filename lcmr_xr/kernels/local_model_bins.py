@@ -79,9 +79,15 @@ COV_NONE, COV_DIAG, COV_FULL = 0, 1, 2
 
 _JIT = {"cache": True, "nogil": True, "error_model": "numpy", "boundscheck": False,
         "fastmath": {"reassoc", "contract"}}
+#: Helpers only called from compiled code: built without the CPython and C-callback
+#: wrappers that numba otherwise compiles for every function (measured: about a tenth of
+#: the first call's compile time).  Such a function must NOT be called from Python (numba
+#: then jumps into a missing wrapper and the interpreter crashes): whatever Python calls,
+#: tests included, is decorated with ``_JIT``.
+_INNER = dict(_JIT, no_cpython_wrapper=True, no_cfunc_wrapper=True)
 
 
-@numba.njit(**_JIT)
+@numba.njit(**_INNER)
 def cholesky_planes(mr, mi, q, piv, rr, ri):
     """In place: ``mr + 1j mi`` (q, c), real and imaginary parts in separate arrays, holds
     a Hermitian positive definite ``G`` (upper triangle of the first ``q`` columns read)
@@ -184,7 +190,7 @@ def pivoted_cholesky(s, drop_tol, low, perm, piv):
     return k
 
 
-@numba.njit(**_JIT)
+@numba.njit(**_JIT)  # (called by the tests)
 def _natural_min_pivot(s, scratch):
     """Smallest pivot of the unpivoted Cholesky of the small Hermitian ``s`` (0 when one
     is not positive); ``s`` is kept, ``scratch`` (k, k) overwritten."""
@@ -205,7 +211,7 @@ def _natural_min_pivot(s, scratch):
     return best
 
 
-@numba.njit(**_JIT)
+@numba.njit(**_JIT)  # (called by the tests)
 def _chol_solve(low, rank, b, x):
     """``x = (L L^H)^-1 b`` on the leading ``rank`` entries (``b``, ``x`` may alias)."""
     for j in range(rank):
@@ -220,7 +226,7 @@ def _chol_solve(low, rank, b, x):
         x[j] = acc / low[j, j].real
 
 
-@numba.njit(**_JIT)
+@numba.njit(**_INNER)
 def _lu_factor(a, k, ipiv):
     """LU with partial (row) pivoting of the leading ``k x k`` block of the small,
     general ``a``, in place (``L`` unit lower below the diagonal, ``U`` on and above);
@@ -248,7 +254,7 @@ def _lu_factor(a, k, ipiv):
     return logdet
 
 
-@numba.njit(**_JIT)
+@numba.njit(**_INNER)
 def _lu_solve(a, k, ipiv, x):
     """``x = A^-1 x`` in place from :func:`_lu_factor`'s factors of ``A`` (leading
     ``k`` entries)."""
@@ -268,7 +274,7 @@ def _lu_solve(a, k, ipiv, x):
         x[j] = acc / a[j, j]
 
 
-@numba.njit(**_JIT)
+@numba.njit(**_INNER)
 def _chol_logdet(s, k, floor, scratch):
     """``log det`` of the leading ``k x k`` block of the small Hermitian ``s`` by an
     unpivoted Cholesky (``-inf`` when a pivot is not above ``floor``); ``s`` is kept,
@@ -289,7 +295,7 @@ def _chol_logdet(s, k, floor, scratch):
     return logdet
 
 
-@numba.njit(**_JIT)
+@numba.njit(**_INNER)
 def _iv_row(m, q, nx, i, rk, perm, low, tsc, wx, ww, twc, siv, ipiv, gw, scratch, dsol,
             delta, drop_tol):
     """Instrumental-variable denominator of row ``i`` on its kept columns (``perm[:rk]``).
@@ -349,7 +355,7 @@ def _iv_row(m, q, nx, i, rk, perm, low, tsc, wx, ww, twc, siv, ipiv, gw, scratch
     return (2.0 * log_iv - log_w - log_x) / rk
 
 
-@numba.njit(**_JIT)
+@numba.njit(**_INNER)
 def _pooled_iv_blocks(moms, n_flat, wx_index, ww_index, txe, wtx, q_all, nx, wx, ww):
     """Pooled ``W^H X`` and ``W^H W`` (nz, Rd+1, Rd+1): every experiment's moments
     projected off its transient columns (``txe``, ``wtx`` from :func:`_gather_pooled`,
@@ -379,7 +385,7 @@ def _pooled_iv_blocks(moms, n_flat, wx_index, ww_index, txe, wtx, q_all, nx, wx,
                     ww[i, s, t] += aw
 
 
-@numba.njit(**_JIT)
+@numba.njit(**_INNER)
 def _tail_solve(u, q, nt, v, x):
     """``x = U22^-1 v[q-nt:]`` for the trailing ``nt x nt`` block of upper-triangular
     ``u`` (``x`` has length ``nt``)."""
@@ -391,7 +397,7 @@ def _tail_solve(u, q, nt, v, x):
         x[j] = acc / u[off + j, off + j].real
 
 
-@numba.njit(**_JIT)
+@numba.njit(**_INNER)
 def _products(rt, zt, b, j, slot_i, slot_j, base, x):
     """``x[s] = conj(base_i) base_j`` at padded sample ``j`` for every slot ``(i, j)``;
     the bases are ``R_0..R_{nr-1}``, ``1``, ``Z_0..`` (``base`` is scratch)."""
@@ -405,7 +411,7 @@ def _products(rt, zt, b, j, slot_i, slot_j, base, x):
         x[s] = base[slot_i[s]].conjugate() * base[slot_j[s]]
 
 
-@numba.njit(**_JIT)
+@numba.njit(**_INNER)
 def direct_moments(rt, zt, b, k, slot_i, slot_j, rho_pow, mom, base, x):
     """``mom[a n_slots + s] = sum_r rho^a conj(base_i) base_j`` over the window of output
     bin ``k`` (padded samples ``k .. k + 2n``) by direct sums, ``(i, j) = (slot_i[s],
@@ -426,7 +432,7 @@ def direct_moments(rt, zt, b, k, slot_i, slot_j, rho_pow, mom, base, x):
                 row[s] += w * xf[s]
 
 
-@numba.njit(**_JIT)
+@numba.njit(**_INNER)
 def step_moments(rt, zt, b, k, n, slot_i, slot_j, shift, lead, mom, base, x_out, x_in, acc):
     """Moments of output bin ``k + 1`` from those of bin ``k``, in place.
 
@@ -457,7 +463,7 @@ def step_moments(rt, zt, b, k, n, slot_i, slot_j, shift, lead, mom, base, x_out,
             row[s] = af[s]
 
 
-@numba.njit(**_JIT)
+@numba.njit(**_INNER)
 def _moment(mom, n_flat, f):
     """Table entry ``f``: the moments, then (``f >= n_flat``) their conjugates."""
     if f >= n_flat:
@@ -492,7 +498,7 @@ def moments_and_floor(rt, zt, n, sel, restart, k_base, slot_i, slot_j, p1, mom_o
     return 0
 
 
-@numba.njit(**_JIT)
+@numba.njit(**_INNER)
 def _recurrence(n, p1):
     """``rho^a`` over the window, and the coefficients of :func:`step_moments`."""
     width = 2 * n + 1
@@ -513,7 +519,7 @@ def _recurrence(n, p1):
     return rho_pow, shift, lead
 
 
-@numba.njit(**_JIT)
+@numba.njit(**_INNER)
 def _advance(rt, zt, b, k, valid, sel_b, restart, k_base, n, slot_i, slot_j, rho_pow, shift,
              lead, mom, floor, scratch):
     """Bring ``mom`` to output bin ``k`` and return whether it holds valid moments.
@@ -551,7 +557,7 @@ def _advance(rt, zt, b, k, valid, sel_b, restart, k_base, n, slot_i, slot_j, rho
     return True
 
 
-@numba.njit(**_JIT)
+@numba.njit(**_INNER)
 def _failed_bin(o, mode, out_g, out_t, out_ncov, out_cond, out_ill, out_reduced, out_gcov,
                 out_gvar):
     """Output row ``o`` of a bin whose ``G`` is undetermined: NaN, flagged (the outputs
@@ -1130,7 +1136,7 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
     return 0
 
 
-@numba.njit(**_JIT)
+@numba.njit(**_INNER)
 def _gain_shared(m, q, g, qhr, qhi, wa, hgr, hgi, x):
     """``wa = L^-1 e_g`` (non-zero from entry ``g`` on: ``G`` is last in ``A``) and the
     shared columns' part of the gain row ``x``: ``conj(Q_A wa)(r) = sum_a qh[a, r]
@@ -1154,7 +1160,7 @@ def _gain_shared(m, q, g, qhr, qhi, wa, hgr, hgi, x):
             hgi[x, r] += qhr[a, r] * fi + qhi[a, r] * fr
 
 
-@numba.njit(**_JIT)
+@numba.njit(**_INNER)
 def _gain_scale(hgr, hgi, x, sc, dwr, dwi):
     """Gain row ``x`` times ``sc d(r)`` (the column scale of ``G``, and the equation error
     ``d V``)."""
@@ -1166,7 +1172,7 @@ def _gain_scale(hgr, hgi, x, sc, dwr, dwi):
         hgi[x, r] = hr * fi + hgi[x, r] * fr
 
 
-@numba.njit(**_JIT)
+@numba.njit(**_INNER)
 def _iv_row_gains(rt, zt, b, k, i, nz, rk, perm, tsc, twc, siv, ipiv, m, q, nx, q_all, ds,
                   dwr, dwi, qhr, qhi, rho_pow, tpow, wtx, pooled, crow, ybk, ybw, wmr, wmi,
                   sinv, x, umr, umi, ymr, ymi, hgr, hgi, wa, wb):
@@ -1258,7 +1264,7 @@ def _iv_row_gains(rt, zt, b, k, i, nz, rk, perm, tsc, twc, siv, ipiv, m, q, nx, 
         _gain_scale(hgr, hgi, xg, ds[g], dwr, dwi)
 
 
-@numba.njit(**_JIT)
+@numba.njit(**_INNER)
 def _tau_trace(acc, i, j, rank, umr, umi, vmr, vmi, ehe, tau, scov):
     """``tau_ij = acc + tr((U_j^H U_i)(V_i^H V_j))`` over the kept columns (least squares:
     ``U`` orthonormal, ``V = U conj(d)``; IV: ``U`` the projected regressors ``X``, ``V =
@@ -1281,7 +1287,7 @@ def _tau_trace(acc, i, j, rank, umr, umi, vmr, vmi, ehe, tau, scov):
     scov[j, i] = scov[i, j].conjugate()
 
 
-@numba.njit(**_JIT)
+@numba.njit(**_INNER)
 def _iv_tau(rank, lev, dwr, dwi, umr, umi, ymr, ymi, ncr, nci, vmr, vmi, ehe, tau, scov):
     """``tau_ij = tr(D_j^H Pi_j^H Pi_i D_i)`` of the IV residual projector
     ``Pi_i = P - X_i Y_i^H`` (oblique, ``Y_i^H X_i = I``; ``X``, ``Y`` in ``umr``/``ymr``
@@ -1323,7 +1329,7 @@ def _iv_tau(rank, lev, dwr, dwi, umr, umi, ymr, ymi, ncr, nci, vmr, vmi, ehe, ta
             _tau_trace(complex(accr, acci), i, j, rank, umr, umi, vmr, vmi, ehe, tau, scov)
 
 
-@numba.njit(**_JIT)
+@numba.njit(**_INNER)
 def _gather_pooled(moms, n_flat, aug_index, zz_index, sh, tr, tinv, ge, txe, wtx, xxe, m, xx,
                    qs, nx):
     """Pooled ``[Gaa | A^H X]`` (shared columns ``sh``, upper triangle) and ``X^H X`` in
@@ -1378,7 +1384,7 @@ def _gather_pooled(moms, n_flat, aug_index, zz_index, sh, tr, tinv, ge, txe, wtx
                         xx[i, j, s, t] += acc
 
 
-@numba.njit(**_JIT)
+@numba.njit(**_INNER)
 def _pooled_transients(m, qs, nx, ds, delta_i, i, rd1, sh, tr, wtx, out_t_o, v_i, x):
     """Every experiment's transient ``T`` (the ``rho^0`` coefficient) of row ``i``:
     ``theta_T,e = Winv T^H (X_e delta_i - A_e theta_S)`` from the shared coefficients
@@ -1398,7 +1404,7 @@ def _pooled_transients(m, qs, nx, ds, delta_i, i, rd1, sh, tr, wtx, out_t_o, v_i
         out_t_o[e, i] = acc
 
 
-@numba.njit(**_JIT)
+@numba.njit(**_INNER)
 def _pooled_columns(rt, b, k, base, pw, orig, sc, rho_pow, tpow, wtx, out):
     """``out`` (E W): ``sc`` times the conjugate of shared column ``orig`` (base ``base``,
     power ``pw``) over the stacked windows, each projected off its transient columns."""
@@ -1414,7 +1420,7 @@ def _pooled_columns(rt, b, k, base, pw, orig, sc, rho_pow, tpow, wtx, out):
             out[e * wn + r] = sc * val
 
 
-@numba.njit(**_JIT)
+@numba.njit(**_INNER)
 def _pooled_d_column(zt, b, k, i, pw, orig, f, rho_pow, tpow, wtx, out):
     """``out`` (E W): ``f`` times ``rho^pw Z_i`` over the stacked windows, each projected
     off its experiment's transient columns (``orig``: the column's index in ``wtx``)."""

@@ -65,7 +65,7 @@ from typing import NamedTuple
 import numpy as np
 
 
-__all__ = ["CONDITION_LIMIT", "LocalModelFit", "local_model", "parameters_per_row"]
+__all__ = ["CONDITION_LIMIT", "LocalModelFit", "hermitian", "local_model", "parameters_per_row"]
 
 #: Bins whose (column-scaled) regression matrix has a condition number estimate above
 #: this are flagged ``ill_posed``.  The normal equations lose about ``eps * cond**2`` of
@@ -544,7 +544,7 @@ def local_model(R, Z, *, half_width, degrees=(3, 3, 3), circular: bool = True,
         rt_p, zt_p = (np.concatenate([x[:, m - n_max:], x, x[:, :n_max]], axis=1)
                       for x in (rt, zt))
         todo = np.ones((n_batch, m), dtype=bool)
-        mirror = _hermitian(rt) and _hermitian(zt) and np.array_equal(
+        mirror = hermitian(rt) and hermitian(zt) and np.array_equal(
             widths, widths[:, (-k) % m])
         if mirror:  # real signals: fit 0..M/2, the rest is the conjugate
             todo[:, m // 2 + 1:] = False
@@ -690,8 +690,29 @@ def _threads() -> int:
     return max(1, numba.get_num_threads())
 
 
-def _hermitian(x: np.ndarray) -> bool:
-    """``x[(-k) mod M] == conj(x[k])`` to rounding (spectra of real signals), per channel."""
+def hermitian(x: np.ndarray) -> bool:
+    """Whether spectra are those of real signals: ``x[(-k) mod M] == conj(x[k])`` to
+    rounding (64 eps of each channel's largest magnitude).
+
+    Parameters
+    ----------
+    x : ndarray, complex, shape (batch, M, channels)
+        Spectra on the ``M`` DFT bins of the full circle.
+
+    Returns
+    -------
+    bool
+        True when every record and channel is conjugate-symmetric (bins ``0`` and
+        ``M/2`` real) to rounding: a local model of such spectra is fitted on half the
+        bins and mirrored.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> x = np.fft.fft(np.random.default_rng(0).standard_normal((1, 8, 2)), axis=1)
+    >>> hermitian(x), hermitian(1j * x)
+    (True, False)
+    """
     m = x.shape[1]
     tol = 64 * np.finfo(float).eps * np.max(np.abs(x), axis=1, keepdims=True)
     # each pair (k, M - k) once, on views; bins 0 and M/2 against their own conjugate

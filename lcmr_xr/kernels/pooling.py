@@ -37,8 +37,21 @@ import numpy as np
 
 from lcmr_xr.kernels.local_models import CONDITION_LIMIT
 
-__all__ = ["PooledFit", "mean_and_covariance", "pooled_least_squares", "rescale_covariance",
+__all__ = ["MIN_SPLIT_EXPERIMENTS", "PooledFit", "SPREAD_SMOOTHING", "mean_and_covariance", "pooled_least_squares",
+           "rescale_covariance", "split_halves", "spread_calibration", "spread_ratio",
            "window_mean"]
+
+#: Neighbouring slow bins (each side) over which the split-half spread ratio of pooled
+#: experiments is averaged (a bin alone has a few degrees of freedom; the local model's
+#: misstatement changes slowly with frequency).
+SPREAD_SMOOTHING = 6
+#: Fewest pooled experiments whose covariance is checked by split halves: halves of at
+#: least two experiments each.  A half of ONE record is a single-record fit, whose IV
+#: estimate has a heavy tail (docs/uncertainty.md, "Instrumental variables": 1 % of the
+#: entries carry 84 % of the mean squared error), so its difference from the other half
+#: says little about the pool's variance; and at 2 degrees of freedom in its first fit
+#: it amplifies rounding (eager and frequency-chunked results then differ by 1e-5).
+MIN_SPLIT_EXPERIMENTS = 4
 
 
 def mean_and_covariance(Z: np.ndarray, n_pool_axes: int = 1) -> tuple[np.ndarray, np.ndarray]:
@@ -267,3 +280,92 @@ def pooled_least_squares(R: np.ndarray, Z: np.ndarray, noise_covariance: np.ndar
             G_cov = G_cov.reshape(lead + (m, nz * nr, nz * nr))
             G_cov = np.where(ill[..., None, None], np.nan, G_cov)
     return PooledFit(G, G_cov, per_exp.mean(axis=-3), cond, ill)
+
+
+def split_halves(n_exp: int) -> tuple[np.ndarray, np.ndarray]:
+    """The two random groups of :func:`spread_ratio`: even- and odd-numbered experiments.
+
+    Examples
+    --------
+    >>> [h.tolist() for h in split_halves(5)]
+    [[0, 2, 4], [1, 3]]
+    """
+    if int(n_exp) < 2:
+        raise ValueError(f"splitting pooled experiments in two needs at least 2, got {n_exp}.")
+    return np.arange(0, int(n_exp), 2), np.arange(1, int(n_exp), 2)
+
+
+def spread_ratio(G_a: np.ndarray, G_b: np.ndarray, var: np.ndarray, weight: float = 0.25
+                 ) -> np.ndarray:
+    """The random-group variance of a pooled estimate over the variance it reports.
+
+    Random groups (Mahalanobis 1946; Wolter, *Introduction to Variance Estimation*, 2nd
+    ed., Springer 2007, ch. 2): the experiments of a pooled fit are split into two groups
+    of ``n_a`` and ``n_b`` experiments fitted apart.  The groups share no noise, and the
+    pooled estimate is about their ``n``-weighted mean, so ``weight |G_a - G_b|^2`` with
+    ``weight = n_a n_b / (n_a + n_b)^2`` (1/4 for equal halves) estimates the variance of
+    every entry of the pooled ``G`` whatever the noise is (coloured, leaking, correlated
+    over bins) and however the local model misdescribes it.  Per bin, the mean over the
+    entries of that estimate over the reported ``var`` (1 if calibrated; each term is
+    ``Exp(1)``-distributed for Gaussian errors).  A bias common to both groups cancels in
+    the difference: the ratio sees misstated noise, not model error.
+
+    Parameters
+    ----------
+    G_a, G_b : ndarray, complex, shape (..., M, nz, nr)
+        The two groups' estimates.
+    var : ndarray, real, shape (..., M, nz, nr)
+        The variances the pooled fit reports for its ``G``.
+    weight : float, default 0.25
+        ``n_a n_b / (n_a + n_b)^2``.
+
+    Returns
+    -------
+    ndarray, shape (..., M)
+        NaN where no entry has finite estimates and a positive variance.
+
+    Examples
+    --------
+    >>> g = np.zeros((1, 1, 1))
+    >>> spread_ratio(g + 2.0, g, g + 0.5).tolist()
+    [2.0]
+    """
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        d2 = weight * np.abs(np.asarray(G_a) - np.asarray(G_b)) ** 2
+        v = np.asarray(var)
+        ok = np.isfinite(d2) & np.isfinite(v) & (v > 0)
+        terms = np.where(ok, d2 / np.where(ok, v, 1.0), 0.0).sum(axis=(-2, -1))
+        count = ok.sum(axis=(-2, -1))
+        return np.where(count > 0, terms / np.maximum(count, 1), np.nan)
+
+
+def spread_calibration(ratio: np.ndarray, smoothing: int = SPREAD_SMOOTHING) -> np.ndarray:
+    """Factor on a pooled fit's covariance from :func:`spread_ratio` per slow bin.
+
+    The ratio averaged over ``2 smoothing + 1`` neighbouring bins (circular, like the
+    local windows; over the finite values), and never below 1: the local model's own
+    covariance is kept where the groups agree better than it predicts (the ratio then
+    only measures its own scatter, or a bias the two groups share).
+
+    Parameters
+    ----------
+    ratio : ndarray, shape (..., M)
+    smoothing : int, default :data:`SPREAD_SMOOTHING`
+
+    Returns
+    -------
+    ndarray, shape (..., M), at least 1 (1 where no bin nearby has a finite ratio)
+
+    Examples
+    --------
+    >>> spread_calibration(np.array([1.0, 4.0, np.nan, 0.5, 0.2]), 1).round(3).tolist()
+    [1.733, 2.5, 2.25, 1.0, 1.0]
+    """
+    ratio = np.asarray(ratio, dtype=float)
+    ok = np.isfinite(ratio)
+    n = min(int(smoothing), (ratio.shape[-1] - 1) // 2)
+    total = window_mean(np.where(ok, ratio, 0.0), n, axis=-1)
+    count = window_mean(ok.astype(float), n, axis=-1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = np.where(count > 0, total / np.where(count > 0, count, 1.0), 1.0)
+    return np.maximum(mean, 1.0)
