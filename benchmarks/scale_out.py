@@ -4,7 +4,9 @@ HDD experiments, N = 3600 (173 kB of data each), window 30, degrees 3-3-3, with 
 
 1. ``open_archive`` time and client memory (RSS growth of a fresh process) for 100, 1 600
    and 10 000 experiments, consolidated and as a directory of files (the directory form
-   up to ``--files-max`` experiments: it costs ~70 ms per file to open);
+   up to ``--files-max`` experiments: it costs ~85 ms per file to open on a quiet machine,
+   ~0.4 s at load 4-6), and the time ``consolidate_archive`` takes for the largest
+   directory opened;
 2. ``append_to_archive`` of one experiment into the largest consolidated archive;
 3. the time to build the graph of a sweep of the largest archive x 3 windows;
 4. one ``identify`` per call (wall, CPU of the calling thread, page faults): in a plain
@@ -18,29 +20,34 @@ HDD experiments, N = 3600 (173 kB of data each), window 30, degrees 3-3-3, with 
 6. peak memory of one task in a fresh process: ``tracemalloc`` (numpy's allocations) and
    the growth of the resident high-water mark (``VmHWM``, everything: numba's and the
    allocator's too), for one experiment and for one sweep task of ``--per-task``;
-7. opt-in (``--big``, about half an hour): a 2-worker cluster with ``--memory-limit`` per
-   worker (default 400 MB) identifies a consolidated archive ``--big-factor`` (default 5)
-   times larger than the workers' memory together, each task reducing its experiments to
-   their median relative error against the true FRF (and, with ``--big-covariance``, their
-   median ``P_std / |P|``: not the default, see its help); the workers' RSS is sampled
-   every 50 ms.  The archive is written to ``--tmp``
-   (checked for space first) and deleted afterwards.
+7. opt-in (``--big``, long): a 2-worker cluster with ``--memory-limit`` per worker
+   (default 400 MB) runs ``sweep_to_disk`` over a consolidated archive ``--big-factor``
+   (default 5) times larger than the workers' memory together, writing ``P`` and
+   ``P_flag`` (and ``P_std`` with ``--big-covariance``); the workers' RSS is sampled every
+   50 ms, their status (paused?) and spilled keys every 5 s.  The archive is written to
+   ``--tmp`` (checked for space first) and deleted afterwards, or reused with
+   ``--big-archive``; ``--big-lifetime`` restarts workers periodically (off by default).
 
-Measured here (2 cores shared with other jobs, load 1-4): open 10 000 consolidated in
-0.16 s +7.8 MB; append 25 ms; sweep graph of 10 005 x 3 in 1.1 s (92 000 tasks); one
-identify in a local_cluster worker 0.99-1.01x a plain process (1.19-1.21x with
-distributed's defaults); 48 experiments: 9.5 experiments/s on one core (105 ms CPU each),
-11.6 on 2 workers reduced on the workers, 4.3 through sweep_to_disk on 2 workers (the
-client writing and assembling the results was the bottleneck).  Since the tasks write
-their own parts and the result is assembled reading each part once (64 experiments, 8
-per task; old and new code back to back): sweep_to_disk on 2 workers 5.5-6.3 -> 8.1-10.2
-experiments/s at load 1-1.7 (2.1-2.6 -> 3.7-3.8 at load 4-7), client CPU 5.4-6.2 -> 1.8-2.2
-s; 13.6 reduced on the workers in the same run; on one core 117 ms CPU per experiment
-against 90 ms for plain calls (part files, assembly, sweep graph); memory of one identify
-26 MB traced, 28 MB resident.  Part 7 did NOT complete: 23 141 experiments (4.0 GB, 5x
-2 x 400 MB), without P_std, workers grew from 320 MB to 355-382 MB within minutes,
-paused (90 %) or were killed (95 %), and every restart lost the results kept in worker
-memory until the end, so the run started over; 463 experiments (0.1x) ran through.
+Measured here in earlier sessions (2 cores shared with other jobs, load 1-4): open 10 000
+consolidated in 0.16 s +7.8 MB; append 25 ms; sweep graph of 10 005 x 3 in 1.1 s (92 000
+tasks); one identify in a local_cluster worker 0.99-1.01x a plain process (1.19-1.21x with
+distributed's defaults); sweep_to_disk on 2 workers 5.5-6.3 -> 8.1-10.2 experiments/s
+when the tasks began writing their own parts.
+
+Measured in this session (load 4-6 throughout: the numbers on 2 workers are bounded by the
+other jobs, compare within a run): directory of files, 100: 8.5 s (73 s at load 6), +80
+MB; 1 600: 604 s, +270 MB; 10 000: 1 289 s, +1.2 GB (consolidated 10 000: 0.42 s, +8.2
+MB); consolidate_archive of 100 files 17 s (10 000 not timed).  Task path labelling each block once (``--throughput-only``, old and new
+back to back): sweep_to_disk on one core 144 -> 101 and 142 -> 127 ms CPU per experiment
+in two runs (plain identify calls 99-100 ms); on 2 workers 3.2-7.6 experiments/s for both
+paths at load 4-6, and writing only P, P_std, P_flag cut the CPU per experiment from
+214 to 161 ms.  One identify 17 MB traced / 19 MB resident (was 20 / 28); a task of 8
+26 / 36 MB (was 36 / 38).  Part 7 did NOT complete: 23 141 experiments (4.0 GB, 5x
+2 x 400 MB) without P_std: a worker holds 299 MB after its first identify, 366 MB after
+its first 64 experiments through sweep_to_disk, and grows about 50 MB per 1 000
+experiments that malloc_trim does not give back; both workers paused at 90 % (360 MB),
+one was killed at 95 % and restarted, and the run stalled after 736 experiments (2.5/s
+until then).  Without P_std one worker with a 2 GB limit streamed 11-18 experiments/s.
 
 The experiments are copies of one simulated experiment with a small random perturbation
 (cheap to make; identify costs the same).  Everything is written to a temporary directory
@@ -67,8 +74,6 @@ import numpy as np
 
 N = 3600
 WINDOW = 30
-#: Seconds a worker of the big run (part 7) lives before it is retired and restarted.
-LIFETIME = 90
 
 
 # ------------------------------------------------------------------ archives
@@ -141,6 +146,19 @@ def time_open(path: Path) -> dict:
     out = subprocess.run([sys.executable, "-c", _OPEN, str(path)], capture_output=True, text=True,
                          env=_env(), check=True)
     return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def time_consolidate(directory: Path, path: Path) -> dict:
+    """Wall and CPU seconds of ``consolidate_archive(directory, path)`` (the command a user
+    of a directory archive runs once), and the open time of what it wrote."""
+    from lcmr_xr.scaleout import consolidate_archive
+
+    t0, c0 = time.perf_counter(), time.process_time()
+    consolidate_archive(directory, path)
+    out = {"seconds": time.perf_counter() - t0, "cpu": time.process_time() - c0}
+    opened = time_open(path)
+    path.unlink()
+    return {**out, "experiments": opened["experiments"], "open_seconds": opened["seconds"]}
 
 
 def _first_experiment(path: str):
@@ -299,7 +317,20 @@ def _workers_cpu(client) -> float:
     return sum(client.run(lambda: sum(__import__("psutil").Process().cpu_times()[:2])).values())
 
 
-def throughput(path: Path, n: int, tmp: Path, per_task: int) -> None:
+_PATHS = {False: "per-experiment identify (old)", True: "kernel per experiment, labels once (new)"}
+
+
+def _use_stacked_tasks(on: bool) -> None:
+    """Sweep tasks label their block once (the library's path) or, ``on=False``, call
+    ``identify`` per experiment and concatenate (the path before it), in this process."""
+    import importlib
+
+    module = importlib.import_module("lcmr_xr.scaleout.sweep")  # not the function sweep
+    real = module.__dict__.setdefault("_identify_stacked_real", module._identify_stacked)
+    module._identify_stacked = real if on else (lambda *args: None)
+
+
+def throughput(path: Path, n: int, tmp: Path, per_task: int, rounds: int = 2) -> None:
     """Item 5: experiments per second on one core and on a 2-worker local_cluster."""
     from distributed import Client
 
@@ -327,21 +358,34 @@ def throughput(path: Path, n: int, tmp: Path, per_task: int) -> None:
     worker.join()
     rows.append(("plain identify calls, one worker thread (one core)", time.perf_counter() - t0,
                  time.process_time() - c0))
-    t0, c0 = time.perf_counter(), time.process_time()
-    sweep_to_disk(arc, tmp / "one.nc", window=[WINDOW], scheduler="synchronous", progress=False,
-                  experiments_per_task=per_task)
-    rows.append((f"sweep_to_disk, synchronous (one core), {per_task} per task",
-                 time.perf_counter() - t0, time.process_time() - c0))
+    for stacked in (False, True):  # the task path before and after labelling once per block
+        _use_stacked_tasks(stacked)
+        t0, c0 = time.perf_counter(), time.process_time()
+        sweep_to_disk(arc, tmp / "one.nc", window=[WINDOW], scheduler="synchronous",
+                      progress=False, experiments_per_task=per_task, overwrite=True)
+        rows.append((f"sweep_to_disk, synchronous (one core), {per_task} per task, "
+                     f"{_PATHS[stacked]}", time.perf_counter() - t0, time.process_time() - c0))
     with local_cluster(2, silence_logs=50) as cluster, Client(cluster) as client:
         client.run(lambda: __import__("lcmr_xr.identification"))
         client.compute(reduced_sweep(arc.isel(experiment=slice(0, 2)), truth, 1)).result()  # warm
-        for name, run in (
-                (f"sweep_to_disk, 2-worker local_cluster, {per_task} per task",
-                 lambda: sweep_to_disk(arc, tmp / "two.nc", window=[WINDOW], client=client,
-                                       progress=False, overwrite=True,
-                                       experiments_per_task=per_task)),
-                (f"sweep reduced on 2 workers (nothing gathered), {per_task} per task",
-                 lambda: client.compute(reduced_sweep(arc, truth, per_task)).result())):
+
+        def streamed(stacked, variables=None):
+            client.run(_use_stacked_tasks, stacked)
+            return sweep_to_disk(arc, tmp / "two.nc", window=[WINDOW], client=client,
+                                 progress=False, overwrite=True, experiments_per_task=per_task,
+                                 variables=variables)
+
+        runs = []
+        for rnd in range(rounds):  # old and new alternate: the machine's load drifts
+            for stacked in (False, True):
+                runs.append((f"sweep_to_disk, 2-worker local_cluster, {per_task} per task, "
+                             f"{_PATHS[stacked]} (round {rnd + 1})",
+                             lambda stacked=stacked: streamed(stacked)))
+        runs.append((f"sweep_to_disk, 2 workers, {_PATHS[True]}, variables P, P_std, P_flag",
+                     lambda: streamed(True, ["P", "P_std", "P_flag"])))
+        runs.append((f"sweep reduced on 2 workers (nothing gathered), {per_task} per task, "
+                     f"{_PATHS[True]}", lambda: client.compute(reduced_sweep(arc, truth, per_task)).result()))
+        for name, run in runs:
             cpu0 = _workers_cpu(client)
             t0, c0 = time.perf_counter(), time.process_time()
             run()
@@ -352,7 +396,7 @@ def throughput(path: Path, n: int, tmp: Path, per_task: int) -> None:
           f"calls on one worker thread, in this run; load {os.getloadavg()[0]:.1f} at its end):")
     base = rows[1][1]
     for name, wall, cpu in rows:
-        print(f"  {name:<62}: {n / wall:6.2f} experiments/s ({wall:6.2f} s wall, {cpu:6.2f} s CPU, "
+        print(f"  {name:<86}: {n / wall:6.2f} experiments/s ({wall:6.2f} s wall, {cpu:6.2f} s CPU, "
               f"{cpu / n * 1e3:5.0f} ms CPU per experiment, {base / wall:4.2f} x one thread)")
     arc.close()
 
@@ -432,9 +476,9 @@ def memory(path: Path, per_task: int) -> None:
           f"{task['hwm_mb']:6.1f} MB resident growth; data {task['data_mb']:.2f} MB, result "
           f"{task['result_mb']:.2f} MB")
     print(f"  where it goes: the local model's full covariance of G, M (nz nr)^2 complex "
-          f"(M = {m}, nz = {nz}, nr = {nr}) = {cov:.1f} MB, held twice while it is packed with the "
-          f"estimates (fit_packed); the process itself holds {one['rss_mb']:.0f} MB after the call "
-          "(numba and its kernels included)")
+          f"(M = {m}, nz = {nz}, nr = {nr}) = {cov:.1f} MB, as the compiled kernel returns it; the "
+          f"process itself holds {one['rss_mb']:.0f} MB after the call (numba and its kernels "
+          "included)")
 
 
 # ------------------------------------------------------------------ the big run
@@ -484,22 +528,33 @@ class _RssSampler:
         self._thread.join()
 
 
+def _worker_state(dask_worker):
+    """What a worker holds: status, keys spilled to disk, its pid (restarts change it)."""
+    data = dask_worker.data
+    spilled = len(getattr(data, "slow", ()))
+    return {"status": str(dask_worker.status), "spilled": spilled, "pid": os.getpid()}
+
+
 def big_run(tmp_root: Path, memory_limit: str, factor: float, per_task: int,
-            covariance: bool = False, archive: Path | None = None) -> None:
+            covariance: bool = False, archive: Path | None = None,
+            lifetime: float | None = None) -> None:
     """Item 7: a 2-worker cluster with ``memory_limit`` each identifies an archive
-    ``factor`` times larger than the workers' memory together (``covariance``: with
-    ``P_std``)."""
+    ``factor`` times larger than the workers' memory together through ``sweep_to_disk``
+    (``covariance``: with ``P_std``), writing ``P``, ``P_flag`` (and ``P_std``)."""
     import dask
+    import xarray as xr
     from dask.utils import parse_bytes
     from distributed import Client
 
-    from lcmr_xr.scaleout import local_cluster, open_archive
+    from lcmr_xr.io import open_dataset
+    from lcmr_xr.scaleout import local_cluster, open_archive, sweep_to_disk
 
     limit = parse_bytes(memory_limit)
     base = _base(seed=7)
     per_exp = base[["r", "u", "y"]].nbytes
     n = int(np.ceil(factor * 2 * limit / per_exp))
     free = shutil.disk_usage(tmp_root).free
+    keep = ["P", "P_flag"] + (["P_std"] if covariance else [])
     if archive is None and free < 2 * n * per_exp:
         raise SystemExit(f"--big needs about {n * per_exp / 1e9:.1f} GB in {tmp_root} (twice that "
                          f"free), {free / 1e9:.1f} GB are free; pass --tmp DIR on a larger disk.")
@@ -518,62 +573,75 @@ def big_run(tmp_root: Path, memory_limit: str, factor: float, per_task: int,
             print(f"  written in {time.perf_counter() - t0:.0f} s; {path.stat().st_size / 1e9:.2f} "
                   "GB on disk", flush=True)
         truth = _truth_of(base)
-        # A safety net: a worker that grows over thousands of tasks (measured with the
-        # archive rechunked: from 320 MB after its first tasks to 355-370 MB within 4
-        # minutes) pauses at 360 MB (local_cluster's 90 % of 400 MB) and may stall for
-        # good.  distributed's remedy for slowly growing workers: retire and restart each
-        # after a lifetime (staggered), its tasks moved to the other worker first.
-        lifetime = {"distributed.worker.lifetime.duration": f"{LIFETIME} s",
-                    "distributed.worker.lifetime.stagger": f"{LIFETIME // 4} s",
-                    "distributed.worker.lifetime.restart": True}
-        with dask.config.set(lifetime), \
+        config = {} if not lifetime else {  # opt-in safety net: retire and restart workers
+            "distributed.worker.lifetime.duration": f"{lifetime} s",
+            "distributed.worker.lifetime.stagger": f"{lifetime / 4} s",
+            "distributed.worker.lifetime.restart": True}
+        output = tmp / "sweep.nc"
+        states = []
+        with dask.config.set(config), \
                 local_cluster(2, memory_limit=memory_limit, silence_logs=50) as cluster, \
                 Client(cluster) as client:
             pids = list(client.run(os.getpid).values())
-            # chunks of per_task experiments as read: root tasks that the scheduler queues
-            # (a rechunk of the archive's 16-experiment chunks let it assign 1 300 tasks at
-            # once, whose reads filled the workers until they paused)
             arc = open_archive(path, chunks={"experiment": per_task})
-            lazy = reduced_sweep(arc, truth, per_task, covariance)
-            result, failed = None, None
+            last = {"t": 0.0, "print": 0.0}
+
+            def watch(done, total, rate):  # every task: sample the workers every 5 s
+                now = time.perf_counter() - t0
+                if now - last["t"] < 5 and done < total:
+                    return
+                last["t"] = now
+                try:
+                    state = client.run(_worker_state)
+                except Exception:  # a worker restarting: next time
+                    return
+                states.extend(state.values())
+                sampler.add([st["pid"] for st in state.values()])
+                if now - last["print"] > 120 or done >= total:
+                    last["print"] = now
+                    print(f"    {now:5.0f} s: {done}/{total} experiments, {rate:.2f}/s, peak "
+                          f"worker RSS so far {max(sampler.peak.values()) / 1e6:.0f} MB, "
+                          f"worker processes {len(sampler.procs)}, statuses "
+                          f"{sorted({st['status'] for st in state.values()})}", flush=True)
+
+            failed = None
             with _RssSampler(pids) as sampler:
                 t0 = time.perf_counter()
-                future = client.compute(lazy)
-                last = 0.0
-                while result is None and failed is None:
-                    try:
-                        result = future.result(timeout=5)
-                    except TimeoutError:  # long work shows progress; restarted workers
-                        try:
-                            sampler.add(client.run(os.getpid).values())
-                        except Exception:  # a worker closing for its restart: ask again later
-                            pass
-                        if time.perf_counter() - t0 > last + 120:
-                            last = time.perf_counter() - t0
-                            print(f"    {last:5.0f} s, peak worker RSS so far "
-                                  f"{max(sampler.peak.values()) / 1e6:.0f} MB, worker "
-                                  f"processes so far {len(sampler.procs)}", flush=True)
-                    except Exception as exc:  # KilledWorker: the limit was too small; report it
-                        failed = f"{type(exc).__name__}: {str(exc)[:200]}"
+                try:
+                    sweep_to_disk(arc, output, window=[WINDOW], degrees=[(3, 3, 3)],
+                                  covariance=covariance, experiments_per_task=per_task,
+                                  client=client, progress=watch, variables=keep)
+                except Exception as exc:  # KilledWorker: the limit was too small; report it
+                    failed = f"{type(exc).__name__}: {str(exc)[:300]}"
                 wall = time.perf_counter() - t0
             cpu = sum(sampler.cpu.values()) - sum(sampler.cpu0.values())  # every worker process
             arc.close()
         worst = max(sampler.peak.values())
+        paused = sum("paus" in st["status"].lower() for st in states)
+        spilled = max((st["spilled"] for st in states), default=0)
         print(f"  archive: {n} experiments, {n * per_exp / 1e9:.2f} GB of data = "
               f"{n * per_exp / (2 * limit):.1f}x the two workers' {2 * limit / 1e6:.0f} MB")
         if failed:
             print(f"  FAILED after {wall:.0f} s: {failed}")
         else:
-            print(f"  identified ({'with' if covariance else 'without'} P_std) on 2 workers "
-                  f"({memory_limit} each, {per_task} experiments per task) "
-                  f"in {wall:.0f} s wall, {cpu:.0f} s worker CPU: {n / wall:.2f} experiments/s; "
-                  f"median error vs the true FRF {float(result.error.median()):.2e}, median "
-                  f"P_std/|P| {float(result.rel_std.median()):.2e}, bins flagged "
-                  f"{float(result.flagged.mean()):.1%}, "
-                  f"{int(np.isnan(result.error).sum())} experiments without a result")
+            res = open_dataset(output, chunks={"experiment": 500})
+            err = (abs(res.P.isel(method=0, degrees=0, window=0) - truth) / abs(truth)).median(
+                ["frequency", "output", "input"]).compute()
+            flagged = float(res.P_flag.mean().compute())
+            failed_exps = int((res.experiment_error != "").sum())
+            size = output.stat().st_size
+            res.close()
+            print(f"  identified ({'with' if covariance else 'without'} P_std) through "
+                  f"sweep_to_disk on 2 workers ({memory_limit} each, {per_task} experiments per "
+                  f"task) in {wall:.0f} s wall, {cpu:.0f} s worker CPU: {n / wall:.2f} "
+                  f"experiments/s; result {size / 1e9:.2f} GB ({', '.join(keep)}); median error "
+                  f"vs the true FRF {float(err.median()):.2e}, bins flagged {flagged:.1%}, "
+                  f"{failed_exps} experiments failed")
         print(f"  peak worker RSS {worst / 1e6:.0f} MB ({'under' if worst < limit else 'OVER'} the "
-              f"limit of {limit / 1e6:.0f} MB) over {len(sampler.procs)} worker processes (each "
-              f"restarted after about {LIFETIME} s)")
+              f"limit of {limit / 1e6:.0f} MB) over {len(sampler.procs)} worker processes "
+              f"({'restarted every ' + str(lifetime) + ' s' if lifetime else 'no restarts asked'}); "
+              f"worker samples {len(states)}, paused in {paused}, most keys spilled at once "
+              f"{spilled}")
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
 
@@ -588,6 +656,8 @@ def main(argv=None):
     ap.add_argument("--identify", type=int, default=64, help="experiments per throughput run")
     ap.add_argument("--per-task", type=int, default=8, help="experiments per sweep task")
     ap.add_argument("--skip-throughput", action="store_true", help="skip parts 4 to 6")
+    ap.add_argument("--throughput-only", action="store_true",
+                    help="of parts 4 to 6, only part 5 (throughput)")
     ap.add_argument("--quick", action="store_true", help="sizes 20 100, 8 experiments identified")
     ap.add_argument("--big", action="store_true",
                     help="also part 7: an archive larger than the workers' memory (~30 min)")
@@ -600,6 +670,9 @@ def main(argv=None):
                          "above its ~320 MB of libraries and kernels, and reached the limit)")
     ap.add_argument("--big-archive", type=Path, default=None,
                     help="part 7 on this consolidated archive (kept) instead of writing one")
+    ap.add_argument("--big-lifetime", type=float, default=None,
+                    help="part 7: retire and restart each worker after this many seconds "
+                         "(default: never)")
     ap.add_argument("--tmp", type=Path, default=Path(tempfile.gettempdir()),
                     help="where part 7 writes its archive (deleted afterwards)")
     args = ap.parse_args(argv)
@@ -609,7 +682,7 @@ def main(argv=None):
           "(shared: compare numbers within the run)", flush=True)
     if args.big_only:
         big_run(args.tmp, args.memory_limit, args.big_factor, args.per_task, args.big_covariance,
-                args.big_archive)
+                args.big_archive, args.big_lifetime)
         return
     from lcmr_xr.scaleout import append_to_archive, open_archive, sweep
 
@@ -619,7 +692,7 @@ def main(argv=None):
         print(f"open_archive (fresh process; N = {N}, {base[['r', 'u', 'y']].nbytes / 1e3:.0f} kB per "
               "experiment; goal for 10 000: < 2 s, < 100 MB):")
         print(f"  {'experiments':>11} | {'consolidated':>22} | {'directory of files':>22}")
-        largest = None
+        largest, consolidating = None, None
         for n in sorted(args.sizes):
             t0 = time.perf_counter()
             make_consolidated(tmp / f"c{n}.nc", n, base)
@@ -630,6 +703,8 @@ def main(argv=None):
                 make_directory(tmp / f"d{n}", n, base)
                 d = time_open(tmp / f"d{n}")
                 row += f"{d['seconds']:7.2f} s {d['mb']:+7.1f} MB"
+                if n == max(k for k in args.sizes if k <= args.files_max):
+                    consolidating = time_consolidate(tmp / f"d{n}", tmp / f"cc{n}.nc")
                 shutil.rmtree(tmp / f"d{n}")
             else:
                 row += "  (skipped: --files-max)"
@@ -645,6 +720,11 @@ def main(argv=None):
             t0 = time.perf_counter()
             append_to_archive(exp, path)
             times.append(time.perf_counter() - t0)
+        if consolidating:
+            print(f"consolidate_archive of the {consolidating['experiments']}-file directory: "
+                  f"{consolidating['seconds']:.0f} s ({consolidating['cpu']:.0f} s CPU, "
+                  f"{consolidating['experiments'] / consolidating['seconds']:.0f} files/s); "
+                  f"the consolidated result opens in {consolidating['open_seconds']:.3f} s", flush=True)
         print(f"append_to_archive into {largest} experiments: median {np.median(times) * 1e3:.0f} ms "
               f"(min {min(times) * 1e3:.0f}, max {max(times) * 1e3:.0f}; goal < 100 ms)")
 
@@ -662,14 +742,16 @@ def main(argv=None):
         del lazy
 
         if not args.skip_throughput:
-            per_call(path)
+            if not args.throughput_only:
+                per_call(path)
             throughput(path, args.identify, tmp, args.per_task)
-            memory(path, args.per_task)
+            if not args.throughput_only:
+                memory(path, args.per_task)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     if args.big:
         big_run(args.tmp, args.memory_limit, args.big_factor, args.per_task, args.big_covariance,
-                args.big_archive)
+                args.big_archive, args.big_lifetime)
 
 
 if __name__ == "__main__":

@@ -169,21 +169,26 @@ def test_sweep_to_disk_identifies_each_experiment_once(tmp_path, monkeypatch):
     archive's metadata coordinates once came back through them)."""
     import importlib
 
-    sweep_module = importlib.import_module("lcmr_xr.scaleout.sweep")  # not the function sweep
+    identify_module = importlib.import_module("lcmr_xr.identification.identify")
     save_archive([_labelled(i) for i in range(3)], tmp_path / "a.nc")
     arc = open_archive(tmp_path / "a.nc")
     assert "seed" in arc.coords  # metadata along experiment: what pulled the tasks back
     calls = []
-    real = sweep_module._identify_or_flag
+    real = identify_module.record_kernel
 
-    def counted(one, source, settings):
-        calls.append(str(one.experiment.values.ravel()[0]))
-        return real(one, source, settings)
+    def counted(*args, **kwargs):  # the kernel of every identify, whichever path calls it
+        kernel = real(*args, **kwargs)
 
-    monkeypatch.setattr(sweep_module, "_identify_or_flag", counted)
+        def counting(r, u, y, *rest):
+            calls.append(float(np.asarray(r)[..., 0, 0].ravel()[0]))  # which experiment
+            return kernel(r, u, y, *rest)
+        return counting
+
+    monkeypatch.setattr(identify_module, "record_kernel", counted)
     out = sweep_to_disk(arc, tmp_path / "r.nc", window=[12, 20], experiments_per_task=2,
                         scheduler="synchronous", progress=False)
-    assert sorted(calls) == sorted(2 * [str(v) for v in arc.experiment.values])
+    first = [float(v) for v in arc.r.isel(time=0, input=0).values]
+    assert len(set(first)) == 3 and sorted(calls) == sorted(2 * first)
     res = open_dataset(out)
     np.testing.assert_array_equal(res.seed.values, arc.seed.values)
     arc.close()
@@ -289,6 +294,30 @@ def test_sweep_to_disk_never_writes_into_or_over_its_archive(tmp_path):
     assert sorted(p.name for p in tmp_path.rglob("*")) == before  # no parts directory either
 
 
+def test_sweep_to_disk_keeps_only_the_variables_asked_for(tmp_path):
+    exps = _stack(["a", "b", "c"])
+    out = sweep_to_disk(exps, tmp_path / "s.nc", window=[12, 15], variables=["P_flag", "P"],
+                        experiments_per_task=2, scheduler="synchronous", progress=False)
+    got = open_dataset(out)
+    assert list(got.data_vars) == ["P", "P_flag", "experiment_error"]  # the sweep's order
+    want = sweep(exps, window=[12, 15]).compute(scheduler="synchronous")
+    xr.testing.assert_identical(got, want[["P", "P_flag", "experiment_error"]])
+    with pytest.raises(ValueError, match=r"\['Q'\] are not in this sweep's result; choose from"):
+        sweep_to_disk(exps, tmp_path / "t.nc", window=[12], variables=["P", "Q"])
+    with pytest.raises(ValueError, match="variables must be names"):
+        sweep_to_disk(exps, tmp_path / "t.nc", window=[12], variables=[])
+    assert not (tmp_path / "t.nc").exists() and not parts_directory(tmp_path / "t.nc").exists()
+
+
+def test_sweep_to_disk_of_experiments_without_labels(tmp_path):
+    """No coordinate along experiment (a plain xr.concat): the tasks cut nothing but data."""
+    exps = xr.concat([_experiment(i) for i in range(3)], "experiment")
+    out = sweep_to_disk(exps, tmp_path / "s.nc", window=[12], experiments_per_task=2,
+                        scheduler="synchronous", progress=False)
+    want = sweep(exps, window=[12]).compute(scheduler="synchronous")
+    xr.testing.assert_identical(open_dataset(out), want)
+
+
 def test_sweep_to_disk_prints_experiments_per_second(tmp_path, capsys):
     sweep_to_disk(_stack(["a", "b"]), tmp_path / "s.nc", window=[12], scheduler="synchronous")
     err = capsys.readouterr().err
@@ -304,7 +333,8 @@ def test_local_cluster_workers_get_the_allocator_settings():
 
     def inspect(dask_worker):
         return (dict(os.environ), dask_worker.memory_manager.memory_pause_fraction,
-                _CALLBACK in dask_worker.periodic_callbacks)
+                _CALLBACK in dask_worker.periodic_callbacks,
+                dask_worker.memory_manager.memory_spill_fraction)
 
     # a cluster with distributed's defaults leaves MALLOC_TRIM_THRESHOLD_=65536 in this
     # process's environment (its nanny writes it there), which nannies prefer to their config
@@ -313,7 +343,7 @@ def test_local_cluster_workers_get_the_allocator_settings():
     try:
         with local_cluster(1, memory_limit="2GB", silence_logs=50) as cluster, \
                 Client(cluster) as client:
-            env, pause, trims = next(iter(client.run(inspect).values()))
+            env, pause, trims, spill = next(iter(client.run(inspect).values()))
         assert os.environ["MALLOC_TRIM_THRESHOLD_"] == "65536"  # this process's is restored
     finally:
         if before is None:
@@ -324,6 +354,7 @@ def test_local_cluster_workers_get_the_allocator_settings():
     assert env["MALLOC_MMAP_THRESHOLD_"] == str(32 * 2**20)
     assert env["OPENBLAS_NUM_THREADS"] == "1"  # distributed's own defaults are kept
     assert pause == 0.9  # PAUSE_FRACTION, set by the preload
+    assert spill == 0.85  # SPILL_FRACTION: above the libraries' share of a small worker
     assert trims == (sys.platform == "linux")  # the preload's heap trimming (glibc)
 
 

@@ -167,6 +167,39 @@ def test_sweep_is_lazy_and_equals_in_memory_on_the_cluster(cluster_client):
                 xr.testing.assert_allclose(got, want, rtol=1e-12, atol=0)
 
 
+@pytest.mark.parametrize("settings", [
+    dict(method="lrm", window=12, degrees=(2, 2, 2), closed_loop="indirect", covariance=True),
+    dict(method="lpm", window=12, degrees=(2, 2, 0), closed_loop="direct", covariance=False),
+    dict(method="lrm", window=12, degrees=(2, 2, 2), closed_loop="indirect", covariance=True,
+         denominator="iv"),
+])
+def test_a_task_labels_its_block_once_and_equals_identify_per_experiment(settings):
+    """The stacked task path (kernel per experiment, labels once) gives exactly the result of
+    identify per experiment concatenated, failed experiments (NaN, an unexcited lifted
+    channel) included with identify's own messages."""
+    from lcmr_xr.scaleout.sweep import _identify_block, _identify_or_flag
+
+    exps = _stack(["a", "b", "c", "d"]).compute().assign_coords(
+        seed=("experiment", [1, 2, 3, 4], {"units": "1", "long_name": "seed"}))
+    r = exps.r.values.copy()
+    r[1, 5, 0] = np.nan
+    r[3] = 0.0  # no excitation: the indirect estimate's rank check refuses it
+    exps["r"] = exps.r.copy(data=r)
+    settings = {"denominator": None, **settings}
+    got = _identify_block(exps, source="runs.nc", **settings)
+    want = xr.concat([_identify_or_flag(exps.isel(experiment=slice(i, i + 1)), "runs.nc", settings)
+                      for i in range(4)], "experiment", data_vars="all", coords="minimal",
+                     compat="override", join="exact", combine_attrs="override")
+    for name in ("experiment", "seed"):  # the experiments' attrs kept (concat drops them)
+        assert got[name].attrs == exps[name].attrs
+        got[name].attrs = {}
+    xr.testing.assert_identical(got, want)
+    errors = got.experiment_error.values
+    assert errors[0] == errors[2] == "" and "'b' of runs.nc" in errors[1]
+    assert "NaN or inf" in errors[1] and bool(np.isnan(got.P[1]).all())
+    assert ("rank 0" in errors[3]) == (settings["closed_loop"] == "indirect")
+
+
 def test_sweep_invalid_settings_fail_before_any_compute():
     exps = _stack(["e0", "e1"]).chunk({"experiment": 1})
     with dask.config.set(scheduler=_forbid):

@@ -487,32 +487,9 @@ def _estimate(r: xr.DataArray, u: xr.DataArray, y: xr.DataArray, s, *, factor: i
     elif s.frequency_chunks is None:
         windows = _candidate_windows(s, factor * nu, n // factor) if auto else None
 
-        def fit(r_, u_, y_, noise_covariance=None):
-            R, Z = experiment_spectra(r_, u_, y_, factor=factor, closed_loop=s.closed_loop)
-            # lazy: the local model's condition numbers flag it; pooled: only the
-            # experiments together need to excite every lifted channel (flagged likewise)
-            if check_rank and not lazy and not pooled:
-                _check_excitation_rank(R, "r" if s.closed_loop == "indirect" else "u")
-            if auto:  # a window per slow bin (kernels.adaptive), same guards as below
-                return identify_spectra_auto(R, Z, n_fast=n, factor=factor, nu=nu,
-                                             windows=windows, degrees=s.degrees,
-                                             closed_loop=s.closed_loop,
-                                             noise_covariance=noise_covariance,
-                                             experiment_axis=exp_axis,
-                                             denominator=_kernel_denominator(s))
-            return identify_spectra(R, Z, n_fast=n, factor=factor, nu=nu, half_width=s.window,
-                                    degrees=s.degrees, closed_loop=s.closed_loop,
-                                    covariance=s.covariance, noise_covariance=noise_covariance,
-                                    experiment_axis=exp_axis, denominator=_kernel_denominator(s))
-
-        def kernel(r_, u_, y_, *noise_cov):
-            # lazy data were not checked by the validation: name the variable and time range
-            _guards.check_finite(r_, u_, y_, th=th, factor=factor)
-            # data of extreme magnitude are fitted scaled by powers of two (exact), then unscaled
-            return _split(_guards.scaled_call(fit, r_, u_, y_, closed_loop=s.closed_loop,
-                                              noise_covariance=noise_cov[0] if noise_cov else None),
-                          **split)
-
+        kernel = record_kernel(s, factor=factor, n=n, nu=nu, th=th, windows=windows,
+                               check_rank=check_rank and not lazy and not pooled,
+                               experiment_axis=exp_axis, split=split)
         extra = [] if noise is None else [noise]
         extra_core = [] if noise is None else [[SF, "_z", "_z2"]]
         results = xr.apply_ufunc(kernel, r, u, y, *extra, input_core_dims=core_in + extra_core,
@@ -552,6 +529,47 @@ def _estimate(r: xr.DataArray, u: xr.DataArray, y: xr.DataArray, s, *, factor: i
         results = xr.apply_ufunc(finish, packed.chunk({SF: -1, "_candidate": -1}),
                                  input_core_dims=[["_candidate", SF, "_packed"]], **output_spec)
     return xr.Dataset({name: da for (name, _, _), da in zip(specs, results)})
+
+
+def record_kernel(s, *, factor: int, n: int, nu: int, th: float, split: dict, check_rank: bool,
+                  windows=None, experiment_axis=None):
+    """The eager kernel of :func:`identify`: ``kernel(r, u, y[, noise_covariance])`` on numpy
+    arrays (trailing axes (``N``, ``nu``), (``N``, ``nu``), (``M``, ``ny``)) returning the
+    unlabelled outputs of ``split["specs"]`` (:func:`output_specs`) in order.
+
+    Checks NaN/inf (naming the variable and time range), the excitation rank
+    (``check_rank``), scales data of extreme magnitude by powers of two, fits and finishes.
+    ``windows``: the candidates of ``window="auto"`` (None: ``s.window``).  A sweep task
+    calls it once per experiment and labels its block once
+    (:func:`lcmr_xr.scaleout.sweep._identify_block`).
+    """
+    def fit(r_, u_, y_, noise_covariance=None):
+        R, Z = experiment_spectra(r_, u_, y_, factor=factor, closed_loop=s.closed_loop)
+        # lazy: the local model's condition numbers flag it; pooled: only the
+        # experiments together need to excite every lifted channel (flagged likewise)
+        if check_rank:
+            _check_excitation_rank(R, "r" if s.closed_loop == "indirect" else "u")
+        if windows is not None:  # a window per slow bin (kernels.adaptive), same guards as below
+            return identify_spectra_auto(R, Z, n_fast=n, factor=factor, nu=nu,
+                                         windows=windows, degrees=s.degrees,
+                                         closed_loop=s.closed_loop,
+                                         noise_covariance=noise_covariance,
+                                         experiment_axis=experiment_axis,
+                                         denominator=_kernel_denominator(s))
+        return identify_spectra(R, Z, n_fast=n, factor=factor, nu=nu, half_width=s.window,
+                                degrees=s.degrees, closed_loop=s.closed_loop,
+                                covariance=s.covariance, noise_covariance=noise_covariance,
+                                experiment_axis=experiment_axis, denominator=_kernel_denominator(s))
+
+    def kernel(r_, u_, y_, *noise_cov):
+        # lazy data were not checked by the validation: name the variable and time range
+        _guards.check_finite(r_, u_, y_, th=th, factor=factor)
+        # data of extreme magnitude are fitted scaled by powers of two (exact), then unscaled
+        return _split(_guards.scaled_call(fit, r_, u_, y_, closed_loop=s.closed_loop,
+                                          noise_covariance=noise_cov[0] if noise_cov else None),
+                      **split)
+
+    return kernel
 
 
 def _candidate_windows(s, n_excitation: int, n_bins: int) -> tuple[int, ...]:
@@ -678,7 +696,7 @@ def _check_excitation_rank(R, name: str) -> None:
         raise ValueError(
             f"the lifted {name} has rank {rank} < F*nu = {nr}: not every lifted channel is "
             f"excited independently (smallest/largest singular value "
-            f"{float(np.min(sv[..., -1] / sv[..., 0])):.1e}). A signal held constant over each "
+            f"{float(np.min(sv[..., -1] / np.maximum(sv[..., 0], np.finfo(float).tiny))):.1e}). A signal held constant over each "
             f"slow period (or any signal whose F phases are linear combinations of each other) "
             f"cannot identify the fast plant. Excite at the fast rate over all fast bins, e.g. "
             f"lcmr_xr.multisine(N, sampling_period=Th, rms=...) per input."

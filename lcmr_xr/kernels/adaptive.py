@@ -178,8 +178,11 @@ def weak_direction(S: np.ndarray, S_cov: np.ndarray, svd=None):
     """
     nr = S.shape[-1]
     finite = np.isfinite(S).all(axis=(-2, -1)) & np.isfinite(S_cov).all(axis=(-2, -1))
-    S_safe = np.where(finite[..., None, None], S, np.eye(nr))
-    cov_safe = np.where(finite[..., None, None], S_cov, 0.0)
+    if finite.all():  # no copies: S_cov may be a view into the whole covariance of G
+        S_safe, cov_safe = S, S_cov
+    else:
+        S_safe = np.where(finite[..., None, None], S, np.eye(nr))
+        cov_safe = np.where(finite[..., None, None], S_cov, 0.0)
     u, sv, vh = np.linalg.svd(S_safe) if svd is None else svd
     um, vm, smin = u[..., :, -1], vh[..., -1, :].conj(), sv[..., -1]
     C = np.asarray(cov_safe).reshape(cov_safe.shape[:-2] + (nr, nr, nr, nr))
