@@ -285,3 +285,25 @@ def test_proportional_grams_give_the_size_weight(monkeypatch):
     sizes = kid._fit(R, Z, **kw)["spread_ratio"]
     assert np.all(np.isfinite(ratio)) and ratio.max() > 0
     np.testing.assert_allclose(ratio, sizes, rtol=1e-10)
+
+
+def test_near_collinear_unflagged_half_is_weighted_by_its_gram():
+    """As :func:`test_ill_posed_halves_leave_the_covariance_alone` with ``eps = 1e-3``: the
+    even half is not flagged (condition under the limit) but tells the two lifted phases
+    apart only weakly, so its ``G`` is far noisier than the pool's.  With the weight
+    ``n_a n_b / E^2`` that read as understated noise (measured: median factor 3.5e5); the
+    halves' Grams weight it down (measured 1.23)."""
+    n, factor = 480, 2
+    exps = []
+    for e in range(4):
+        rng = np.random.default_rng(50 + e)
+        r = random_phase_multisine(n, 1, np.arange(1, n // 2 + 1), 1.0, rng)
+        if e % 2 == 0:
+            r[1::2] = r[0::2] + 1e-3 * rng.standard_normal(r[0::2].shape)
+        exps.append(_simulate(_siso_loop(factor), r, factor, d_y=0.05 * rng.standard_normal((n, 1))))
+    ds = xr.concat(exps, "experiment")
+    R, Z = kid.experiment_spectra(ds.r.values, ds.u.values, ds.y.values, factor=factor)
+    even = local_model(R[0::2], Z[0::2], half_width=20, covariance=None, experiment_axis=-3)
+    assert not even.ill_posed.any()
+    frf = identify(ds, window=20, combine="experiment", denominator="ls")
+    assert np.median(frf[cv.SPREAD_CALIBRATION].values) < 1.5
