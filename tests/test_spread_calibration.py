@@ -170,6 +170,22 @@ def test_hdd_pooled_band_below_500_hz_covers(group):
     assert np.median(frf[cv.SPREAD_CALIBRATION].values[(sf > 0) & (sf < 500)]) > 1.3
 
 
+def _near_collinear_half(eps, n, factor):
+    """Four experiments on the SISO loop; in the even-numbered ones the two lifted phases
+    of ``r`` differ by ``eps`` only.  Returns them and the even half's local fit."""
+    exps = []
+    for e in range(4):
+        rng = np.random.default_rng(50 + e)
+        r = random_phase_multisine(n, 1, np.arange(1, n // 2 + 1), 1.0, rng)
+        if e % 2 == 0:
+            r[1::2] = r[0::2] + eps * rng.standard_normal(r[0::2].shape)
+        noise = 0.05 * rng.standard_normal((n, 1))
+        exps.append(_simulate(_siso_loop(factor), r, factor, d_y=noise))
+    ds = xr.concat(exps, "experiment")
+    R, Z = kid.experiment_spectra(ds.r.values, ds.u.values, ds.y.values, factor=factor)
+    return ds, local_model(R[0::2], Z[0::2], half_width=20, covariance=None, experiment_axis=-3)
+
+
 @pytest.mark.parametrize("eps", [1e-6, 3e-8])
 def test_ill_posed_halves_leave_the_covariance_alone(eps):
     """Four experiments; in the even-numbered ones the two lifted phases of ``r`` differ by
@@ -181,17 +197,7 @@ def test_ill_posed_halves_leave_the_covariance_alone(eps):
     ratios over their neighbours): no ratio there, the factor is 1 and the band is the local
     model's."""
     n, factor = 480, 2
-    exps = []
-    for e in range(4):
-        rng = np.random.default_rng(50 + e)
-        r = random_phase_multisine(n, 1, np.arange(1, n // 2 + 1), 1.0, rng)
-        if e % 2 == 0:
-            r[1::2] = r[0::2] + eps * rng.standard_normal(r[0::2].shape)
-        noise = 0.05 * rng.standard_normal((n, 1))
-        exps.append(_simulate(_siso_loop(factor), r, factor, d_y=noise))
-    ds = xr.concat(exps, "experiment")
-    R, Z = kid.experiment_spectra(ds.r.values, ds.u.values, ds.y.values, factor=factor)
-    even = local_model(R[0::2], Z[0::2], half_width=20, covariance=None, experiment_axis=-3)
+    ds, even = _near_collinear_half(eps, n, factor)
     assert np.all(even.ill_posed) and np.isfinite(even.G).all(axis=(-2, -1)).any()
     frf = identify(ds, window=20, combine="experiment", denominator="ls")
     assert np.array_equal(frf[cv.SPREAD_CALIBRATION].values, np.ones(n // factor))
@@ -293,17 +299,7 @@ def test_near_collinear_unflagged_half_is_weighted_by_its_gram():
     apart only weakly, so its ``G`` is far noisier than the pool's.  With the weight
     ``n_a n_b / E^2`` that read as understated noise (measured: median factor 3.5e5); the
     halves' Grams weight it down (measured 1.23)."""
-    n, factor = 480, 2
-    exps = []
-    for e in range(4):
-        rng = np.random.default_rng(50 + e)
-        r = random_phase_multisine(n, 1, np.arange(1, n // 2 + 1), 1.0, rng)
-        if e % 2 == 0:
-            r[1::2] = r[0::2] + 1e-3 * rng.standard_normal(r[0::2].shape)
-        exps.append(_simulate(_siso_loop(factor), r, factor, d_y=0.05 * rng.standard_normal((n, 1))))
-    ds = xr.concat(exps, "experiment")
-    R, Z = kid.experiment_spectra(ds.r.values, ds.u.values, ds.y.values, factor=factor)
-    even = local_model(R[0::2], Z[0::2], half_width=20, covariance=None, experiment_axis=-3)
+    ds, even = _near_collinear_half(1e-3, 480, 2)
     assert not even.ill_posed.any()
     frf = identify(ds, window=20, combine="experiment", denominator="ls")
     assert np.median(frf[cv.SPREAD_CALIBRATION].values) < 1.5

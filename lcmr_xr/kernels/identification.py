@@ -318,8 +318,9 @@ def split_half_spread(R, Z, G_var, *, half_width, degrees, circular=True,
     are each fitted as ``identify`` would fit them pooled (same window, degrees and
     denominator; IV from each half's own first fit; no covariance), and
     :func:`lcmr_xr.kernels.pooling.spread_ratio` compares the variance their difference
-    implies for the whole pool with ``G_var``, the variances of ``vec(G)`` the pooled fit
-    reports.  The experiments are independent replicates, so this checks the local
+    implies for the whole pool (weighted per entry by the halves' excitation Grams,
+    :func:`lcmr_xr.kernels.pooling.half_variances`) with ``G_var``, the variances of
+    ``vec(G)`` the pooled fit reports.  The experiments are independent replicates, so this checks the local
     model's covariance without its noise model: on the HDD benchmark it reads about 2
     below 500 Hz, where the first-order covariance is too small (docs/uncertainty.md,
     "Pooled bands: the covariance checked by split halves").
