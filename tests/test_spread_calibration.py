@@ -170,6 +170,22 @@ def test_hdd_pooled_band_below_500_hz_covers(group):
     assert np.median(frf[cv.SPREAD_CALIBRATION].values[(sf > 0) & (sf < 500)]) > 1.3
 
 
+def _near_collinear_half(eps, n, factor):
+    """Four experiments on the SISO loop; in the even-numbered ones the two lifted phases
+    of ``r`` differ by ``eps`` only.  Returns them and the even half's local fit."""
+    exps = []
+    for e in range(4):
+        rng = np.random.default_rng(50 + e)
+        r = random_phase_multisine(n, 1, np.arange(1, n // 2 + 1), 1.0, rng)
+        if e % 2 == 0:
+            r[1::2] = r[0::2] + eps * rng.standard_normal(r[0::2].shape)
+        noise = 0.05 * rng.standard_normal((n, 1))
+        exps.append(_simulate(_siso_loop(factor), r, factor, d_y=noise))
+    ds = xr.concat(exps, "experiment")
+    R, Z = kid.experiment_spectra(ds.r.values, ds.u.values, ds.y.values, factor=factor)
+    return ds, local_model(R[0::2], Z[0::2], half_width=20, covariance=None, experiment_axis=-3)
+
+
 @pytest.mark.parametrize("eps", [1e-6, 3e-8])
 def test_ill_posed_halves_leave_the_covariance_alone(eps):
     """Four experiments; in the even-numbered ones the two lifted phases of ``r`` differ by
@@ -181,17 +197,7 @@ def test_ill_posed_halves_leave_the_covariance_alone(eps):
     ratios over their neighbours): no ratio there, the factor is 1 and the band is the local
     model's."""
     n, factor = 480, 2
-    exps = []
-    for e in range(4):
-        rng = np.random.default_rng(50 + e)
-        r = random_phase_multisine(n, 1, np.arange(1, n // 2 + 1), 1.0, rng)
-        if e % 2 == 0:
-            r[1::2] = r[0::2] + eps * rng.standard_normal(r[0::2].shape)
-        noise = 0.05 * rng.standard_normal((n, 1))
-        exps.append(_simulate(_siso_loop(factor), r, factor, d_y=noise))
-    ds = xr.concat(exps, "experiment")
-    R, Z = kid.experiment_spectra(ds.r.values, ds.u.values, ds.y.values, factor=factor)
-    even = local_model(R[0::2], Z[0::2], half_width=20, covariance=None, experiment_axis=-3)
+    ds, even = _near_collinear_half(eps, n, factor)
     assert np.all(even.ill_posed) and np.isfinite(even.G).all(axis=(-2, -1)).any()
     frf = identify(ds, window=20, combine="experiment", denominator="ls")
     assert np.array_equal(frf[cv.SPREAD_CALIBRATION].values, np.ones(n // factor))
@@ -212,3 +218,88 @@ def test_auto_window_in_frequency_chunks_equals_eager():
     np.testing.assert_array_equal(chunked["local_window"].values, frf["local_window"].values)
     for name in (cv.SPREAD_CALIBRATION, "P_std", "S_std", "P"):
         np.testing.assert_allclose(chunked[name].values, frf[name].values, rtol=1e-6)
+
+
+def test_half_variances_and_group_weight_against_the_closed_form():
+    """``[Gamma^-1]_jj`` of the windowed Gram, summed over a half's experiments (circular
+    window), against a direct per-bin construction; the weight ``V_a V_b / (V_a + V_b)^2``
+    is ``n_a n_b / E^2`` for Grams proportional to the halves' sizes; an input the half
+    cannot tell from another gives no variance (NaN)."""
+    from lcmr_xr.kernels.pooling import group_weight, half_variances
+
+    rng = np.random.default_rng(3)
+    e, m, nr, n = 3, 11, 2, 2
+    R = rng.standard_normal((e, m, nr)) + 1j * rng.standard_normal((e, m, nr))
+    R[1] *= 0.1  # unequal levels: the Gram is no multiple of the size
+    V = half_variances(R, n)
+    for k in range(m):
+        rows = R[:, np.arange(k - n, k + n + 1) % m].reshape(-1, nr)  # (e (2n+1), nr)
+        gram = rows.T @ rows.conj() / (2 * n + 1)
+        np.testing.assert_allclose(V[k], np.real(np.diag(np.linalg.inv(gram))), rtol=1e-10)
+    Va, Vb = half_variances(np.concatenate([R] * 3), n), half_variances(np.concatenate([R] * 5), n)
+    np.testing.assert_allclose(group_weight(Va, Vb), 15 / 64, rtol=1e-12)
+    np.testing.assert_allclose(group_weight(2.0, 0.5), 1.0 / 6.25)  # 1 / (2 + 0.5)^2 * 1
+    same = np.repeat(R[..., :1], 2, axis=-1)  # both lifted inputs alike: singular Gram
+    assert np.all(np.isnan(half_variances(same, n)))
+    assert np.all(np.isnan(half_variances(R, n, circular=False)[[0, 1, -2, -1]]))
+
+
+def _unequal(seed, scale, n_exp=8, n=960, same_r=False):
+    """The white-noise loop of :func:`_pooled`, the even-numbered experiments' excitation
+    scaled by ``scale``; ``same_r``: every experiment has the same multisine (before the
+    scaling)."""
+    exps = []
+    for e in range(n_exp):
+        rng = np.random.default_rng(1000 * seed + e)
+        r = random_phase_multisine(n, 1, np.arange(1, n // 2 + 1), 1.0,
+                                   np.random.default_rng(1000 * seed) if same_r else rng)
+        v = 0.2 * rng.standard_normal((n, 1))
+        exps.append(_simulate(_siso_loop(2), (scale if e % 2 == 0 else 1.0) * r, 2, d_y=v))
+    return xr.concat(exps, "experiment")
+
+
+@pytest.mark.parametrize("scale", [0.1, 0.3])
+def test_halves_of_unequal_excitation_keep_the_band(scale):
+    """The even-numbered experiments excited ``scale`` times weaker: the halves' estimates
+    differ by far more than equal halves would, and the weight ``n_a n_b / E^2`` read that
+    as understated noise (measured, mean over these 3 seeds of the median factor: 25.2 at
+    0.1, 3.45 at 0.3; coverage 1.000 / 0.998: bands 5x / 1.9x too wide).  Weighted by
+    the halves' excitation Grams the factor stays near the equal-design value (1.10 in
+    the white-noise test above; measured 1.05 / 1.12) and the band covers 0.951 / 0.967."""
+    n = 960
+    truth = _true_frf(PLANT, n)[1:-1]
+    stats = []
+    for seed in range(3):
+        _, cal = _with_and_without(_unequal(seed, scale))
+        err = np.abs(cal["P"][1:-1, 0, 0] - truth)
+        ok = (err <= K95 * np.sqrt(cal["P_var"][1:-1, 0, 0])) | cal["P_undetermined"][1:-1]
+        stats.append((np.median(cal["spread_calibration"]), ok.mean()))
+    median_c, coverage = np.mean(stats, axis=0)
+    assert median_c < 1.5, stats
+    assert 0.90 <= coverage <= 0.99, stats
+
+
+def test_proportional_grams_give_the_size_weight(monkeypatch):
+    """Five experiments with one multisine (halves of 3 and 2: Grams 3 and 2 times one
+    experiment's): the ratio is that of the weight ``n_a n_b / E^2 = 6 / 25``, to rounding."""
+    ds = _unequal(4, 1.0, n_exp=5, n=480, same_r=True)
+    R, Z = kid.experiment_spectra(ds.r.values, ds.u.values, ds.y.values, factor=2)
+    kw = dict(half_width=20, degrees=(3, 3, 3), circular=True, covariance=True,
+              noise_covariance=None, experiment_axis=-3, denominator="iv")
+    ratio = kid._fit(R, Z, **kw)["spread_ratio"]
+    monkeypatch.setattr(kid, "group_weight", lambda a, b: 6 / 25)
+    sizes = kid._fit(R, Z, **kw)["spread_ratio"]
+    assert np.all(np.isfinite(ratio)) and ratio.max() > 0
+    np.testing.assert_allclose(ratio, sizes, rtol=1e-10)
+
+
+def test_near_collinear_unflagged_half_is_weighted_by_its_gram():
+    """As :func:`test_ill_posed_halves_leave_the_covariance_alone` with ``eps = 1e-3``: the
+    even half is not flagged (condition under the limit) but tells the two lifted phases
+    apart only weakly, so its ``G`` is far noisier than the pool's.  With the weight
+    ``n_a n_b / E^2`` that read as understated noise (measured: median factor 3.5e5); the
+    halves' Grams weight it down (measured 1.23)."""
+    ds, even = _near_collinear_half(1e-3, 480, 2)
+    assert not even.ill_posed.any()
+    frf = identify(ds, window=20, combine="experiment", denominator="ls")
+    assert np.median(frf[cv.SPREAD_CALIBRATION].values) < 1.5

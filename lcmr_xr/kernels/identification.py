@@ -14,9 +14,10 @@ from lcmr_xr.kernels.adaptive import (nonlinearity_factor, select_windows, small
 from lcmr_xr.kernels.closed_loop import frf_variance_from_first_row, indirect_first_row
 from lcmr_xr.kernels.lifting import frf_from_first_block_row, lift
 from lcmr_xr.kernels.local_models import hermitian, local_model, parameters_per_row
-from lcmr_xr.kernels.pooling import (MIN_SPLIT_EXPERIMENTS, mean_and_covariance,
-                                     pooled_least_squares, rescale_covariance, split_halves,
-                                     spread_calibration, spread_ratio, window_mean)
+from lcmr_xr.kernels.pooling import (MIN_SPLIT_EXPERIMENTS, group_weight, half_variances,
+                                     mean_and_covariance, pooled_least_squares,
+                                     rescale_covariance, split_halves, spread_calibration,
+                                     spread_ratio, window_mean)
 
 #: The lifted excitation counts as rank deficient when its smallest singular value
 #: (over all bins) is below this fraction of its largest.
@@ -317,8 +318,9 @@ def split_half_spread(R, Z, G_var, *, half_width, degrees, circular=True,
     are each fitted as ``identify`` would fit them pooled (same window, degrees and
     denominator; IV from each half's own first fit; no covariance), and
     :func:`lcmr_xr.kernels.pooling.spread_ratio` compares the variance their difference
-    implies for the whole pool with ``G_var``, the variances of ``vec(G)`` the pooled fit
-    reports.  The experiments are independent replicates, so this checks the local
+    implies for the whole pool (weighted per entry by the halves' excitation Grams,
+    :func:`lcmr_xr.kernels.pooling.half_variances`) with ``G_var``, the variances of
+    ``vec(G)`` the pooled fit reports.  The experiments are independent replicates, so this checks the local
     model's covariance without its noise model: on the HDD benchmark it reads about 2
     below 500 Hz, where the first-order covariance is too small (docs/uncertainty.md,
     "Pooled bands: the covariance checked by split halves").
@@ -345,7 +347,11 @@ def split_half_spread(R, Z, G_var, *, half_width, degrees, circular=True,
     # difference from the other half is no spread of the pool, and the smoothing would
     # carry it to the neighbouring bins.  Such bins give no ratio (NaN).
     G = [np.where(f.ill_posed[..., None, None], np.nan, f.G) for f in fits]
-    return spread_ratio(G[0], G[1], G_var, halves[0].size * halves[1].size / n_exp ** 2)
+    # Weight per entry from each half's own excitation: halves of unequal information
+    # (another excitation level or design) are not n_a n_b / E^2 (docs/uncertainty.md).
+    V = [half_variances(np.moveaxis(np.take(R, idx, axis=experiment_axis), experiment_axis, -3),
+                        half_width, circular=circular)[..., None, :] for idx in halves]
+    return spread_ratio(G[0], G[1], G_var, group_weight(V[0], V[1]))
 
 
 def half_instruments(R, Z, *, degrees, circular=True, experiment_axis: int,

@@ -37,9 +37,9 @@ import numpy as np
 
 from lcmr_xr.kernels.local_models import CONDITION_LIMIT
 
-__all__ = ["MIN_SPLIT_EXPERIMENTS", "PooledFit", "SPREAD_SMOOTHING", "mean_and_covariance",
-           "pooled_least_squares", "rescale_covariance", "split_halves", "spread_calibration",
-           "spread_ratio", "window_mean"]
+__all__ = ["MIN_SPLIT_EXPERIMENTS", "PooledFit", "SPREAD_SMOOTHING", "group_weight",
+           "half_variances", "mean_and_covariance", "pooled_least_squares", "rescale_covariance",
+           "split_halves", "spread_calibration", "spread_ratio", "window_mean"]
 
 #: Neighbouring slow bins (each side) over which the split-half spread ratio of pooled
 #: experiments is averaged (a bin alone has a few degrees of freedom; the local model's
@@ -296,26 +296,89 @@ def split_halves(n_exp: int) -> tuple[np.ndarray, np.ndarray]:
     return np.arange(0, int(n_exp), 2), np.arange(1, int(n_exp), 2)
 
 
-def spread_ratio(G_a: np.ndarray, G_b: np.ndarray, var: np.ndarray, weight: float = 0.25
+def half_variances(R: np.ndarray, half_width: int, *, circular: bool = True,
+                   condition_limit: float = CONDITION_LIMIT) -> np.ndarray:
+    """Relative variance of every input column of a group's local estimate, per bin.
+
+    The group's information about ``G`` at bin ``k`` is (up to the noise level, which the
+    groups of one pool share) the windowed Gram of its excitation,
+    ``Gamma(k) = sum_e sum_{r=-n..n} R_e(k+r) R_e(k+r)^H`` (the local model's window), so
+    entry ``(i, j)`` of its ``G`` has variance ``sigma_i^2 [Gamma(k)^-1]_jj``.  The noise
+    level and the transient and polynomial terms of the local model are left out: they
+    scale both groups alike, and only the ratio of the groups' variances is used
+    (:func:`group_weight`).  A moving sum (:func:`window_mean`): no loop over bins.
+
+    Parameters
+    ----------
+    R : ndarray, complex, shape (..., E, M, nr)
+        The group's excitation spectra (its ``E`` experiments on axis ``-3``).
+    half_width : int
+        ``n`` of the local window.
+    circular : bool, default True
+        As :func:`window_mean` (``False``: the ``n`` bins at each end are NaN).
+    condition_limit : float, default ``CONDITION_LIMIT``
+        Bins whose Gram has a condition number above ``condition_limit ** 2`` (the
+        square of the excitation's) are NaN: the group cannot tell the inputs apart.
+
+    Returns
+    -------
+    ndarray, real, shape (..., M, nr)
+        ``[Gamma(k)^-1]_jj`` (in units of ``1 / |R|^2`` per window bin).
+
+    Examples
+    --------
+    >>> R = np.ones((2, 5, 1))           # two experiments, 5 bins, one input
+    >>> half_variances(R, 1).tolist()     # window mean of 1 over 2 experiments: 1/2
+    [[0.5], [0.5], [0.5], [0.5], [0.5]]
+    """
+    R = np.asarray(R)
+    outer = R[..., :, None] * np.conj(R[..., None, :])  # (..., E, M, nr, nr)
+    gram = window_mean(outer.sum(axis=-4), half_width, axis=-3, circular=circular)
+    with np.errstate(all="ignore"):
+        ok = np.all(np.isfinite(gram), axis=(-2, -1))
+        lam, vec = np.linalg.eigh(np.where(ok[..., None, None], gram, np.eye(gram.shape[-1])))
+        well = ok & (lam[..., 0] > 0) & (lam[..., -1] <= condition_limit ** 2 * lam[..., 0])
+        # [Gamma^-1]_jj = sum_k |V_jk|^2 / lambda_k
+        v = (np.abs(vec) ** 2 / np.where(lam > 0, lam, np.inf)[..., None, :]).sum(axis=-1)
+    return np.where(well[..., None], v, np.nan)
+
+
+def group_weight(var_a: np.ndarray, var_b: np.ndarray) -> np.ndarray:
+    """``V_a V_b / (V_a + V_b)^2``: the variance of a pooled estimate over the mean squared
+    difference of its two groups' estimates.
+
+    The pooled estimate is about the information-weighted mean of the groups'
+    ``(G_a / V_a + G_b / V_b) / (1 / V_a + 1 / V_b)`` (``V`` the groups' variances, in any
+    common unit), of variance ``V_a V_b / (V_a + V_b)``, while ``E|G_a - G_b|^2 = V_a + V_b``.
+    With ``V`` inversely proportional to the groups' sizes (exchangeable experiments) it is
+    ``n_a n_b / (n_a + n_b)^2``.
+
+    Examples
+    --------
+    >>> float(group_weight(1 / 3, 1 / 5)), 3 * 5 / 8 ** 2
+    (0.234375, 0.234375)
+    """
+    var_a, var_b = np.asarray(var_a), np.asarray(var_b)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return var_a * var_b / (var_a + var_b) ** 2
+
+
+def spread_ratio(G_a: np.ndarray, G_b: np.ndarray, var: np.ndarray, weight=0.25
                  ) -> np.ndarray:
     """The random-group variance of a pooled estimate over the variance it reports.
 
     Random groups (Mahalanobis 1946; Wolter, *Introduction to Variance Estimation*, 2nd
     ed., Springer 2007, ch. 2): the experiments of a pooled fit are split into two groups
-    of ``n_a`` and ``n_b`` experiments fitted apart.  The groups share no noise, and the
-    pooled estimate is about their ``n``-weighted mean, so ``weight |G_a - G_b|^2`` with
-    ``weight = n_a n_b / (n_a + n_b)^2`` (1/4 for equal halves) estimates the variance of
-    every entry of the pooled ``G`` whatever the noise is (coloured, leaking, correlated
-    over bins) and however the local model misdescribes it.  Per bin, the mean over the
-    entries of that estimate over the reported ``var`` (1 if calibrated; each term is
-    ``Exp(1)``-distributed for Gaussian errors).  A bias common to both groups cancels in
-    the difference: the ratio sees misstated noise, not model error.
-
-    The weight assumes every experiment carries the same information about ``G`` (the
-    same excitation design and level, interleaved over the halves).  Groups of unequal
-    information ``I_a``, ``I_b`` need ``I_a I_b / (I_a + I_b)^2`` instead: with the fixed
-    weight the ratio overstates by ``(I_a + I_b)^2 / (4 I_a I_b)`` for equal halves
-    (docs/uncertainty.md, "Pooled bands: the covariance checked by split halves").
+    fitted apart.  The groups share no noise, and the pooled estimate is about their
+    information-weighted mean, so ``weight |G_a - G_b|^2`` with ``weight =
+    V_a V_b / (V_a + V_b)^2`` (:func:`group_weight`; ``V`` the groups' relative variances
+    of that entry, :func:`half_variances`; ``n_a n_b / (n_a + n_b)^2`` for exchangeable
+    experiments, 1/4 for equal halves) estimates the variance of every entry of the pooled
+    ``G`` whatever the noise is (coloured, leaking, correlated over bins) and however the
+    local model misdescribes it.  Per bin, the mean over the entries of that estimate over
+    the reported ``var`` (1 if calibrated; each term is ``Exp(1)``-distributed for Gaussian
+    errors).  A bias common to both groups cancels in the difference: the ratio sees
+    misstated noise, not model error.
 
     Parameters
     ----------
@@ -323,13 +386,13 @@ def spread_ratio(G_a: np.ndarray, G_b: np.ndarray, var: np.ndarray, weight: floa
         The two groups' estimates.
     var : ndarray, real, shape (..., M, nz, nr)
         The variances the pooled fit reports for its ``G``.
-    weight : float, default 0.25
-        ``n_a n_b / (n_a + n_b)^2``.
+    weight : float or ndarray broadcastable to ``(..., M, nz, nr)``, default 0.25
+        ``V_a V_b / (V_a + V_b)^2`` per entry; NaN entries give no term.
 
     Returns
     -------
     ndarray, shape (..., M)
-        NaN where no entry has finite estimates and a positive variance.
+        NaN where no entry has finite estimates, a finite weight and a positive variance.
 
     Examples
     --------
@@ -338,7 +401,7 @@ def spread_ratio(G_a: np.ndarray, G_b: np.ndarray, var: np.ndarray, weight: floa
     [2.0]
     """
     with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-        d2 = weight * np.abs(np.asarray(G_a) - np.asarray(G_b)) ** 2
+        d2 = np.asarray(weight) * np.abs(np.asarray(G_a) - np.asarray(G_b)) ** 2
         v = np.asarray(var)
         ok = np.isfinite(d2) & np.isfinite(v) & (v > 0)
         terms = np.where(ok, d2 / np.where(ok, v, 1.0), 0.0).sum(axis=(-2, -1))
