@@ -335,7 +335,7 @@ def split_half_spread(R, Z, G_var, *, half_width, degrees, circular=True,
     if instruments is None:
         instruments = half_instruments(R, Z, degrees=degrees, circular=circular,
                                        experiment_axis=experiment_axis, denominator=denominator)
-    n_exp = (R.shape[:-2] + (0, 0))[experiment_axis]
+    n_exp = _n_experiments(R, Z, experiment_axis)
     halves = split_halves(n_exp)
     fits = [local_model(np.take(R, idx, axis=experiment_axis),
                         np.take(Z, idx, axis=experiment_axis), half_width=half_width,
@@ -365,7 +365,7 @@ def half_instruments(R, Z, *, degrees, circular=True, experiment_axis: int,
                                          np.take(Z, idx, axis=experiment_axis),
                                          degrees=degrees, circular=circular,
                                          experiment_axis=experiment_axis)
-                 for idx in split_halves((R.shape[:-2] + (0, 0))[experiment_axis]))
+                 for idx in split_halves(_n_experiments(R, Z, experiment_axis)))
 
 
 def _broadcast_leading(R, Z):
