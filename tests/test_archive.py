@@ -334,7 +334,8 @@ def test_local_cluster_workers_get_the_allocator_settings():
     def inspect(dask_worker):
         return (dict(os.environ), dask_worker.memory_manager.memory_pause_fraction,
                 _CALLBACK in dask_worker.periodic_callbacks,
-                dask_worker.memory_manager.memory_spill_fraction)
+                dask_worker.memory_manager.memory_spill_fraction,
+                sorted(k for k in dask_worker.periodic_callbacks if k.startswith("profile")))
 
     # a cluster with distributed's defaults leaves MALLOC_TRIM_THRESHOLD_=65536 in this
     # process's environment (its nanny writes it there), which nannies prefer to their config
@@ -343,7 +344,7 @@ def test_local_cluster_workers_get_the_allocator_settings():
     try:
         with local_cluster(1, memory_limit="2GB", silence_logs=50) as cluster, \
                 Client(cluster) as client:
-            env, pause, trims, spill = next(iter(client.run(inspect).values()))
+            env, pause, trims, spill, profiler = next(iter(client.run(inspect).values()))
         assert os.environ["MALLOC_TRIM_THRESHOLD_"] == "65536"  # this process's is restored
     finally:
         if before is None:
@@ -356,6 +357,8 @@ def test_local_cluster_workers_get_the_allocator_settings():
     assert pause == 0.9  # PAUSE_FRACTION, set by the preload
     assert spill == 0.85  # SPILL_FRACTION: above the libraries' share of a small worker
     assert trims == (sys.platform == "linux")  # the preload's heap trimming (glibc)
+    # distributed's statistical profiler is off: its call trees grew the workers' memory
+    assert profiler == []
 
 
 def test_worker_trims_its_heap_only_above_the_fraction_of_its_limit():

@@ -30,6 +30,21 @@ memory is above
 limit keep the fast path; a worker near it gives the kept heap back and pays the page
 faults of the next call instead.
 
+distributed's statistical profiler is off in these workers (:data:`WORKER_CONFIG`).  Why:
+a worker samples its threads' stacks every 10 ms and keeps one call tree per second, and
+per task prefix, for the last 1 000 seconds (``distributed.admin.low-level-log-length``).
+The stacks of a sweep task (xarray, HDF5, numba, dask) are deep and varied, so those trees
+were the memory that grew with every experiment and that ``malloc_trim`` could not give
+back (live Python objects, not freed heap).  Measured: the one worker of a
+``local_cluster(1)`` streaming ``sweep_to_disk`` (window 30, without ``P_std``, 8 per task,
+about 14 experiments/s) grew 27 MB per 1 000 experiments (26 MB per minute) with the
+profiler and 1.6 MB per 1 000 without it (RSS after ``malloc_trim``, every 100
+experiments); a plain process looping the same tasks grew 7.7 MB per 1 000 (noisy; reading
+the archive alone 1.3, writing part files alone 0).  Were that growth to continue until the
+1 000 s bound it would be about 430 MB (not measured that far): a 400 MB worker reaches its
+pause threshold long before.  The dashboard's profile pages are empty for these workers; pass
+``local_cluster(..., profile=True)`` for them.
+
 For workers started otherwise (``dask worker`` on other machines), put the same values in
 the dask configuration of the machines that start them::
 
@@ -39,6 +54,8 @@ the dask configuration of the machines that start them::
           MALLOC_TRIM_THRESHOLD_: 67108864
           MALLOC_MMAP_THRESHOLD_: 33554432
       worker:
+        profile:
+          enabled: false  # the profiler's call trees grow ~26 MB per minute of tasks
         preload: [lcmr_xr.scaleout.cluster]  # spill at 85 %, pause at 90 %, trim near the limit
 """
 
@@ -48,11 +65,14 @@ import contextlib
 import logging
 import os
 
-__all__ = ["WORKER_ENVIRON", "PAUSE_FRACTION", "SPILL_FRACTION", "TRIM_FRACTION", "TRIM_INTERVAL", "worker_environ",
+__all__ = ["WORKER_ENVIRON", "WORKER_CONFIG", "PAUSE_FRACTION", "SPILL_FRACTION", "TRIM_FRACTION", "TRIM_INTERVAL", "worker_environ",
            "local_cluster", "dask_setup", "trim_check"]
 
 #: Environment the nanny gives each worker process (on top of distributed's defaults).
 WORKER_ENVIRON = {"MALLOC_TRIM_THRESHOLD_": str(64 * 2**20), "MALLOC_MMAP_THRESHOLD_": str(32 * 2**20)}
+#: dask configuration of the workers :func:`local_cluster` starts: distributed's statistical
+#: profiler off (its call trees were the workers' memory growth; see the module notes).
+WORKER_CONFIG = {"distributed.worker.profile.enabled": False}
 #: Fraction of its memory limit at which a worker pauses (distributed's default 0.8), set
 #: by :func:`dask_setup` in every worker it starts: set in the configuration only, a
 #: worker that its nanny restarted (after a memory kill, or a ``lifetime``) paused at
@@ -174,9 +194,10 @@ def worker_environ() -> dict:
 
 def local_cluster(n_workers: int = 2, *, threads_per_worker: int = 1, memory_limit="auto",
                   processes: bool = True, dashboard_address: str | None = None,
-                  silence_logs: int = logging.WARNING):
-    """A ``distributed.LocalCluster`` with the allocator settings of :data:`WORKER_ENVIRON`
-    and the heap trimming of :func:`dask_setup` in every worker.
+                  silence_logs: int = logging.WARNING, profile: bool = False):
+    """A ``distributed.LocalCluster`` with the allocator settings of :data:`WORKER_ENVIRON`,
+    the heap trimming of :func:`dask_setup` and (unless ``profile``) without distributed's
+    statistical profiler (:data:`WORKER_CONFIG`) in every worker.
 
     Parameters
     ----------
@@ -192,6 +213,10 @@ def local_cluster(n_workers: int = 2, *, threads_per_worker: int = 1, memory_lim
         E.g. ``":8787"``; default: no dashboard.
     silence_logs : int, default logging.WARNING
         Log level below which cluster messages are dropped.
+    profile : bool, default False
+        Keep distributed's statistical profiler in the workers (the dashboard's profile
+        pages); its call trees grow a worker's memory by about 26 MB per minute of
+        ``identify`` tasks, for up to 1 000 seconds (see the module notes).
 
     Returns
     -------
@@ -209,7 +234,8 @@ def local_cluster(n_workers: int = 2, *, threads_per_worker: int = 1, memory_lim
 
     preload = list(dask.config.get("distributed.worker.preload", default=[]) or [])
     with dask.config.set({"distributed.nanny.pre-spawn-environ": worker_environ(),
-                          "distributed.worker.preload": preload + [__name__]}), \
+                          "distributed.worker.preload": preload + [__name__],
+                          **({} if profile else WORKER_CONFIG)}), \
             _process_environ(WORKER_ENVIRON):
         return LocalCluster(n_workers=n_workers, threads_per_worker=threads_per_worker,
                             memory_limit=memory_limit, processes=processes,
