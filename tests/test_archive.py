@@ -196,8 +196,8 @@ def test_sweep_to_disk_identifies_each_experiment_once(tmp_path, monkeypatch):
 
 def test_sweep_to_disk_tasks_write_their_parts_or_hand_them_back(tmp_path, monkeypatch):
     """Tasks that see the parts directory write their parts and return only the name; a
-    worker that does not (a remote cluster without the file system) returns the result
-    and the caller writes it: the same file either way, bad experiment flagged in both."""
+    worker that does not (a remote cluster without the file system) returns the arrays
+    and the caller writes them: the same file either way, bad experiment flagged in both."""
     import importlib
 
     stream = importlib.import_module("lcmr_xr.scaleout.stream")
@@ -220,7 +220,7 @@ def test_sweep_to_disk_tasks_write_their_parts_or_hand_them_back(tmp_path, monke
     returned.clear()
     monkeypatch.setattr(stream, "_sees_parts", lambda parts, run_id: False)
     b = sweep_to_disk(arc, tmp_path / "b.nc", **settings, progress=False)
-    assert len(returned) == 4 and all(isinstance(r, xr.Dataset) for r in returned)
+    assert len(returned) == 4 and all(isinstance(r, dict) for r in returned)
     want = sweep(arc, **settings).compute(scheduler="synchronous")  # chunks of 2 and 1
     for out in (a, b):
         got = open_dataset(out)
@@ -283,6 +283,29 @@ def test_part_reader_decodes_like_xarray(tmp_path):
     assert np.isnan(got["i"][0, 0, 1])
 
 
+def test_part_writer_writes_what_xarray_and_the_part_reader_read_alike(tmp_path, monkeypatch):
+    """Tasks write their parts with netCDF4 directly (values only): xarray decodes them to
+    the very values and types, and the part reader takes its direct path (not xarray's)."""
+    from lcmr_xr.scaleout import stream
+
+    arrays = {"c": (("experiment", "f"), np.array([[1 + 2j, np.nan], [3j, 4]])),
+              "x": (("f", "experiment"), np.array([[np.nan, 1.5], [2.0, -1.0]]).T.copy().T),
+              "b": (("f", "experiment"), np.array([[True, False], [False, True]])),
+              "s": (("experiment",), np.array(["", "bad: NaN"], dtype=object)),
+              "k": (("experiment",), np.array([3, -1]))}
+    path = tmp_path / "p.nc"
+    stream._write_part(path, arrays)
+    # what xarray reads is what it reads from the same values written by save
+    xr.testing.assert_identical(open_dataset(path),
+                                open_dataset(save(xr.Dataset(arrays), tmp_path / "saved.nc")))
+    monkeypatch.setattr(stream, "_read_part_xarray", None)  # the direct path only
+    dims = {name: ("window",) + d for name, (d, _) in arrays.items()}
+    read = stream._read_part(path, list(arrays), dims, {n: v.dtype for n, (_, v) in arrays.items()})
+    for name, (_, values) in arrays.items():
+        assert read[name].dtype == values.dtype
+        np.testing.assert_array_equal(read[name], values[None])
+
+
 def test_sweep_to_disk_never_writes_into_or_over_its_archive(tmp_path):
     save_archive([_labelled(i) for i in range(2)], tmp_path / "dir", layout="files")
     save_archive([_labelled(i) for i in range(2)], tmp_path / "a.nc")
@@ -335,7 +358,8 @@ def test_local_cluster_workers_get_the_allocator_settings():
         return (dict(os.environ), dask_worker.memory_manager.memory_pause_fraction,
                 _CALLBACK in dask_worker.periodic_callbacks,
                 dask_worker.memory_manager.memory_spill_fraction,
-                sorted(k for k in dask_worker.periodic_callbacks if k.startswith("profile")))
+                sorted(k for k in dask_worker.periodic_callbacks if k.startswith("profile")),
+                __import__("dask").config.get("distributed.admin.tick.interval"))
 
     # a cluster with distributed's defaults leaves MALLOC_TRIM_THRESHOLD_=65536 in this
     # process's environment (its nanny writes it there), which nannies prefer to their config
@@ -344,7 +368,7 @@ def test_local_cluster_workers_get_the_allocator_settings():
     try:
         with local_cluster(1, memory_limit="2GB", silence_logs=50) as cluster, \
                 Client(cluster) as client:
-            env, pause, trims, spill, profiler = next(iter(client.run(inspect).values()))
+            env, pause, trims, spill, profiler, tick = next(iter(client.run(inspect).values()))
         assert os.environ["MALLOC_TRIM_THRESHOLD_"] == "65536"  # this process's is restored
     finally:
         if before is None:
@@ -359,6 +383,7 @@ def test_local_cluster_workers_get_the_allocator_settings():
     assert trims == (sys.platform == "linux")  # the preload's heap trimming (glibc)
     # distributed's statistical profiler is off: its call trees grew the workers' memory
     assert profiler == []
+    assert tick == "1s"  # CLUSTER_CONFIG: an idle cluster's CPU
 
 
 def test_worker_trims_its_heap_only_above_the_fraction_of_its_limit():

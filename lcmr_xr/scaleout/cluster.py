@@ -30,7 +30,7 @@ memory is above
 limit keep the fast path; a worker near it gives the kept heap back and pays the page
 faults of the next call instead.
 
-distributed's statistical profiler is off in these workers (:data:`WORKER_CONFIG`).  Why:
+distributed's statistical profiler is off in these workers (:data:`CLUSTER_CONFIG`).  Why:
 a worker samples its threads' stacks every 10 ms and keeps one call tree per second, and
 per task prefix, for the last 1 000 seconds (``distributed.admin.low-level-log-length``).
 The stacks of a sweep task (xarray, HDF5, numba, dask) are deep and varied, so those trees
@@ -53,6 +53,9 @@ the dask configuration of the machines that start them::
         pre-spawn-environ:
           MALLOC_TRIM_THRESHOLD_: 67108864
           MALLOC_MMAP_THRESHOLD_: 33554432
+      admin:
+        tick: {interval: 1s}          # CLUSTER_CONFIG: less CPU for an idle cluster
+        system-monitor: {interval: 2s}
       worker:
         profile:
           enabled: false  # the profiler's call trees grow ~26 MB per minute of tasks
@@ -65,14 +68,25 @@ import contextlib
 import logging
 import os
 
-__all__ = ["WORKER_ENVIRON", "WORKER_CONFIG", "PAUSE_FRACTION", "SPILL_FRACTION", "TRIM_FRACTION", "TRIM_INTERVAL", "worker_environ",
+__all__ = ["WORKER_ENVIRON", "CLUSTER_CONFIG", "PAUSE_FRACTION", "SPILL_FRACTION", "TRIM_FRACTION", "TRIM_INTERVAL", "worker_environ",
            "local_cluster", "dask_setup", "trim_check"]
 
 #: Environment the nanny gives each worker process (on top of distributed's defaults).
 WORKER_ENVIRON = {"MALLOC_TRIM_THRESHOLD_": str(64 * 2**20), "MALLOC_MMAP_THRESHOLD_": str(32 * 2**20)}
-#: dask configuration of the workers :func:`local_cluster` starts: distributed's statistical
-#: profiler off (its call trees were the workers' memory growth; see the module notes).
-WORKER_CONFIG = {"distributed.worker.profile.enabled": False}
+#: dask configuration of the scheduler and workers :func:`local_cluster` starts:
+#: distributed's statistical profiler off (its call trees were the workers' memory growth;
+#: see the module notes), and its event-loop tick measurement every second instead of every
+#: 20 ms and its system monitor every 2 s instead of 0.5 s.  Why the last two: they are
+#: what an idle cluster spends its CPU on, on the cores the tasks need (measured, a
+#: 2-worker ``local_cluster`` doing nothing: 24-27 ms CPU per second per worker and
+#: 47-67 ms per second in this process, scheduler included, with distributed's defaults;
+#: 10-12 and 20 ms with these, about 4 ms per experiment at 15 experiments/s).  The tick
+#: only feeds the "event loop was unresponsive" warning, the monitor the dashboard.
+CLUSTER_CONFIG = {"distributed.worker.profile.enabled": False,
+                  "distributed.admin.tick.interval": "1s",
+                  "distributed.admin.system-monitor.interval": "2s"}
+#: The part of :data:`CLUSTER_CONFIG` that ``profile=True`` leaves out.
+_PROFILE_OFF = ("distributed.worker.profile.enabled",)
 #: Fraction of its memory limit at which a worker pauses (distributed's default 0.8), set
 #: by :func:`dask_setup` in every worker it starts: set in the configuration only, a
 #: worker that its nanny restarted (after a memory kill, or a ``lifetime``) paused at
@@ -196,8 +210,8 @@ def local_cluster(n_workers: int = 2, *, threads_per_worker: int = 1, memory_lim
                   processes: bool = True, dashboard_address: str | None = None,
                   silence_logs: int = logging.WARNING, profile: bool = False):
     """A ``distributed.LocalCluster`` with the allocator settings of :data:`WORKER_ENVIRON`,
-    the heap trimming of :func:`dask_setup` and (unless ``profile``) without distributed's
-    statistical profiler (:data:`WORKER_CONFIG`) in every worker.
+    the heap trimming of :func:`dask_setup` in every worker, and the settings of
+    :data:`CLUSTER_CONFIG` (distributed's statistical profiler off unless ``profile``).
 
     Parameters
     ----------
@@ -235,7 +249,8 @@ def local_cluster(n_workers: int = 2, *, threads_per_worker: int = 1, memory_lim
     preload = list(dask.config.get("distributed.worker.preload", default=[]) or [])
     with dask.config.set({"distributed.nanny.pre-spawn-environ": worker_environ(),
                           "distributed.worker.preload": preload + [__name__],
-                          **({} if profile else WORKER_CONFIG)}), \
+                          **{key: value for key, value in CLUSTER_CONFIG.items()
+                             if not (profile and key in _PROFILE_OFF)}}), \
             _process_environ(WORKER_ENVIRON):
         return LocalCluster(n_workers=n_workers, threads_per_worker=threads_per_worker,
                             memory_limit=memory_limit, processes=processes,
