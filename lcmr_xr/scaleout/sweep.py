@@ -204,15 +204,48 @@ def _identify_stacked(block: xr.Dataset, source, settings) -> xr.Dataset | None:
     concatenating the labelled results cost about as much per experiment as a third of
     the kernel itself; here the block is checked and labelled once.  The result is
     identical to ``identify`` per experiment concatenated along the leading dim (tested).
-    An experiment the kernel refuses (NaN or inf, an excitation that does not excite
-    every lifted channel) goes through :func:`_identify_or_flag`, so its flagged result
-    and message are those of ``identify``.  Records with repeated periods (averaged by
+    The arrays are those of :func:`_stacked_outputs`.
+    """
+    from lcmr_xr.identification.identify import _label, _settings_attrs
+
+    got = _stacked_outputs(block, source, settings)
+    if got is None:
+        return None
+    res = xr.Dataset({name: (dims, values) for name, (dims, values) in got.arrays.items()
+                      if name != ERROR_VAR})
+    res = _label(res, got.ds, factor=got.factor, th=got.th)
+    res.attrs.update(_settings_attrs(got.ds, got.settings, factor=got.factor, th=got.th))
+    dims, errors = got.arrays[ERROR_VAR]
+    return res.assign({ERROR_VAR: (dims, errors, ERROR_ATTRS)})
+
+
+class _Stacked:
+    """What :func:`_stacked_outputs` returns: ``arrays`` ``{name: (dims, values)}`` (the
+    variables of ``identify`` in its order, then ``experiment_error``), and what labelling
+    them needs: the validated block ``ds``, the checked ``settings``, ``factor``, ``th``."""
+
+    __slots__ = ("arrays", "ds", "settings", "factor", "th")
+
+    def __init__(self, arrays, ds, settings, factor, th):
+        self.arrays, self.ds, self.settings, self.factor, self.th = arrays, ds, settings, factor, th
+
+
+def _stacked_outputs(block: xr.Dataset, source, settings) -> _Stacked | None:
+    """The unlabelled outputs of ``identify`` for each experiment of ``block`` (one leading
+    dim), stacked along it; None where this path does not apply.
+
+    The kernel is :func:`lcmr_xr.identification.identify.record_kernel`, the one
+    ``identify``'s eager path calls, so the values are those of ``identify``.  An
+    experiment the kernel refuses (NaN or inf, an excitation that does not excite every
+    lifted channel) goes through :func:`_identify_or_flag`, so its flagged result and
+    message are those of ``identify``.  Records with repeated periods (averaged by
     ``identify``) and block-level problems (a window that does not fit) take the
-    per-experiment path (None).
+    per-experiment path (None).  ``sweep_to_disk`` writes these arrays to its part files
+    as they are (its result gets its labels from the lazy sweep), :func:`_identify_stacked`
+    labels them.
     """
     from lcmr_xr.experiment import validate_experiment
-    from lcmr_xr.identification.identify import (_label, _settings_attrs, output_specs,
-                                                 record_kernel)
+    from lcmr_xr.identification.identify import output_specs, record_kernel
     from lcmr_xr.transforms._coords import even_spacing
 
     if cv.PERIOD in block.dims:
@@ -244,11 +277,30 @@ def _identify_stacked(block: xr.Dataset, source, settings) -> xr.Dataset | None:
             errors[i] = flagged[ERROR_VAR].values[0]
             outs.append(tuple(flagged[name].transpose(dim, *dims).values
                               for name, dims, _ in specs))
-    res = xr.Dataset({name: ((dim, *dims), np.concatenate([o[j] for o in outs]))
-                      for j, (name, dims, _) in enumerate(specs)})
-    res = _label(res, ds, factor=factor, th=th)
-    res.attrs.update(_settings_attrs(ds, s, factor=factor, th=th))
-    return res.assign({ERROR_VAR: ((dim,), errors, ERROR_ATTRS)})
+    arrays = {name: ((dim, *dims), np.concatenate([o[j] for o in outs]))
+              for j, (name, dims, _) in enumerate(specs)}
+    arrays[ERROR_VAR] = ((dim,), errors)
+    return _Stacked(arrays, ds, s, factor, th)
+
+
+def _block_arrays(block: xr.Dataset, source: str | None = None, keep=None,
+                 **settings) -> dict:
+    """The data variables of :func:`_identify_block` (``keep`` only, when given) as
+    ``{name: (dims, values)}``, unlabelled where the block allows it.
+
+    What a task of ``sweep_to_disk`` writes to its part: the result there takes its
+    coordinates and attributes from the lazy sweep, so labelling each block (about 5 ms
+    CPU per experiment with 8 per task, measured) would be thrown away.  Blocks the
+    unlabelled path does not take (repeated periods, a window that does not fit) go
+    through :func:`_identify_block`; the values are the same either way.
+    """
+    got = _stacked_outputs(block, source, settings) if len(_leading_dims(block)) == 1 else None
+    if got is not None:
+        arrays = got.arrays
+    else:
+        res = _identify_block(block, source, **settings)
+        arrays = {name: (res[name].dims, res[name].values) for name in res.data_vars}
+    return {name: arrays[name] for name in arrays if keep is None or name in keep}
 
 
 def _new_indexes(template: xr.Dataset, ds: xr.Dataset) -> list:
