@@ -319,12 +319,14 @@ def test_sweep_to_disk_never_writes_into_or_over_its_archive(tmp_path):
 
 def test_sweep_to_disk_keeps_only_the_variables_asked_for(tmp_path):
     exps = _stack(["a", "b", "c"])
+    exps["y"][1, 5, 0] = np.nan  # a flagged experiment: its kept variables only, too
     out = sweep_to_disk(exps, tmp_path / "s.nc", window=[12, 15], variables=["P_flag", "P"],
                         experiments_per_task=2, scheduler="synchronous", progress=False)
     got = open_dataset(out)
     assert list(got.data_vars) == ["P", "P_flag", "experiment_error"]  # the sweep's order
     want = sweep(exps, window=[12, 15]).compute(scheduler="synchronous")
     xr.testing.assert_identical(got, want[["P", "P_flag", "experiment_error"]])
+    assert (got.experiment_error.values[..., 1] != "").all() and got.P_flag[..., 1, :].all()
     with pytest.raises(ValueError, match=r"\['Q'\] are not in this sweep's result; choose from"):
         sweep_to_disk(exps, tmp_path / "t.nc", window=[12], variables=["P", "Q"])
     with pytest.raises(ValueError, match="variables must be names"):
