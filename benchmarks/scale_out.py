@@ -16,7 +16,9 @@ HDD experiments, N = 3600 (173 kB of data each), window 30, degrees 3-3-3, with 
 5. identify throughput (experiments per second, with the CPU seconds they took): plain
    calls in this process, ``sweep_to_disk`` on one core, and on a 2-worker
    :func:`~lcmr_xr.scaleout.local_cluster` (results streamed to disk, or reduced on the
-   workers so that nothing is gathered);
+   workers so that nothing is gathered); the task path before this session's (the block
+   labelled and its part written by xarray, "old") and today's (values written with
+   netCDF4, "new") alternate;
 6. peak memory of one task in a fresh process: ``tracemalloc`` (numpy's allocations) and
    the growth of the resident high-water mark (``VmHWM``, everything: numba's and the
    allocator's too), for one experiment and for one sweep task of ``--per-task``;
@@ -28,13 +30,19 @@ HDD experiments, N = 3600 (173 kB of data each), window 30, degrees 3-3-3, with 
    ``--tmp`` (checked for space first) and deleted afterwards, or reused with
    ``--big-archive``; ``--big-lifetime`` restarts workers periodically (off by default).
 
+``--rate N`` runs only this: ``sweep_to_disk`` on a 2-worker ``local_cluster`` over an
+archive of ``N`` experiments (every variable, then ``P``, ``P_std``, ``P_flag``), with the
+rate of its task phase, the time of the assembly and the CPU per experiment of the workers
+and of the client; the goal of 15 experiments/s is judged by it on a quiet machine:
+``python benchmarks/scale_out.py --rate 3600``.
+
 Measured here in earlier sessions (2 cores shared with other jobs, load 1-4): open 10 000
 consolidated in 0.16 s +7.8 MB; append 25 ms; sweep graph of 10 005 x 3 in 1.1 s (92 000
 tasks); one identify in a local_cluster worker 0.99-1.01x a plain process (1.19-1.21x with
 distributed's defaults); sweep_to_disk on 2 workers 5.5-6.3 -> 8.1-10.2 experiments/s
 when the tasks began writing their own parts.
 
-Measured in this session (load 4-6 throughout: the numbers on 2 workers are bounded by the
+Measured in session 6 (load 4-6 throughout: the numbers on 2 workers are bounded by the
 other jobs, compare within a run): directory of files, 100: 8.5 s (73 s at load 6), +80
 MB; 1 600: 604 s, +270 MB; 10 000: 1 289 s, +1.2 GB (consolidated 10 000: 0.42 s, +8.2
 MB); consolidate_archive of 100 files 17 s (10 000 not timed).  Task path labelling each block once (``--throughput-only``, old and new
@@ -48,6 +56,17 @@ its first 64 experiments through sweep_to_disk, and grows about 50 MB per 1 000
 experiments that malloc_trim does not give back; both workers paused at 90 % (360 MB),
 one was killed at 95 % and restarted, and the run stalled after 736 experiments (2.5/s
 until then).  Without P_std one worker with a 2 GB limit streamed 11-18 experiments/s.
+
+Measured in session 7 (load 2.5-5; the lead has the --rate command for a quiet machine):
+tasks writing their parts' values with netCDF4, unlabelled (old: the labelled block saved
+by xarray), one core, 160 experiments, 16 per task, alternating in one process: 112 -> 96
+ms CPU per experiment (the kernel 84-92 of it; the part's write 6.0 -> 2.6 ms).  2-worker
+local_cluster, 320-480 experiments, 16 per task (main's code vs this, back to back): worker
+CPU 123-133 -> 105-113 ms per experiment, client 23-26 -> 11-16 ms.  The workers' growth
+was distributed's profiler, now off in local_cluster (27 -> 1.6 MB per 1 000 experiments).
+Part 7 at --big-factor 2 (9 257 experiments) stalled after 1 024 (8.6/s until then): both
+workers at 360 MB of RSS (their pause threshold), flat, of which 187 MB shared library
+pages (114 MB numba's LLVM, libllvmlite.so).
 
 The experiments are copies of one simulated experiment with a small random perturbation
 (cheap to make; identify costs the same).  Everything is written to a temporary directory
@@ -317,17 +336,35 @@ def _workers_cpu(client) -> float:
     return sum(client.run(lambda: sum(__import__("psutil").Process().cpu_times()[:2])).values())
 
 
-_PATHS = {False: "per-experiment identify (old)", True: "kernel per experiment, labels once (new)"}
+_PATHS = {False: "labelled block saved with xarray (old)",
+          True: "values written with netCDF4 (new)"}
 
 
-def _use_stacked_tasks(on: bool) -> None:
-    """Sweep tasks label their block once (the library's path) or, ``on=False``, call
-    ``identify`` per experiment and concatenate (the path before it), in this process."""
+def _labelled_part(block, parts, name, run_id, keep=None, **settings):
+    """The task of ``sweep_to_disk`` before its parts held values only: label the block
+    (``_identify_block``) and write it with ``lcmr_xr.io.save`` (the baseline of part 5)."""
     import importlib
 
-    module = importlib.import_module("lcmr_xr.scaleout.sweep")  # not the function sweep
-    real = module.__dict__.setdefault("_identify_stacked_real", module._identify_stacked)
-    module._identify_stacked = real if on else (lambda *args: None)
+    stream = importlib.import_module("lcmr_xr.scaleout.stream")
+    sweep = importlib.import_module("lcmr_xr.scaleout.sweep")
+    from lcmr_xr.io import save
+
+    result = sweep._identify_block(block, **settings)
+    if keep is not None:
+        result = result[list(keep)]
+    with stream._WRITE_LOCK:
+        save(result, Path(parts) / name)
+    return name
+
+
+def _use_direct_parts(on: bool) -> None:
+    """Sweep tasks write their parts' values directly (the library's path) or, ``on=False``,
+    label the block and save it with xarray (the path before it), in this process."""
+    import importlib
+
+    module = importlib.import_module("lcmr_xr.scaleout.stream")
+    real = module.__dict__.setdefault("_identify_to_part_real", module._identify_to_part)
+    module._identify_to_part = real if on else _labelled_part
 
 
 def throughput(path: Path, n: int, tmp: Path, per_task: int, rounds: int = 2) -> None:
@@ -358,8 +395,8 @@ def throughput(path: Path, n: int, tmp: Path, per_task: int, rounds: int = 2) ->
     worker.join()
     rows.append(("plain identify calls, one worker thread (one core)", time.perf_counter() - t0,
                  time.process_time() - c0))
-    for stacked in (False, True):  # the task path before and after labelling once per block
-        _use_stacked_tasks(stacked)
+    for stacked in (False, True):  # the task path before and after writing values directly
+        _use_direct_parts(stacked)
         t0, c0 = time.perf_counter(), time.process_time()
         sweep_to_disk(arc, tmp / "one.nc", window=[WINDOW], scheduler="synchronous",
                       progress=False, experiments_per_task=per_task, overwrite=True)
@@ -370,7 +407,7 @@ def throughput(path: Path, n: int, tmp: Path, per_task: int, rounds: int = 2) ->
         client.compute(reduced_sweep(arc.isel(experiment=slice(0, 2)), truth, 1)).result()  # warm
 
         def streamed(stacked, variables=None):
-            client.run(_use_stacked_tasks, stacked)
+            client.run(_use_direct_parts, stacked)
             return sweep_to_disk(arc, tmp / "two.nc", window=[WINDOW], client=client,
                                  progress=False, overwrite=True, experiments_per_task=per_task,
                                  variables=variables)
@@ -399,6 +436,58 @@ def throughput(path: Path, n: int, tmp: Path, per_task: int, rounds: int = 2) ->
         print(f"  {name:<86}: {n / wall:6.2f} experiments/s ({wall:6.2f} s wall, {cpu:6.2f} s CPU, "
               f"{cpu / n * 1e3:5.0f} ms CPU per experiment, {base / wall:4.2f} x one thread)")
     arc.close()
+
+
+def rate_run(tmp_root: Path, n: int, per_task: int | None, rounds: int = 1) -> None:
+    """``--rate``: experiments per second of ``sweep_to_disk`` on a 2-worker
+    :func:`~lcmr_xr.scaleout.local_cluster` over a consolidated archive of ``n`` experiments
+    (window 30, 3-3-3, with ``P_std``; every variable, then ``P``, ``P_std``, ``P_flag``),
+    the library's path only.  Printed per run: the rate over the whole call and over its
+    task phase (until the last part is on disk; the rest is the assembly of the result),
+    the CPU per experiment of the workers and of this process (client and scheduler), and
+    the load average before and after (judge the rate on a quiet machine only)."""
+    from distributed import Client
+
+    from lcmr_xr.scaleout import local_cluster, open_archive, sweep_to_disk
+
+    tmp = Path(tempfile.mkdtemp(prefix="lcmr-scale-rate-", dir=tmp_root))
+    try:
+        path = tmp / "rate.nc"
+        t0 = time.perf_counter()
+        make_consolidated(path, n, _base())
+        print(f"rate run: archive of {n} experiments written in {time.perf_counter() - t0:.0f} s",
+              flush=True)
+        arc = open_archive(path) if per_task is None else open_archive(
+            path, chunks={"experiment": per_task})
+        per = arc.r.chunks[0][0]
+        with local_cluster(2, silence_logs=50) as cluster, Client(cluster) as client:
+            sweep_to_disk(arc.isel(experiment=slice(0, 2 * per)), tmp / "warm.nc", window=[WINDOW],
+                          client=client, progress=False)  # imports, compiled kernels, the file
+            import psutil
+
+            me = psutil.Process()
+            for rnd in range(rounds):
+                for variables in (None, ["P", "P_std", "P_flag"]):
+                    last = {}
+                    load0 = os.getloadavg()[0]
+                    w0, c0 = _workers_cpu(client), sum(me.cpu_times()[:2])
+                    t0 = time.perf_counter()
+                    sweep_to_disk(arc, tmp / "rate_out.nc", window=[WINDOW], client=client,
+                                  overwrite=True, variables=variables,
+                                  progress=lambda d, t, r: last.update(t=time.perf_counter()))
+                    wall = time.perf_counter() - t0
+                    w1, c1 = _workers_cpu(client), sum(me.cpu_times()[:2])
+                    tasks = last["t"] - t0
+                    print(f"  sweep_to_disk, 2-worker local_cluster, {n} experiments, {per} per task, "
+                          f"{'every variable' if variables is None else ', '.join(variables)}: "
+                          f"{n / wall:5.2f} experiments/s ({wall:.1f} s; tasks {n / tasks:5.2f}/s "
+                          f"in {tasks:.1f} s, assembly {wall - tasks:.1f} s); CPU per experiment: "
+                          f"workers {(w1 - w0) / n * 1e3:.0f} ms, this process "
+                          f"{(c1 - c0) / n * 1e3:.0f} ms; load {load0:.1f} -> "
+                          f"{os.getloadavg()[0]:.1f} (goal 15/s with P_std)", flush=True)
+        arc.close()
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
 
 
 # ------------------------------------------------------------------ memory
@@ -662,6 +751,11 @@ def main(argv=None):
     ap.add_argument("--big", action="store_true",
                     help="also part 7: an archive larger than the workers' memory (~30 min)")
     ap.add_argument("--big-only", action="store_true", help="only part 7")
+    ap.add_argument("--rate", type=int, default=None, metavar="N",
+                    help="only the 2-worker rate of sweep_to_disk over an archive of N experiments "
+                         "(every variable, then P, P_std, P_flag); --per-task sets the chunks "
+                         "(default here: open_archive's); run it on a quiet machine")
+    ap.add_argument("--rate-rounds", type=int, default=1, help="repeats of --rate")
     ap.add_argument("--memory-limit", default="400MB", help="per-worker limit of part 7")
     ap.add_argument("--big-factor", type=float, default=5.0,
                     help="archive data / both workers' memory limits in part 7 (default 5)")
@@ -680,6 +774,10 @@ def main(argv=None):
         args.sizes, args.identify, args.files_max = [20, 100], 8, 100
     print(f"machine: {os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.1f} at the start "
           "(shared: compare numbers within the run)", flush=True)
+    if args.rate:
+        rate_run(args.tmp, args.rate, args.per_task if "--per-task" in (argv or sys.argv) else None,
+                 args.rate_rounds)
+        return
     if args.big_only:
         big_run(args.tmp, args.memory_limit, args.big_factor, args.per_task, args.big_covariance,
                 args.big_archive, args.big_lifetime)
