@@ -236,8 +236,8 @@ def _write_part(path: Path, arrays: dict) -> None:
     Why not :func:`lcmr_xr.io.save` of the labelled block: the part only carries the
     values (the result takes its labels from the lazy sweep), and xarray's writer (its
     encoding of 19 variables and their coordinates) cost 5.3-6.0 ms CPU per experiment
-    of every variable, this one 2.6 ms (measured, 8 and 16 per task).  The encodings are those
-    ``save`` writes for these types, so :func:`_read_part` reads either: complex as the
+    of every variable, this one 2.6 ms (measured, 8 and 16 per task).  The encodings are
+    those ``save`` writes for these types, so :func:`_read_part` reads either: complex as the
     ``auto_complex`` compound, bool as int8 with the attribute ``dtype = "bool"``, str as
     variable-length strings; nothing is pre-filled (every value is written).
     """
