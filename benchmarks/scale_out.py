@@ -64,7 +64,9 @@ ms CPU per experiment (the kernel 84-92 of it; the part's write 6.0 -> 2.6 ms). 
 local_cluster, 320-480 experiments, 16 per task (main's code vs this, back to back): worker
 CPU 123-133 -> 105-113 ms per experiment, client 23-26 -> 11-16 ms.  The workers' growth
 was distributed's profiler, now off in local_cluster (27 -> 1.6 MB per 1 000 experiments).
-Part 7 with P_std (--big-covariance) completed: 23 141 experiments in 1 886 s, 104 ms of
+--rate 960 at load 1.5-2.2: P, P_std, P_flag 19.9 experiments/s (workers 95 ms CPU per
+experiment); every variable 14.5/s (15.4/s until the last part, then 4.0 s of assembly;
+workers 106 ms).  Part 7 with P_std (--big-covariance) completed: 23 141 experiments in 1 886 s, 104 ms of
 worker CPU each, 18-21 experiments/s while the load stayed at 2.2-2.7 (5.6-9.8/s when
 other jobs took it to 5-6), peak worker RSS 360 MB (never paused).  Without P_std: 23 141 experiments (5x 2 x 400 MB) in 455 s, 50.9
 experiments/s, peak worker RSS 329 MB (325 MB after 6 309), never paused; at 2x, 237 s,
