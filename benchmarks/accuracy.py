@@ -9,7 +9,8 @@ against the fixed-window sweep 12..60 (best fixed window per band); then the cal
 the local model's own covariance (:func:`covariance_check`).
 
 Usage: ``python benchmarks/accuracy.py [--seeds 10] [--cases 1-9] [--n-samples 3600]
-[--denominator ls iv]``.
+[--denominator ls iv] [--band-forms]``.  ``--band-forms`` prints only the coverage of
+candidate forms of the ``S^-1`` nonlinearity factor (:func:`band_forms`).
 Prints progress to stderr; takes minutes (one identification per seed, case and setting).
 """
 
@@ -23,7 +24,13 @@ import numpy as np
 
 from lcmr_xr import hdd, identify
 from lcmr_xr.demo import BANDS_HZ as BANDS, band_table
-from lcmr_xr.kernels.identification import experiment_spectra, identify_spectra
+from lcmr_xr.kernels.adaptive import (K95, candidate_windows, nonlinearity_factor,
+                                      second_order_variance, small_sample_factor, weak_direction)
+from lcmr_xr.kernels.closed_loop import frf_variance_from_first_row, indirect_first_row
+from lcmr_xr.kernels.identification import (experiment_spectra, identify_spectra,
+                                            identify_spectra_auto, window_dof)
+from lcmr_xr.kernels.local_models import local_model
+from lcmr_xr.settings import auto_window_range
 SWEEP = (12, 16, 20, 24, 30, 40, 60)
 
 
@@ -86,6 +93,87 @@ def covariance_check(*, case, seeds, n_samples, half_width=30, degrees=(3, 3, 3)
     return np.array([np.median(np.concatenate(v), axis=0) for v in ratios.values()])
 
 
+def _band_terms(R, Z, *, half_width, n_fast, degrees=(3, 3, 3)):
+    """Per fast bin ``0..N/2`` of one window's least-squares fit: first-order variance,
+    exact second-order variance (:func:`second_order_variance`), ``rho``, ``rho_v`` and
+    the small-sample factor (the pieces ``recover_frf`` combines)."""
+    nr, nu = R.shape[-1], R.shape[-1] // hdd.FACTOR
+    fit = local_model(R, Z, half_width=half_width, degrees=degrees, covariance="full")
+    G, C = fit.G, fit.G_cov
+    ind = indirect_first_row(G, nr, C)
+    m = G.shape[-3]
+    bins = np.arange(n_fast // 2 + 1)
+    var_lin = frf_variance_from_first_row(ind.first_row_cov, n_fast, hdd.FACTOR, bins,
+                                          Z.shape[-1] - nr, nu)
+    rho, rho_v = weak_direction(G[..., :nr, :], C[..., : nr * nr, : nr * nr])
+    S_inv = np.linalg.inv(np.where(ind.singular[..., None, None], np.eye(nr), G[..., :nr, :]))
+    var2 = second_order_variance(S_inv, ind.first_row, C, ind.first_row_cov, n_fast=n_fast,
+                                 factor=hdd.FACTOR, bins=bins)
+    dof = small_sample_factor(window_dof(half_width, nr, degrees))
+    slow = bins % m
+    return var_lin, var2, rho[slow, None, None], rho_v[slow, None, None], dof
+
+
+#: Forms of the band's variance (before the model-error term) from the pieces of
+#: :func:`_band_terms`: today's bound form of ``c_S`` and the measured alternatives
+#: (docs/uncertainty.md, "Why 5-25 kHz needs the conservative c_S").
+BAND_FORMS = {
+    "bound c_S (today)": lambda v, v2, q, rv: v * (1 + K95 * rv / (1 - q)) ** 2,
+    "no c_S": lambda v, v2, q, rv: v,
+    "variance form": lambda v, v2, q, rv: v * (1 + (rv / (1 - q)) ** 2),
+    "exact 2nd order": lambda v, v2, q, rv: v + v2 / (1 - q) ** 2,
+    "bound, exact 2nd": lambda v, v2, q, rv: (np.sqrt(v) + K95 * np.sqrt(v2) / (1 - q)) ** 2,
+}
+
+
+def band_forms(*, cases, seeds, n_samples, degrees=(3, 3, 3)):
+    """Coverage of the 95 % disc per band for every form of :data:`BAND_FORMS`.
+
+    ``window="auto"`` (least squares): the production choice of window and its model-error
+    term ``P_bias`` are kept; each candidate window is refitted with the kernels to get the
+    pieces of the band, gathered per slow bin at the chosen window, and the band
+    ``c_dof^2 form + P_bias^2`` is evaluated (``inf`` where undetermined).  Checks on the
+    way that the bound form reproduces the production ``P_var`` (so the pieces are the
+    production ones).  Returns form -> (case, seed, band, input) coverage.
+    """
+    out = {name: np.zeros((len(cases), seeds, len(BANDS), 2)) for name in BAND_FORMS}
+    for ci, case in enumerate(cases):
+        for seed in range(seeds):
+            exp = hdd.simulate(n_samples, case=case, noise=True, seed=seed)
+            R, Z = experiment_spectra(exp.r.values, exp.u.values, exp.y.values, factor=hdd.FACTOR)
+            nr, m = R.shape[-1], R.shape[-2]
+            windows = candidate_windows(*auto_window_range(degrees, nr, m))
+            auto = identify_spectra_auto(R, Z, n_fast=n_samples, factor=hdd.FACTOR,
+                                         nu=nr // hdd.FACTOR, windows=windows, degrees=degrees)
+            k = np.arange(n_samples // 2 + 1)
+            pick = np.searchsorted(windows, auto["window"])[k % m]
+            terms = [_band_terms(R, Z, half_width=w, n_fast=n_samples, degrees=degrees)
+                     for w in windows]
+            v, v2, rho, rho_v, dof = (np.take_along_axis(
+                np.stack([np.broadcast_to(t[i], terms[0][0].shape) for t in terms]),
+                pick[None, :, None, None], axis=0)[0] for i in range(5))
+            und = auto["P_undetermined"][:, None, None]
+            bias2 = auto["P_bias"] ** 2
+            with np.errstate(divide="ignore", invalid="ignore"):
+                q = K95 * rho
+                check = np.where(und, np.inf,
+                                 dof ** 2 * v * nonlinearity_factor(rho, rho_v)[0] ** 2 + bias2)
+                ok = np.isfinite(auto["P_var"])
+                np.testing.assert_allclose(check[ok], auto["P_var"][ok], rtol=1e-6)
+                f = k / (n_samples * float(exp.time[1] - exp.time[0]))
+                truth = np.full(auto["P"].shape, np.nan, dtype=complex)
+                truth[1:] = hdd.true_frf(f[1:], case=case).values
+                err2 = np.abs(auto["P"] - truth) ** 2
+                for name, form in BAND_FORMS.items():
+                    var = np.where(und, np.inf, dof ** 2 * form(v, v2, q, rho_v) + bias2)
+                    hit = (err2 <= K95 ** 2 * var)[:, 0]
+                    for b, (lo, hi) in enumerate(BANDS):
+                        sel = (f > max(lo, 0)) & (f < hi) & (k < k[-1])
+                        out[name][ci, seed, b] = hit[sel].mean(axis=0)
+        print(f"  case {case} done", file=sys.stderr, flush=True)
+    return out
+
+
 def print_table(title, s):
     """s: (case, seed, band, input, 3)."""
     print(title)
@@ -106,12 +194,27 @@ def main(argv=None):
     ap.add_argument("--cases", default="1-9", help="plant cases, e.g. 1-9 or 2")
     ap.add_argument("--n-samples", type=int, default=3600)
     ap.add_argument("--noiseless-seeds", type=int, default=3)
+    ap.add_argument("--band-forms", action="store_true",
+                    help="only the coverage of the candidate forms of the S^-1 factor")
     ap.add_argument("--denominator", nargs="+", default=["ls", "iv"], choices=["ls", "iv"],
                     help="how the LRM denominator is estimated (default: both, one table each)")
     args = ap.parse_args(argv)
     lo, _, hi = args.cases.partition("-")
     cases = list(range(int(lo), int(hi or lo) + 1))
     t0 = time.perf_counter()
+    if args.band_forms:
+        cover = band_forms(cases=cases, seeds=args.seeds, n_samples=args.n_samples)
+        print(f"HDD benchmark, N = {args.n_samples}, disturbances on, cases {args.cases}, "
+              f"{args.seeds} seeds, window auto (least squares): coverage of the 95 % disc "
+              "VCM/PZT per form of the S^-1 factor, mean (worst case)")
+        print(f"  {'form':<20}" + "".join(f"{f'{lo:.0f}-{hi:.0f} Hz':>26}" for lo, hi in BANDS))
+        for name, c in cover.items():
+            mean, worst = c.mean(axis=(0, 1)), c.mean(axis=1).min(axis=0)
+            print(f"  {name:<20}" + "".join(
+                f"{f'{mean[b, 0]:.3f}/{mean[b, 1]:.3f} ({worst[b, 0]:.3f}/{worst[b, 1]:.3f})':>26}"
+                for b in range(len(BANDS))))
+        print(f"({time.perf_counter() - t0:.0f} s; machine shared with other jobs)")
+        return
     noisy = run({f"{name}, denominator {d}": (w, d) for d in args.denominator
                  for name, w in (("fixed window 30", 30), ("auto", "auto"))}, cases=cases,
                 seeds=args.seeds, n_samples=args.n_samples, noise=True)

@@ -18,7 +18,9 @@ Two questions the first-order covariance of ``P = PS_1 S^-1`` does not answer:
    ``k = sqrt(ln 20)`` (conservative; the variance form ``sqrt(1 + (rho_v / (1 - k rho))^2)``
    left too little coverage at 5-25 kHz on the HDD benchmark; Fieller's argument for a ratio of noisy quantities: Fieller 1954, J. R. Stat. Soc. B
    16, 175-185; the confidence set of a ratio is unbounded when the denominator is not
-   significantly non-zero).  Where ``k rho`` exceeds :data:`UNDETERMINED_LIMIT` the
+   significantly non-zero; the exact second-order variance,
+   :func:`second_order_variance`, was measured to be far smaller: the bound compensates
+   for an understated local-model covariance, docs/uncertainty.md).  Where ``k rho`` exceeds :data:`UNDETERMINED_LIMIT` the
    higher-order terms are as large as the first-order one: the first-order band is
    meaningless, the bin is flagged *undetermined* and its band is unbounded.
 
@@ -46,9 +48,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from lcmr_xr.kernels.lifting import first_block_row_weights
+
 __all__ = [
     "K95", "UNDETERMINED_LIMIT", "candidate_windows", "nonlinearity_factor",
-    "small_sample_factor", "weak_direction", "whitened_weak_direction", "select_windows",
+    "second_order_variance", "small_sample_factor", "weak_direction", "whitened_weak_direction", "select_windows",
 ]
 
 #: Radius, in standard deviations, of the 95 % disc of a circular complex Gaussian error.
@@ -215,6 +219,92 @@ def nonlinearity_factor(rho, rho_v, limit: float = UNDETERMINED_LIMIT):
     with np.errstate(divide="ignore", invalid="ignore"):
         factor = 1.0 + K95 * np.asarray(rho_v, dtype=float) / (1.0 - q)
     return np.where(undetermined, np.inf, factor), undetermined
+
+
+def _kron(a, b):
+    """Kronecker product of the trailing matrices, broadcast over leading axes."""
+    out = a[..., :, None, :, None] * b[..., None, :, None, :]
+    return out.reshape(out.shape[:-4] + (a.shape[-2] * b.shape[-2], a.shape[-1] * b.shape[-1]))
+
+
+def second_order_variance(S_inv, first_row, G_cov, first_row_cov, *, n_fast: int, factor: int,
+                          bins) -> np.ndarray:
+    """Variance of the second-order term of the indirect estimate, per fast bin and entry.
+
+    With ``D = dS S_hat^-1`` the error of ``P_1`` is ``e_lin (I - D)^-1 = e_lin + e_lin D +
+    ...`` (module notes); ``e2 = e_lin D`` is a bilinear form in ``x = vec(dG)`` (no
+    conjugate).  At fast bin ``k``, entry ``(a, b)``, after the map of
+    :func:`lcmr_xr.kernels.lifting.frf_from_first_block_row`,
+    ``e2 = sum_d e_d y_d`` with ``e = e_lin[a, :]`` (the first-order error of row ``a`` of
+    ``P_1``) and ``y = dS s``, ``s = sum_j exp(2j pi k j / N) S_hat^-1[:, j nu + b]``.  For
+    circular complex Gaussian ``x`` (``E[x x^T] = 0``) Isserlis' theorem gives, exactly,::
+
+        E|e2|^2 = sum_dd' ( E[e_d e_d'^*] E[y_d y_d'^*] + E[e_d y_d'^*] E[y_d e_d'^*] )
+
+    (equal to ``2 tr(Qs C Qs^H C^T)`` for the symmetric matrix ``Qs`` of the bilinear form
+    and ``C = cov(x)``), and ``E[e_lin conj(e2)] = 0`` (an odd moment), so to second order
+    ``var(P_hat) = var_lin + E|e2|^2``, with the actual geometry of ``e`` and ``dS`` (the
+    product of norms ``rho_v`` counts them as aligned).
+
+    Not used by the band: on the HDD benchmark ``E|e2|^2`` is 0.2 % of ``var_lin`` at
+    500-5000 Hz (where ``c_S`` is 2.9), and the band with it instead of ``c_S`` is the
+    first-order band, which the understated local-model covariance leaves at 0.86-0.89
+    coverage in three bands (docs/uncertainty.md, "The exact second-order variance of the
+    ``S^-1`` correction"; ``benchmarks/accuracy.py --band-forms`` measures it).
+
+    Parameters
+    ----------
+    S_inv : ndarray, complex, shape (..., M, nr, nr)
+        ``S_hat^-1`` per slow bin.
+    first_row : ndarray, complex, shape (..., M, ny, nr)
+        ``P_1`` per slow bin (``L = [-P_1, I]``).
+    G_cov : ndarray, complex, shape (..., M, nz nr, nz nr)
+        Covariance of ``vec(G)`` (row-major, ``i nr + b``; rows ``i < nr`` are ``S``).
+    first_row_cov : ndarray, complex, shape (..., M, ny nr, ny nr)
+        First-order covariance of ``vec(P_1)``
+        (:func:`lcmr_xr.kernels.closed_loop.indirect_first_row`).
+    n_fast, factor : int
+        ``N`` and ``F``.
+    bins : ndarray of int
+        Fast bins ``k`` (slow bin ``k mod M``).
+
+    Returns
+    -------
+    ndarray, shape (..., len(bins), ny, nu), real, >= 0
+    """
+    S_inv = np.asarray(S_inv)
+    m, nr = S_inv.shape[-3], S_inv.shape[-1]
+    ny = first_row.shape[-2]
+    nz = nr + ny
+    f_ = int(factor)
+    nu = nr // f_
+    lead = S_inv.shape[:-3]
+    C = np.asarray(G_cov)
+    L = np.concatenate([-first_row, np.broadcast_to(np.eye(ny), lead + (m, ny, ny))], axis=-1)
+    # Per slow bin, as products of (nz nr)-sized matrices (no strided copies of cov(G)):
+    # vec(e_lin) = (L (x) S^-T) vec(dG), vec(dS S^-1) = (I (x) S^-T) vec(dS), so
+    # X[(a, d), (d', c')] = E[e_lin[a, d] conj((dS S^-1)[d', c'])] and
+    # U[(d, c), (d', c')] = E[(dS S^-1)[d, c] conj((dS S^-1)[d', c'])].
+    sit = np.swapaxes(S_inv, -2, -1)
+    right = _kron(np.broadcast_to(np.eye(nr), S_inv.shape), S_inv.conj())  # (I (x) S^-H)^T
+    x = _kron(L, sit) @ C[..., :, : nr * nr] @ right
+    u = _kron(np.broadcast_to(np.eye(nr), S_inv.shape), sit) @ C[..., : nr * nr, : nr * nr] @ right
+    # only pairs of columns c = (j, b), c' = (j', b) of the same input b enter
+    x = x.reshape(lead + (m, ny, nr, nr, f_, nu))  # (a, d, d', j', b)
+    u = np.einsum("...xjbykb->...xyjkb", u.reshape(lead + (m, nr, f_, nu, nr, f_, nu)))
+    c11 = np.asarray(first_row_cov).reshape(lead + (m, ny, nr, ny, nr))
+    c11 = np.einsum("...adAf,aA->...adf", c11, np.eye(ny))  # E[e_d conj(e_d')] per row a
+    # fast bin k: S^-1 columns of input b summed with w_kj = exp(2j pi k j / N)
+    bins = np.asarray(bins)
+    idx = bins % m
+    w = first_block_row_weights(n_fast, f_, bins)  # (K, F)
+    u, x = np.take(u, idx, axis=-6), np.take(x, idx, axis=-6)
+    cyy = sum(u[..., j, k, :] * (w[:, j] * w[:, k].conj())[:, None, None, None]
+              for j in range(f_) for k in range(f_))  # (K, d, d', b)
+    c1y = sum(x[..., j, :] * w[:, j].conj()[:, None, None, None, None] for j in range(f_))
+    var = (np.einsum("...kadf,...kdfb->...kab", np.take(c11, idx, axis=-4), cyy)
+           + np.einsum("...kadfb,...kafdb->...kab", c1y, c1y.conj()))
+    return np.maximum(var.real, 0.0)
 
 
 def candidate_windows(n_min: int, n_max: int, *, ratio: float = WINDOW_RATIO,
