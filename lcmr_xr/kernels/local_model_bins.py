@@ -18,8 +18,11 @@ own block ``B_i`` (``-rho^s Z_i``, ``s = 1..Rd``).  All columns are scaled to un
 (Jacobi), so pivots are squared sines of angles between columns and the condition
 estimate is scale-free:
 
-1. Cholesky of the scaled ``A^H A`` with all rows' right-hand sides ``A^H rho^s Z_i``
-   carried along (``Y = L^-1 A^H X``: the forward substitution for free).
+1. Cholesky of ``A^H A`` with all rows' right-hand sides ``A^H rho^s Z_i`` carried
+   along (``Y = L^-1 A^H X``: the forward substitution for free), two pivots at a time.
+   It runs on the unscaled Gram: the factor of the scaled one is ``D L``
+   (``D = diag(1/||a_c||)``), so its pivots and rows follow by scaling, and ``Y`` is the
+   same for both.
 2. Per row, the ``Rd x Rd`` Schur complement ``S_i = B~_i^H (I - P_A) B~_i`` is factored
    with diagonal pivoting.  A column whose pivot (its squared distance from the span of
    all other columns) is below ``drop_tol`` is dropped in that bin: the data do not
