@@ -26,6 +26,9 @@ degrees 3-3-3):
    flagged bin, whose band is unbounded, counts as covered), with the fraction of bins
    flagged undetermined and the median factor the split halves put on the pooled
    covariance (``spread_calibration``); the goal lines say met or NOT met.
+   ``--first-group g`` starts at group ``g`` (seeds ``500 + 8 g + e``);
+   ``--band-forms`` prints instead the pooled coverage per form of the ``S^-1`` factor
+   (:data:`BAND_FORMS`), each from the same pooled fit per group (:func:`pooled_band_forms`).
 6. Window 0 exactness for F = 3 (a SISO loop, E = F nu + 1 = 4 experiments).
 7. Cost: 64 experiments of N = 3600 pooled in one local model against identifying them
    one by one (one call over the experiment dim, and a loop of calls), window 30.
@@ -37,13 +40,19 @@ per noise kind on one core, a few more for 4-7).
 from __future__ import annotations
 
 import argparse
+import contextlib
+import sys
 import time
 
 import numpy as np
 import xarray as xr
 
 import lcmr_xr
-from lcmr_xr import hdd
+from lcmr_xr import conventions as cv, hdd
+from lcmr_xr.kernels.adaptive import (K95, second_order_variance, select_windows,
+                                      small_sample_factor, weak_direction)
+from lcmr_xr.kernels.closed_loop import frf_variance_from_first_row, indirect_first_row
+from lcmr_xr.kernels.pooling import spread_calibration
 from lcmr_xr.simulation import simulate_closed_loop
 
 N, CASE, WINDOW, DEGREES = 3600, 2, 30, (3, 3, 3)
@@ -171,13 +180,14 @@ def report_experiments(var):
     print_slopes(var, "E")
 
 
-def disturbances_pooled(groups: int, n_exp: int = 8, denominators=("ls", "iv")):
+def disturbances_pooled(groups: int, n_exp: int = 8, denominators=("ls", "iv"),
+                        first_group: int = 0):
     """Median relative error per band and coverage: ``n_exp`` pooled against one, for each
     way of estimating the LRM's denominator (least squares, instrumental variables)."""
     from lcmr_xr.demo import BANDS_HZ, band_table
 
     stats = {(name, d): [] for d in denominators for name in ("pooled", "one")}
-    for g in range(groups):
+    for g in range(first_group, first_group + groups):
         exps = [hdd.simulate(N, case=CASE, seed=500 + n_exp * g + e) for e in range(n_exp)]
         for d in denominators:
             pooled = lcmr_xr.identify(xr.concat(exps, "experiment"), combine="experiment",
@@ -200,7 +210,7 @@ def disturbances_pooled(groups: int, n_exp: int = 8, denominators=("ls", "iv")):
                 stats[name, d].append(np.concatenate(
                     [np.stack([t.median_error.values, t.coverage.values], axis=-1),
                      np.array(extra)], axis=-1))
-        print(f"  disturbances: group {g + 1}/{groups}", flush=True)
+        print(f"  disturbances: group {g} ({g - first_group + 1}/{groups})", flush=True)
     return BANDS_HZ, {k: np.array(v) for k, v in stats.items()}
 
 
@@ -233,6 +243,170 @@ def report_disturbances(bands, stats, n_exp=8):
                for i in range(len(hdd.INPUTS))]
         print(f"   goal, error below 500 Hz one / pooled >= 2.5: VCM {low[0]:.2f}, PZT {low[1]:.2f} "
               f"({'met' if min(low) >= 2.5 else 'NOT met'})")
+
+
+#: Forms of the pooled band's variance (before the model-error term and the small-sample
+#: factor) from the first-order variance ``v``, the exact second-order variance ``v2``
+#: (:func:`lcmr_xr.kernels.adaptive.second_order_variance`), ``q = K95 rho`` and
+#: ``rho_v``: today's bound form of ``c_S`` and the candidates that model the
+#: nonlinearity of ``S^-1`` instead (docs/uncertainty.md, "Pooled bands").
+BAND_FORMS = {
+    "bound c_S": lambda v, v2, q, rv: v * (1 + K95 * rv / (1 - q)) ** 2,
+    "exact 2nd order": lambda v, v2, q, rv: v + v2 / (1 - q) ** 2,
+    "variance form": lambda v, v2, q, rv: v * (1 + (rv / (1 - q)) ** 2),
+    "1/(1 - k rho)": lambda v, v2, q, rv: v / (1 - q) ** 2,
+    "no c_S": lambda v, v2, q, rv: v,
+}
+
+
+@contextlib.contextmanager
+def _captured_candidates():
+    """Record every candidate window's fit as ``identify`` finishes it (the production
+    path: the kernels' ``_finish``, with its inputs and outputs), so that the pieces of
+    the band can be recombined without fitting again."""
+    from lcmr_xr.kernels import identification as kid
+
+    calls, original = [], kid._finish
+
+    def recording(fit, **kw):
+        out = original(fit, **kw)
+        calls.append((fit, kw, out))
+        return out
+
+    kid._finish = recording
+    try:
+        yield calls
+    finally:
+        kid._finish = original
+
+
+def _band_pieces(fit, kw, out):
+    """Per fast bin of one candidate: ``v``, ``v2``, ``q``, ``rho_v`` (broadcast to ``P``),
+    the small-sample factor, and the calibration and undetermined flag it used."""
+    cal = spread_calibration(fit["spread_ratio"])
+    G, C = fit["G"], fit["G_cov"] * cal[..., None, None]
+    n_fast, f_, nu, ny = kw["n_fast"], kw["factor"], kw["nu"], kw["ny"]
+    nr = f_ * nu
+    ind = indirect_first_row(G, nr, C)
+    m = G.shape[-3]
+    bins = np.arange(n_fast // 2 + 1)
+    slow = bins % m
+    v = frf_variance_from_first_row(ind.first_row_cov, n_fast, f_, bins, ny, nu)
+    rho, rho_v = weak_direction(G[..., :nr, :], C[..., : nr * nr, : nr * nr])
+    S_inv = np.linalg.inv(np.where(ind.singular[..., None, None], np.eye(nr), G[..., :nr, :]))
+    start = time.process_time()
+    v2 = second_order_variance(S_inv, ind.first_row, C, ind.first_row_cov, n_fast=n_fast,
+                               factor=f_, bins=bins)
+    t2 = time.process_time() - start
+    dof = np.broadcast_to(small_sample_factor(kw["dof"]), (m,))[slow, None, None]
+    und = out["P_undetermined"][:, None, None]
+    # the pieces are production's: the bound form gives identify's P_var (and v its P_var_linear)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        check = np.where(und, np.inf,
+                         dof ** 2 * BAND_FORMS["bound c_S"](v, v2, K95 * rho[slow, None, None],
+                                                            rho_v[slow, None, None]))
+    ok = np.isfinite(out["P_var"])
+    np.testing.assert_allclose(check[ok], out["P_var"][ok], rtol=1e-9)
+    np.testing.assert_allclose(v, out["P_var_linear"], rtol=1e-12)
+    return dict(v=v, v2=v2, q=K95 * rho[slow, None, None], rho_v=rho_v[slow, None, None],
+                dof=dof, und=und, P=out["P"], cal=cal, t2=t2)
+
+
+def pooled_band_forms(groups: int, first_group: int = 0, n_exp: int = 8, denominator="iv"):
+    """Coverage per band of the pooled 95 % discs for every form of :data:`BAND_FORMS`.
+
+    One pooled ``identify`` (``window="auto"``) per group of ``n_exp`` experiments (the
+    groups of :func:`disturbances_pooled`); its candidate windows' fits are recorded and
+    each form's band is rebuilt per candidate (``c_dof^2 form``, ``inf`` where
+    undetermined, the flag unchanged), the window is chosen per slow bin by
+    :func:`lcmr_xr.kernels.adaptive.select_windows` on that form's band (as ``identify``
+    would choose it) and the chosen window's model-error term added.  Checks that the bound
+    form reproduces ``identify``'s ``P_std`` (so every form is what ``identify`` would
+    return with it).  Returns form -> (group, band, input) coverage, and the flagged
+    fraction (group, band), the median ``c_S`` and ``E|e2|^2 / var_lin`` of the chosen
+    windows (band, input) and the CPU seconds of ``second_order_variance`` per candidate.
+    """
+    from lcmr_xr.demo import BANDS_HZ
+
+    cover = {name: np.zeros((groups, len(BANDS_HZ), 2)) for name in BAND_FORMS}
+    flagged = np.zeros((groups, len(BANDS_HZ)))
+    c_s, ratio2, zlin, t2 = [[] for _ in BANDS_HZ], [[] for _ in BANDS_HZ], [[] for _ in BANDS_HZ], []
+    for gi, g in enumerate(range(first_group, first_group + groups)):
+        exps = [hdd.simulate(N, case=CASE, seed=500 + n_exp * g + e) for e in range(n_exp)]
+        with _captured_candidates() as calls:
+            pooled = lcmr_xr.identify(xr.concat(exps, "experiment"), combine="experiment",
+                                      errors="ignore", denominator=denominator)
+        windows = pooled.attrs.get(cv.CANDIDATE_WINDOWS)
+        pieces = [_band_pieces(*c) for c in calls]
+        t2 += [p["t2"] for p in pieces]
+        f = pooled.frequency.values
+        truth = np.full(pieces[0]["P"].shape, np.nan, dtype=complex)
+        truth[1:] = hdd.true_frf(f[1:], case=CASE).values
+        m = pooled.sizes["slow_frequency"]
+        k = np.arange(f.size)
+        P = np.stack([p["P"] for p in pieces])
+        v = np.stack([p["v"] for p in pieces])
+        und = np.stack([p["und"] for p in pieces])
+        for name, form in BAND_FORMS.items():
+            with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+                var = np.stack([np.where(p["und"], np.inf,
+                                         p["dof"] ** 2 * form(p["v"], p["v2"], p["q"], p["rho_v"]))
+                                for p in pieces])
+            choice, bias2 = select_windows(P, var, v, m)
+            pick = choice[k % m][None, :, None, None]
+            chosen = lambda a: np.take_along_axis(a, np.broadcast_to(pick, (1,) + a.shape[1:]),
+                                                  axis=0)[0]
+            undetermined = chosen(und) | und[-1]
+            var_c = np.where(undetermined, np.inf, chosen(var) + chosen(bias2))
+            P_c = chosen(P)
+            if name == "bound c_S":  # identify's own result
+                np.testing.assert_allclose(np.sqrt(var_c), pooled.P_std.values, rtol=1e-9)
+                np.testing.assert_array_equal(P_c, pooled.P.values)
+                q = np.stack([np.broadcast_to(p["q"], p["v"].shape) for p in pieces])
+                rv = np.stack([np.broadcast_to(p["rho_v"], p["v"].shape) for p in pieces])
+                v2 = np.stack([p["v2"] for p in pieces])
+                dof = np.stack([np.broadcast_to(p["dof"], p["v"].shape) for p in pieces])
+                with np.errstate(divide="ignore", invalid="ignore"):
+                    cs = chosen(1 + K95 * rv / (1 - q))
+                    r2 = chosen(v2 / v)
+                    # the error over the calibrated first-order variance (ln 2 = 0.69 if right)
+                    z = np.abs(P_c - truth) ** 2 / (chosen(dof) ** 2 * chosen(v))
+            hit = (np.abs(P_c - truth) ** 2 <= K95 ** 2 * var_c) | undetermined
+            for b, (lo, hi) in enumerate(BANDS_HZ):
+                sel = (f > lo) & (f < hi) & (f > 0) & (f < f.max())
+                cover[name][gi, b] = hit[sel, 0].mean(axis=0)
+                if name == "bound c_S":
+                    flagged[gi, b] = undetermined[sel, 0, 0].mean()
+                    keep = sel & ~undetermined[:, 0, 0]
+                    c_s[b].append(cs[keep, 0])
+                    ratio2[b].append(r2[keep, 0])
+                    zlin[b].append(z[keep, 0])
+        print(f"  band forms: group {g} done ({len(calls)} candidates"
+              f"{'' if windows is None else f' {windows}'})", file=sys.stderr, flush=True)
+    med = lambda x: np.array([np.median(np.concatenate(v), axis=0) if v else [np.nan] * 2
+                              for v in x])
+    return BANDS_HZ, cover, flagged, med(c_s), med(ratio2), med(zlin), np.array(t2)
+
+
+def report_band_forms(bands, cover, flagged, c_s, ratio2, zlin, t2, *, first_group, denominator):
+    groups = flagged.shape[0]
+    print(f"\n5b. benchmark disturbances, 8 experiments pooled, window 'auto', denominator "
+          f"{denominator!r}, groups {first_group}-{first_group + groups - 1}: coverage of the "
+          f"pooled 95 % discs VCM/PZT per form of the S^-1 factor (window chosen per form)")
+    print(f"   {'form':<17}" + "".join(f"{f'{lo:g}-{hi:g} Hz':>17}" for lo, hi in bands))
+    for name, c in cover.items():
+        mean = c.mean(axis=0)
+        print(f"   {name:<17}" + "".join(f"{f'{mean[b, 0]:.3f}/{mean[b, 1]:.3f}':>17}"
+                                         for b in range(len(bands))))
+    print(f"   {'flagged':<17}" + "".join(f"{flagged[:, b].mean():>17.3f}" for b in range(len(bands))))
+    print(f"   {'median c_S':<17}" + "".join(f"{f'{c_s[b, 0]:.3g}/{c_s[b, 1]:.3g}':>17}"
+                                            for b in range(len(bands))))
+    print(f"   {'med. var2/var':<17}" + "".join(f"{f'{ratio2[b, 0]:.2g}/{ratio2[b, 1]:.2g}':>17}"
+                                               for b in range(len(bands))))
+    print(f"   {'med. err2/var':<17}" + "".join(f"{f'{zlin[b, 0]:.2f}/{zlin[b, 1]:.2f}':>17}"
+                                               for b in range(len(bands))))
+    print(f"   second_order_variance: {1e3 * np.median(t2):.0f} ms CPU per candidate "
+          f"(median of {t2.size})")
 
 
 def window0_exactness_f3():
@@ -292,9 +466,21 @@ def main(argv=None):
                         help="how the LRM denominator is estimated in goal 5 (default: both)")
     parser.add_argument("--only-disturbances", action="store_true",
                         help="run goal 5 alone")
+    parser.add_argument("--first-group", type=int, default=0,
+                        help="first group of 8 experiments in goal 5 (seeds 500 + 8 g + e)")
+    parser.add_argument("--band-forms", action="store_true",
+                        help="with --only-disturbances: the pooled coverage per form of the "
+                             "S^-1 factor from one pooled fit per group (not the error table)")
     args = parser.parse_args(argv)
     if args.only_disturbances:
-        report_disturbances(*disturbances_pooled(args.groups, denominators=args.denominator))
+        if args.band_forms:
+            for d in args.denominator:
+                report_band_forms(*pooled_band_forms(args.groups, args.first_group,
+                                                     denominator=d),
+                                  first_group=args.first_group, denominator=d)
+            return
+        report_disturbances(*disturbances_pooled(args.groups, first_group=args.first_group,
+                                                 denominators=args.denominator))
         return
     if args.seeds < 3:
         parser.error(f"--seeds must be at least 3 to estimate a variance, got {args.seeds}")

@@ -66,3 +66,15 @@ def test_accuracy_band_forms_reproduce_identify():
     # the forms differ where they should: without c_S fewer bins hold the truth
     assert np.all(cover["no c_S"][0, 0, 1:] <= cover["bound c_S (today)"][0, 0, 1:])
     assert cover["no c_S"][0, 0, 1:].sum() < cover["bound c_S (today)"][0, 0, 1:].sum()
+
+
+def test_pooling_band_forms_reproduce_identify():
+    """The pooled band-form tool (benchmarks/pooling.py --band-forms) rebuilds the pooled
+    band from its pieces: it checks inside that its bound form is identify's own P_std (to
+    1e-9) and P; the forms then differ where they should."""
+    module = _load("pooling")
+    bands, cover, flagged, c_s, ratio2, zlin, t2 = module.pooled_band_forms(groups=1, n_exp=4)
+    bound, none = cover["bound c_S"][0], cover["no c_S"][0]
+    assert np.all((0 <= bound) & (bound <= 1)) and np.all(none <= bound + 1e-12)
+    assert none.sum() < bound.sum()  # c_S > 1 wherever S^-1 is uncertain
+    assert np.all((flagged >= 0) & (flagged <= 1)) and t2.size >= 1

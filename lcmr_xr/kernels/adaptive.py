@@ -250,7 +250,11 @@ def second_order_variance(S_inv, first_row, G_cov, first_row_cov, *, n_fast: int
     500-5000 Hz (where ``c_S`` is 2.9), and the band with it instead of ``c_S`` is the
     first-order band, which the understated local-model covariance leaves at 0.86-0.89
     coverage in three bands (docs/uncertainty.md, "The exact second-order variance of the
-    ``S^-1`` correction"; ``benchmarks/accuracy.py --band-forms`` measures it).
+    ``S^-1`` correction"; ``benchmarks/accuracy.py --band-forms`` measures it).  Pooled
+    fits, whose covariance the split halves calibrate, likewise: with it instead of
+    ``c_S`` 500-5000 Hz comes under 0.99 but 5-50.4 kHz loses 2-5 points of coverage
+    (``benchmarks/pooling.py --only-disturbances --band-forms``; docs/uncertainty.md,
+    "The ``S^-1`` factor of pooled bands").
 
     Parameters
     ----------

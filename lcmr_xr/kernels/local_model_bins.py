@@ -18,8 +18,11 @@ own block ``B_i`` (``-rho^s Z_i``, ``s = 1..Rd``).  All columns are scaled to un
 (Jacobi), so pivots are squared sines of angles between columns and the condition
 estimate is scale-free:
 
-1. Cholesky of the scaled ``A^H A`` with all rows' right-hand sides ``A^H rho^s Z_i``
-   carried along (``Y = L^-1 A^H X``: the forward substitution for free).
+1. Cholesky of ``A^H A`` with all rows' right-hand sides ``A^H rho^s Z_i`` carried
+   along (``Y = L^-1 A^H X``: the forward substitution for free), two pivots at a time.
+   It runs on the unscaled Gram: the factor of the scaled one is ``D L``
+   (``D = diag(1/||a_c||)``), so its pivots and rows follow by scaling, and ``Y`` is the
+   same for both.
 2. Per row, the ``Rd x Rd`` Schur complement ``S_i = B~_i^H (I - P_A) B~_i`` is factored
    with diagonal pivoting.  A column whose pivot (its squared distance from the span of
    all other columns) is below ``drop_tol`` is dropped in that bin: the data do not
@@ -88,48 +91,87 @@ _INNER = dict(_JIT, no_cpython_wrapper=True, no_cfunc_wrapper=True)
 
 
 @numba.njit(**_INNER)
-def cholesky_planes(mr, mi, q, piv, rr, ri):
+def _pivot_row(mr, mi, j, br, bi):
+    """Row ``j`` of ``L^H`` from the updated row ``j`` (pivot ``mr[j, j] > 0``), in place,
+    and a copy of it in ``br``, ``bi`` (from column ``j + 1`` on)."""
+    c = mr.shape[1]
+    d = math.sqrt(mr[j, j])
+    mr[j, j] = d
+    mi[j, j] = 0.0
+    inv = 1.0 / d
+    ar = mr[j]
+    ai = mi[j]
+    for col in range(j + 1, c):
+        a = ar[col] * inv
+        b = ai[col] * inv
+        ar[col] = a
+        ai[col] = b
+        br[col] = a
+        bi[col] = b
+
+
+@numba.njit(**_INNER)
+def cholesky_planes(mr, mi, q, piv, rb):
     """In place: ``mr + 1j mi`` (q, c), real and imaginary parts in separate arrays, holds
     a Hermitian positive definite ``G`` (upper triangle of the first ``q`` columns read)
     and right-hand sides ``X`` after it; its rows become ``[L^H | L^-1 X]``.  ``piv`` (q)
     receives the pivots (squared diagonal of ``L``); the first non-positive pivot stops
-    the factorisation (that and later pivots are NaN).  ``rr``, ``ri`` (c) are scratch.
+    the factorisation (that and later pivots are NaN).  ``rb`` (4, c) is scratch.
     Returns the number of positive pivots.
 
-    Separate real and imaginary parts, row ``j`` of ``L^H`` copied out (so the compiler
-    need not assume that the rows alias) and row views indexed from 0 (so that it need
-    not guard against negative indices): the inner loop vectorises (measured 7.3 -> 5 us
-    for the HDD's 20 x 40).
+    Two pivots at a time: rows ``j`` and ``j + 1`` of ``L^H`` are formed, then every
+    later row takes both updates in one pass (a rank-2 update), which halves the passes
+    over the rows and their loads and stores (measured 5.2 -> 4.8 us for the HDD's
+    20 x 40).  Separate real and imaginary parts, the pivot rows copied out (so the
+    compiler need not assume that the rows alias) and row views indexed from 0 (so that
+    it need not guard against negative indices): the inner loops vectorise.
     """
     c = mr.shape[1]
     for j in range(q):
         piv[j] = np.nan
-    for j in range(q):
+    r0r = rb[0]
+    r0i = rb[1]
+    r1r = rb[2]
+    r1i = rb[3]
+    j = 0
+    while j < q:
         p = mr[j, j]
         if not p > 0.0:
             return j
         piv[j] = p
-        d = math.sqrt(p)
-        mr[j, j] = d
-        mi[j, j] = 0.0
-        inv = 1.0 / d
-        for col in range(j + 1, c):
-            a = mr[j, col] * inv
-            b = mi[j, col] * inv
-            mr[j, col] = a
-            mi[j, col] = b
-            rr[col] = a
-            ri[col] = b
-        for i in range(j + 1, q):
-            fr = rr[i]  # row i -= conj(l_ji) row j, l_ji = fr + 1j fi
-            fi = ri[i]
+        _pivot_row(mr, mi, j, r0r, r0i)
+        if j + 1 == q:
+            return q
+        i = j + 1  # row j + 1 -= conj(l_j,j+1) row j, l = fr + 1j fi
+        fr = r0r[i]
+        fi = r0i[i]
+        ar = mr[i, i:]
+        ai = mi[i, i:]
+        br = r0r[i:]
+        bi = r0i[i:]
+        for t in range(c - i):
+            ar[t] -= fr * br[t] + fi * bi[t]
+            ai[t] -= fr * bi[t] - fi * br[t]
+        p = mr[i, i]
+        if not p > 0.0:
+            return i
+        piv[i] = p
+        _pivot_row(mr, mi, i, r1r, r1i)
+        for i in range(j + 2, q):  # the later rows: both pivots at once
+            f0r = r0r[i]
+            f0i = r0i[i]
+            f1r = r1r[i]
+            f1i = r1i[i]
             ar = mr[i, i:]
             ai = mi[i, i:]
-            br = rr[i:]
-            bi = ri[i:]
+            b0r = r0r[i:]
+            b0i = r0i[i:]
+            b1r = r1r[i:]
+            b1i = r1i[i:]
             for t in range(c - i):
-                ar[t] -= fr * br[t] + fi * bi[t]
-                ai[t] -= fr * bi[t] - fi * br[t]
+                ar[t] -= (f0r * b0r[t] + f0i * b0i[t]) + (f1r * b1r[t] + f1i * b1i[t])
+                ai[t] -= (f0r * b0i[t] - f0i * b0r[t]) + (f1r * b1i[t] - f1i * b1r[t])
+        j += 2
     return q
 
 
@@ -144,7 +186,7 @@ def cholesky_augmented(m, q):
             mr[a, col] = m[a, col].real
             mi[a, col] = m[a, col].imag
     piv = np.empty(q)
-    cholesky_planes(mr, mi, q, piv, np.empty(c), np.empty(c))
+    cholesky_planes(mr, mi, q, piv, np.empty((4, c)))
     for a in range(q):
         for col in range(c):
             m[a, col] = complex(mr[a, col], mi[a, col])
@@ -180,8 +222,9 @@ def pivoted_cholesky(s, drop_tol, low, perm, piv):
             return j
         d = math.sqrt(p)
         low[j, j] = d
+        inv = 1.0 / d  # (complex / real compiles to a complex division: 3x slower)
         for t in range(j + 1, k):
-            low[t, j] = s[perm[t], pj] / d
+            low[t, j] = s[perm[t], pj] * inv
         for t in range(j + 1, k):
             pt = perm[t]
             for u in range(j + 1, k):
@@ -204,8 +247,9 @@ def _natural_min_pivot(s, scratch):
         if not p > 0.0:
             return 0.0
         best = min(best, p)
+        inv = 1.0 / p
         for a in range(j + 1, k):  # lower triangle: s[a, c] -= s[a, j] conj(s[c, j]) / p
-            f = scratch[a, j] / p
+            f = scratch[a, j] * inv
             for c in range(j + 1, a + 1):
                 scratch[a, c] -= f * scratch[c, j].conjugate()
     return best
@@ -218,12 +262,12 @@ def _chol_solve(low, rank, b, x):
         acc = b[j]
         for c in range(j):
             acc -= low[j, c] * x[c]
-        x[j] = acc / low[j, j].real
+        x[j] = acc * (1.0 / low[j, j].real)
     for j in range(rank - 1, -1, -1):
         acc = x[j]
         for c in range(j + 1, rank):
             acc -= low[c, j].conjugate() * x[c]
-        x[j] = acc / low[j, j].real
+        x[j] = acc * (1.0 / low[j, j].real)
 
 
 @numba.njit(**_INNER)
@@ -386,6 +430,22 @@ def _pooled_iv_blocks(moms, n_flat, wx_index, ww_index, txe, wtx, q_all, nx, wx,
 
 
 @numba.njit(**_INNER)
+def _planes_dot(ar, ai, x, br, bi, y):
+    """``sum_a conj(a[x, a]) b[y, a]`` of rows ``x``, ``y`` of complex matrices held as
+    real and imaginary planes."""
+    xr = ar[x]
+    xi = ai[x]
+    yr = br[y]
+    yi = bi[y]
+    accr = 0.0
+    acci = 0.0
+    for a in range(xr.shape[0]):
+        accr += xr[a] * yr[a] + xi[a] * yi[a]
+        acci += xr[a] * yi[a] - xi[a] * yr[a]
+    return complex(accr, acci)
+
+
+@numba.njit(**_INNER)
 def _tail_solve(u, q, nt, v, x):
     """``x = U22^-1 v[q-nt:]`` for the trailing ``nt x nt`` block of upper-triangular
     ``u`` (``x`` has length ``nt``)."""
@@ -394,7 +454,7 @@ def _tail_solve(u, q, nt, v, x):
         acc = v[off + j]
         for c in range(j + 1, nt):
             acc -= u[off + j, off + c] * x[c]
-        x[j] = acc / u[off + j, off + j].real
+        x[j] = acc * (1.0 / u[off + j, off + j].real)
 
 
 @numba.njit(**_INNER)
@@ -704,8 +764,15 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
     mr = np.zeros((q, q + nxw))  # m's real and imaginary planes for the Cholesky
     mi = np.zeros((q, q + nxw))
     piv_a = np.empty(q)
-    rr_c = np.empty(q + nxw)
-    ri_c = np.empty(q + nxw)
+    rb_c = np.empty((4, q + nxw))
+    # Y = L^-1 A~^H X transposed (nx, q) and v_i = Y_i delta_i (nz, q), real and imaginary
+    # planes: the per-row products over the q shared coordinates run on contiguous rows
+    ytr = np.empty((nx, q))
+    yti = np.empty((nx, q))
+    vpr = np.empty((nz, q))
+    vpi = np.empty((nz, q))
+    # tau of covariance=None: u_i(t) = sum_s delta_i(s) mean_pow(s + t)
+    upow = np.empty((nz, rd1), dtype=np.complex128)
     ds = np.empty(q)
     xx = np.empty((nz, nz, rd1, rd1), dtype=np.complex128)
     delta = np.zeros((nz, rd1), dtype=np.complex128)
@@ -763,6 +830,18 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
     n_flat = slot_i.shape[0] * p1
     moms = np.empty((n_exp, n_flat), dtype=np.complex128)
     mom = moms[0]
+    momf = mom.view(np.float64)
+    # the gather of [Gaa | A^H X] without a branch per entry: the real and imaginary
+    # parts' positions in momf and the sign of the imaginary part (conjugated half)
+    # (one record only: pooled moments are gathered per experiment)
+    gre = np.empty((q, q + nxw), dtype=np.int64)
+    gsg = np.empty((q, q + nxw))
+    if pool is None:
+        for a in range(q):
+            for c in range(q + nxw):
+                f = aug_index[a, c]
+                gre[a, c] = 2 * (f - n_flat if f >= n_flat else f)
+                gsg[a, c] = -1.0 if f >= n_flat else 1.0
     floors = np.empty((n_exp, nr))
     floor = np.empty(nr)
     scratch = np.empty((4, max(slot_i.shape[0], nr + 1 + zt.shape[2])), dtype=np.complex128)
@@ -778,25 +857,35 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
         if not sel[b, k]:
             continue
         o = out_offset + b * m_out + k
-        # ---- gather [Gaa | A^H X]; an R column within FFT rounding of zero energy is
-        # unexcited: the bin fails (NaN, flagged)
+        # ---- gather [Gaa | A^H X] into the real and imaginary planes of the Cholesky; an
+        # R column within FFT rounding of zero energy is unexcited: the bin fails (NaN,
+        # flagged)
         dead = False
         if pool is None:
             for a in range(q):
+                ga = gre[a]
+                sa = gsg[a]
+                ra = mr[a]
+                ia = mi[a]
                 for c in range(a, q + nxw):
-                    m[a, c] = _moment(mom, n_flat, aug_index[a, c])
+                    ra[c] = momf[ga[c]]
+                    ia[c] = sa[c] * momf[ga[c] + 1]
             for p in range(nr):  # (a loop: an array slice assignment compiles numba's
                 floor[p] = floors[0, p]  # shape-mismatch message machinery, ~8 s)
         else:
             _gather_pooled(moms, n_flat, aug_index, zz_index, sh, tr, tinv, ge, txe, wtx,
                            xxe, m, xx, q, nxw)
+            for a in range(q):
+                for c in range(a, q + nxw):
+                    mr[a, c] = m[a, c].real
+                    mi[a, c] = m[a, c].imag
             for p in range(nr):
                 acc_f = 0.0
                 for e in range(n_exp):
                     acc_f += floors[e, p]
                 floor[p] = acc_f
         for a in range(q):
-            dia = m[a, a].real
+            dia = mr[a, a]
             if a_base[a] < nr and not dia > floor[a_base[a]]:
                 dead = True
             ds[a] = 1.0 / math.sqrt(dia) if dia > 0.0 else np.nan
@@ -804,28 +893,36 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
             _failed_bin(o, mode, out_g, out_t, out_ncov, out_cond, out_ill, out_reduced,
                         out_gcov, out_gvar)
             continue
-        for a in range(q):  # Jacobi scaling of the Gram (both sides) and of A^H X (rows),
-            for c in range(a, q):  # into the real and imaginary planes of the Cholesky
-                f = ds[a] * ds[c]
-                mr[a, c] = m[a, c].real * f
-                mi[a, c] = m[a, c].imag * f
-            for c in range(q, q + nxw):
-                mr[a, c] = m[a, c].real * ds[a]
-                mi[a, c] = m[a, c].imag * ds[a]
-        cholesky_planes(mr, mi, q, piv_a, rr_c, ri_c)
-        for a in range(q):
-            for c in range(a, q + nxw):
-                m[a, c] = complex(mr[a, c], mi[a, c])
+        # Cholesky of the unscaled Gram: the factor of the Jacobi-scaled Gram D Gaa D
+        # (D = diag(ds), unit-norm columns) is D L, so its rows are those of L^H times
+        # ds column by column, its pivots those of L times ds^2, and L^-1 A^H X is the
+        # same for both (the scaled rows' D cancels); a scaling pass is saved
+        cholesky_planes(mr, mi, q, piv_a, rb_c)
         min_a = np.inf
         for a in range(q):
-            if not piv_a[a] > 0.0:
+            pa = piv_a[a] * ds[a] ** 2
+            if not pa > 0.0:
                 min_a = np.nan
                 break
-            min_a = min(min_a, piv_a[a])
+            min_a = min(min_a, pa)
         if not min_a > 0.0:  # the shared block (holding G) is singular: G undetermined
             _failed_bin(o, mode, out_g, out_t, out_ncov, out_cond, out_ill, out_reduced,
                         out_gcov, out_gvar)
             continue
+        # m: the scaled [L^H | L^-1 A~^H X] for what reads it whole (covariance, pooled
+        # transients, instruments); otherwise only the trailing (T, G) block of L^H, which
+        # the tail solves read
+        whole = cov or pool is not None or iv is not None
+        for a in range(0 if whole else q - nt, q):
+            for c in range(a, q):
+                m[a, c] = complex(mr[a, c] * ds[c], mi[a, c] * ds[c])
+            if whole:
+                for c in range(q, q + nxw):
+                    m[a, c] = complex(mr[a, c], mi[a, c])
+        for x in range(nx):
+            for a in range(q):
+                ytr[x, a] = mr[a, q + x]
+                yti[x, a] = mi[a, q + x]
         min_piv = min_a
         if pool is None:  # (pooled: xx already holds the projected sums)
             for i in range(nz):
@@ -852,22 +949,18 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
             for s in range(1, rd1):
                 delta[i, s] = 0.0
             rank[i] = 0
+            c0 = i * rd1
             if rd > 0:
-                c0 = i * rd1
                 for s in range(1, rd1):
                     e = xx[i, i, s, s].real
                     tsc[i, s - 1] = 1.0 / math.sqrt(e) if e > 0.0 else 0.0
                 for s in range(1, rd1):
                     for t in range(s, rd1):  # Hermitian: the lower triangle mirrored
-                        acc = xx[i, i, s, t]
-                        for a in range(q):
-                            acc -= m[a, q + c0 + s].conjugate() * m[a, q + c0 + t]
+                        acc = xx[i, i, s, t] - _planes_dot(ytr, yti, c0 + s, ytr, yti, c0 + t)
                         schur[s - 1, t - 1] = acc * (tsc[i, s - 1] * tsc[i, t - 1])
                         if t != s:
                             schur[t - 1, s - 1] = schur[s - 1, t - 1].conjugate()
-                    acc = xx[i, i, s, 0]
-                    for a in range(q):
-                        acc -= m[a, q + c0 + s].conjugate() * m[a, q + c0]
+                    acc = xx[i, i, s, 0] - _planes_dot(ytr, yti, c0 + s, ytr, yti, c0)
                     rhs[s - 1] = -acc * tsc[i, s - 1]
                 # condition estimate from the pivots in natural order (the same lower
                 # bound as for the shared block); the pivoted factorisation decides drops
@@ -888,9 +981,8 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
                     # kept-column coefficients of the direction: -S_kk^-1 S_k,sd
                     for j in range(rk):
                         sj = perm[i, j]
-                        acc = xx[i, i, sj + 1, sd + 1]
-                        for a in range(q):
-                            acc -= m[a, q + c0 + sj + 1].conjugate() * m[a, q + c0 + sd + 1]
+                        acc = xx[i, i, sj + 1, sd + 1] - _planes_dot(
+                            ytr, yti, c0 + sj + 1, ytr, yti, c0 + sd + 1)
                         dsol[j] = -acc * (tsc[i, sj] * tsc[i, sd])
                     _chol_solve(low[i], rk, dsol, dsol)
                     # Y~_B v_B on the shared rows (scaled B columns are -tsc rho^s Z_i)
@@ -898,10 +990,11 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
                     for j in range(rk):
                         norm2 += abs(dsol[j]) ** 2
                     for a in range(q):
-                        acc = -tsc[i, sd] * m[a, q + c0 + sd + 1]
+                        acc = -tsc[i, sd] * complex(ytr[c0 + sd + 1, a], yti[c0 + sd + 1, a])
                         for j in range(rk):
                             sj = perm[i, j]
-                            acc -= dsol[j] * tsc[i, sj] * m[a, q + c0 + sj + 1]
+                            acc -= dsol[j] * tsc[i, sj] * complex(ytr[c0 + sj + 1, a],
+                                                                  yti[c0 + sj + 1, a])
                         wa[a] = acc
                     _tail_solve(m, q, nt, wa, tail)
                     sens = 0.0
@@ -919,10 +1012,20 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
                         ill = True
             # v_i = Y_i delta_i (the shared coordinates of D z_i); T, G from its tail
             for a in range(q):
-                acc = 0j
-                for s in range(rd1):
-                    acc += m[a, q + i * rd1 + s] * delta[i, s]
-                v[i, a] = acc
+                vpr[i, a] = 0.0
+                vpi[i, a] = 0.0
+            for s in range(rd1):
+                dr = delta[i, s].real
+                di = delta[i, s].imag
+                yr = ytr[c0 + s]
+                yi = yti[c0 + s]
+                wr = vpr[i]
+                wi = vpi[i]
+                for a in range(q):
+                    wr[a] += yr[a] * dr - yi[a] * di
+                    wi[a] += yr[a] * di + yi[a] * dr
+            for a in range(q):
+                v[i, a] = complex(vpr[i, a], vpi[i, a])
             _tail_solve(m, q, nt, v[i], tail)
             out_t[o, 0, i] = tail[0] * ds[q - nt] if has_t else 0j
             for p in range(nr):
@@ -946,8 +1049,7 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
                     for t in range(rd1):
                         inner += xx[i, j, s, t] * delta[j, t]
                     acc += delta[i, s].conjugate() * inner
-                for a in range(q):
-                    acc -= v[i, a].conjugate() * v[j, a]
+                acc -= _planes_dot(vpr, vpi, i, vpr, vpi, j)
                 ehe[i, j] = acc
                 ehe[j, i] = acc.conjugate()
         out_cond[o] = math.sqrt(1.0 / min_piv) if min_piv > 0.0 else np.inf
@@ -957,11 +1059,16 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
         if not cov:
             # tau_ij ~ dof mean_r d_i(r) conj(d_j(r)) (exact for the LPM; local_model Notes)
             for i in range(nz):
-                for j in range(i, nz):  # Hermitian
+                for t in range(rd1):
                     acc = 0j
                     for s in range(rd1):
-                        for t in range(rd1):
-                            acc += delta[i, s] * mean_pow[s + t] * delta[j, t].conjugate()
+                        acc += delta[i, s] * mean_pow[s + t]
+                    upow[i, t] = acc
+            for i in range(nz):
+                for j in range(i, nz):  # Hermitian
+                    acc = 0j
+                    for t in range(rd1):
+                        acc += upow[i, t] * delta[j, t].conjugate()
                     out_ncov[o, i, j] = ehe[i, j].conjugate() / (dof * acc)
                     out_ncov[o, j, i] = out_ncov[o, i, j].conjugate()
             continue
