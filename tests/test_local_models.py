@@ -839,3 +839,38 @@ def test_pooled_experiment_axis_anywhere_in_the_leading_dims():
     np.testing.assert_allclose(fit.G[1], ref.G, rtol=1e-12)  # G R scaled like Z
     with pytest.raises(ValueError, match="experiment_axis must be a leading axis"):
         local_model(R, Z, half_width=8, degrees=(2, 2, 0), experiment_axis=-1)
+
+
+# ------------------------------------------- review19: pair-wise Cholesky and covariance=None
+@pytest.mark.parametrize("q", [5, 6])
+@pytest.mark.parametrize("zero", [0, 1, 2, 3, 4])
+def test_augmented_cholesky_stops_at_either_pivot_of_a_pair(q, zero):
+    """Two pivots at a time: a non-positive pivot in the first or the second of a pair (or
+    in the odd tail) stops there: that and later pivots NaN, earlier ones exact."""
+    rng = np.random.default_rng(q + 10 * zero)
+    a = rng.standard_normal((3 * q, q)) + 1j * rng.standard_normal((3 * q, q))
+    gram = np.conj(a.T) @ a
+    gram[zero] = gram[:, zero] = 0.0
+    m = np.concatenate([gram, np.ones((q, 2), complex)], axis=1)
+    piv = lmb.cholesky_augmented(m, q)  # (cholesky_planes has no Python wrapper)
+    assert np.isnan(piv[zero:]).all()
+    if zero:
+        np.testing.assert_allclose(
+            piv[:zero], np.diagonal(np.linalg.cholesky(gram[:zero, :zero])).real ** 2, rtol=1e-10)
+
+
+@pytest.mark.parametrize("nr,nz", [(1, 1), (2, 3)])
+def test_exactly_modelled_data_same_G_for_every_covariance_mode(nr, nz):
+    """Dropped denominator terms with covariance=None (which reads only the trailing block
+    of the factor) give the G of "full" and "diag" to rounding, also at extreme scales."""
+    m, n = 120, 12
+    R, Z, G, _ = _exact_rational_data(m, nr, nz)
+    inner = slice(n, m - n)
+    full = local_model(R, Z, half_width=n, degrees=(2, 2, 3), circular=False)
+    for scale in (1e-150, 1.0, 1e150):
+        for cov in (None, "diag"):
+            fit = local_model(R * scale, Z, half_width=n, degrees=(2, 2, 3), circular=False,
+                              covariance=cov)
+            assert not fit.ill_posed[inner].any()
+            np.testing.assert_array_equal(fit.dropped[inner], full.dropped[inner])
+            assert _max_rel(fit.G[inner] * scale, full.G[inner]) < 1e-10
