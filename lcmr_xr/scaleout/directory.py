@@ -86,18 +86,33 @@ def _open_id(path):
                 raise
 
 
-def _attr_value(attr):
-    """One attribute as h5netcdf returns it (strings decoded, one-element arrays unwrapped)."""
+#: Per on-disk attribute type: its numpy dtype, h5py's memory type and string info
+#: (the conversions cost more than the read).
+_ATTR_TYPES: dict = {}
+
+
+def _attr_type(attr):
     import h5py
-    from h5py import h5s, h5t
+    from h5py import h5t
 
     dtype = attr.dtype
-    if attr.get_space().get_simple_extent_type() == h5s.NULL:  # h5py.Empty
-        info = h5py.check_string_dtype(dtype)
+    key = dtype if dtype.metadata is None else (dtype, tuple(sorted(dtype.metadata.items(), key=str)))
+    known = _ATTR_TYPES.get(key)
+    if known is None:
+        known = _ATTR_TYPES[key] = (dtype, h5t.py_create(dtype), h5py.check_string_dtype(dtype))
+    return known
+
+
+def _attr_value(attr):
+    """One attribute as h5netcdf returns it (strings decoded, one-element arrays unwrapped)."""
+    from h5py import h5s
+
+    dtype, mtype, info = _attr_type(attr)
+    shape = attr.shape
+    if not shape and attr.get_space().get_simple_extent_type() == h5s.NULL:  # h5py.Empty
         return b"" if info and info.length == 1 else np.array([], dtype=dtype)
-    out = np.empty(attr.shape, dtype=dtype)
-    attr.read(out, mtype=h5t.py_create(dtype))
-    info = h5py.check_string_dtype(dtype)
+    out = np.empty(shape, dtype=dtype)
+    attr.read(out, mtype=mtype)
     value = out[()] if out.ndim == 0 else out
     if info is not None:
         if info.length is not None and info.length > 1:
