@@ -4,9 +4,9 @@ HDD experiments, N = 3600 (173 kB of data each), window 30, degrees 3-3-3, with 
 
 1. ``open_archive`` time and client memory (RSS growth of a fresh process) for 100, 1 600
    and 10 000 experiments, consolidated and as a directory of files (the directory form
-   up to ``--files-max`` experiments: it costs ~85 ms per file to open on a quiet machine,
-   ~0.4 s at load 4-6), and the time ``consolidate_archive`` takes for the largest
-   directory opened;
+   up to ``--files-max`` experiments, built once by a ``nice -n 19`` subprocess under
+   ``--files-cache`` and reused by later runs), and the time ``consolidate_archive``
+   takes for the largest directory opened;
 2. ``append_to_archive`` of one experiment into the largest consolidated archive;
 3. the time to build the graph of a sweep of the largest archive x 3 windows;
 4. one ``identify`` per call (wall, CPU of the calling thread, page faults): in a plain
@@ -56,6 +56,12 @@ its first 64 experiments through sweep_to_disk, and grows about 50 MB per 1 000
 experiments that malloc_trim does not give back; both workers paused at 90 % (360 MB),
 one was killed at 95 % and restarted, and the run stalled after 736 experiments (2.5/s
 until then).  Without P_std one worker with a 2 GB limit streamed 11-18 experiments/s.
+
+Measured in session 8 (load 2-6, warm page cache): directories opened from one h5py
+header pass per file, 100 files 0.66 s +1.9 MB, 1 600 files 12.1 s +4.5 MB, 10 000 files
+60.4 s +22.1 MB (6.0 ms, 5.3 ms CPU per file); consolidate_archive of 10 000 files 161 s
+(109 s CPU); consolidated 10 000 0.20 s +8.3 MB; append 39 ms; sweep graph 10 005 x 3
+0.80 s.
 
 Measured in session 7 (load 2.5-5; the lead has the --rate command for a quiet machine):
 tasks writing their parts' values with netCDF4, unlabelled (old: the labelled block saved
