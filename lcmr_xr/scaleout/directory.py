@@ -33,6 +33,9 @@ import xarray as xr
 
 from lcmr_xr import conventions as cv
 
+# The functions below serve lcmr_xr.scaleout.archive (the public API); only these are public.
+__all__ = ["StructureError", "read_header", "read_files"]
+
 #: Attributes that the netCDF library keeps for itself (h5netcdf hides them too).
 _HIDDEN = frozenset(["REFERENCE_LIST", "CLASS", "DIMENSION_LIST", "NAME", "_Netcdf4Dimid",
                      "_Netcdf4Coordinates", "_nc3_strict", "_NCProperties"])
@@ -191,10 +194,27 @@ def _decoded_scalar(name, value, raw_attrs):
 def read_header(path: Path, directory: Path) -> dict:
     """What opening an archive needs of one file, read in one pass (see the module notes).
 
-    Returns a dict: ``attrs`` (restored file attributes), ``variables`` (``{name: (shape,
-    dtype)}`` of every variable), ``var_attrs`` (``{name: raw attributes}`` of the variables
-    that are not dimensions), ``scalars`` (``{name: value}`` of the 0-d variables),
-    ``time`` and ``slow_time`` (values), ``inputs``, ``outputs`` (labels).
+    Parameters
+    ----------
+    path : pathlib.Path
+        An experiment file of the archive.
+    directory : pathlib.Path
+        The archive directory (for the message about an unreadable file).
+
+    Returns
+    -------
+    dict
+        ``attrs`` (file attributes as :func:`lcmr_xr.io.open_dataset` restores them),
+        ``variables`` (``{name: (shape, on-disk dtype)}`` of every variable),
+        ``var_attrs`` (``{name: attributes as stored}`` of the variables that are not
+        dimensions), ``scalars`` (``{name: value}`` of the 0-d variables, decoded),
+        ``time`` and ``slow_time`` (values), ``inputs``, ``outputs`` (channel labels),
+        ``path``.
+
+    Raises
+    ------
+    ValueError
+        The file is not a readable NetCDF-4/HDF5 file (named, with what to do).
     """
     from h5py import h5d, h5g
 
@@ -363,7 +383,30 @@ def read_variable(path, name: str, spec: dict) -> np.ndarray:
 
 
 def read_files(paths: tuple, name: str, spec: dict) -> np.ndarray:
-    """Variable ``name`` of several files stacked along a new leading axis (one dask task)."""
+    """Variable ``name`` of several files stacked along a new leading axis (one dask task).
+
+    Parameters
+    ----------
+    paths : tuple of str
+        The files, in archive order.
+    name : str
+        The variable (``r``, ``u``, ``y``).
+    spec : dict
+        What the variable must be like (from the archive's first file, see
+        :func:`lazy_signals`): ``shape``, ``raw_dtype``, ``dims``, ``encoding`` (the
+        attributes that decide the decoding), ``dtype`` (decoded), ``first`` (its path).
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(len(paths), *spec["shape"])``, decoded as xarray decodes the variable.
+
+    Raises
+    ------
+    StructureError
+        A file lacks the variable or stores it otherwise (type, shape, dims, encoding)
+        than the first file did when the archive was opened; the message names the file.
+    """
     out = np.empty((len(paths),) + tuple(spec["shape"]), dtype=spec["dtype"])
     for i, path in enumerate(paths):
         out[i] = read_variable(path, name, spec)
