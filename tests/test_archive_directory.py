@@ -141,3 +141,17 @@ def test_consolidating_a_directory_reads_each_file_once_directly(tmp_path, monke
     xr.testing.assert_identical(open_archive(tmp_path / "c.nc").compute(), want.compute())
     for part in parts:
         part.close()
+
+
+def test_task_reader_checks_the_dims_by_name_when_the_dimension_ids_differ(tmp_path):
+    from lcmr_xr.scaleout.directory import read_files, variable_spec
+
+    save_archive([_labelled(0)], tmp_path, layout="files")
+    path = tmp_path / "run0.nc"
+    spec = variable_spec(path, "r", open_archive(tmp_path).r.isel(experiment=0).variable)
+    assert spec["dims"] == ("time", "input") and spec["dimids"] is not None
+    other_ids = {**spec, "dimids": (7, 8)}  # as a file whose writer numbered its dims otherwise
+    np.testing.assert_array_equal(read_files((str(path),), {"r": other_ids})["r"][0],
+                                  _labelled(0).r.values)
+    with pytest.raises(StructureError, match=r"'r' has the dims \('time', 'input'\), not"):
+        read_files((str(path),), {"r": {**other_ids, "dims": ("input", "time")}})

@@ -10,7 +10,8 @@ dimensions, the ``time`` coordinate and the channel labels, the ``experiment`` l
 other scalar coordinates.  Nothing is kept open.
 
 :func:`lazy_signals` then builds each data variable as a dask array whose tasks read
-their files' values directly (:func:`read_files`; several files per task), decoded like
+their files' values directly (:func:`read_files`; several files per task, each opened once
+for all its variables), decoded like
 xarray decodes them.  The first file (opened once with xarray) is the template of names,
 coordinates, attributes and encodings; the header pass refuses a file that differs from
 it in variables, shapes or on-disk types, and a task refuses, naming the file, one that
@@ -25,6 +26,7 @@ attributes of ``r``, ``u``, ``y`` are the same in the files of one archive).
 
 from __future__ import annotations
 
+import operator
 import os
 from pathlib import Path
 
@@ -341,75 +343,106 @@ def _dim_names(f, dset) -> tuple:
     return tuple(names)
 
 
-def read_variable(path, name: str, spec: dict) -> np.ndarray:
-    """One file's variable ``name`` decoded as xarray decodes it; a file that does not match
-    the archive's template (``spec``) is refused with a :class:`StructureError` naming it."""
-    def refuse(what):
-        raise StructureError(
-            f"{path}: {what}, unlike the archive's first file {spec['first']} that the archive "
-            f"was opened with; an archive holds experiments of one structure (was the file "
-            f"replaced after open_archive?). Move {Path(path).name} to another directory, or "
-            "reopen the archive."
-        )
+def _refuse(path, spec: dict, what: str):
+    raise StructureError(
+        f"{path}: {what}, unlike the archive's first file {spec['first']} that the archive "
+        f"was opened with; an archive holds experiments of one structure (was the file "
+        f"replaced after open_archive?). Move {Path(path).name} to another directory, or "
+        "reopen the archive."
+    )
 
+
+def _open_for_reading(path):
     try:
-        f = _open(path)
+        return _open_id(path)
     except OSError as err:
         raise StructureError(f"{path}: not a readable NetCDF file any more ({err}); move it out "
                              "of the archive directory and reopen the archive.") from err
-    with f:
-        dset = f.get(name)
-        if dset is None or not hasattr(dset, "shape"):
-            refuse(f"has no variable {name!r}")
-        if dset.shape != spec["shape"] or dset.dtype != spec["raw_dtype"]:
-            refuse(f"variable {name!r} is {dset.dtype} of shape {dset.shape}, not "
-                   f"{spec['raw_dtype']} of shape {spec['shape']}")
-        dims = _dim_names(f, dset)
+
+
+def _encoding_of(dset) -> dict:
+    """The attributes of a dataset (low-level id) that decide how xarray decodes it."""
+    from h5py import h5a
+
+    return {k: _attr_value(h5a.open(dset, k.encode())) for k in _DECODING
+            if h5a.exists(dset, k.encode())}
+
+
+def _dimids(dset):
+    """netCDF's dimension ids of a dataset (the ``_Netcdf4Coordinates`` attribute), or None."""
+    from h5py import h5a
+
+    if not h5a.exists(dset, b"_Netcdf4Coordinates"):
+        return None
+    return tuple(int(v) for v in np.ravel(_attr_value(h5a.open(dset, b"_Netcdf4Coordinates"))))
+
+
+def _read_from(fid, path, name: str, spec: dict) -> np.ndarray:
+    """Variable ``name`` of the open file ``fid`` decoded as xarray decodes it, checked
+    against ``spec`` (see :func:`read_files`)."""
+    import h5py
+    from h5py import h5d
+
+    try:
+        dset = h5d.open(fid, name.encode())
+    except (KeyError, ValueError, OSError, TypeError):
+        _refuse(path, spec, f"has no variable {name!r}")
+    if dset.shape != spec["shape"] or dset.dtype != spec["raw_dtype"]:
+        _refuse(path, spec, f"variable {name!r} is {dset.dtype} of shape {dset.shape}, not "
+                            f"{spec['raw_dtype']} of shape {spec['shape']}")
+    if spec["dimids"] is None or _dimids(dset) != spec["dimids"]:  # resolve the dims' names
+        dims = _dim_names(None, h5py.Dataset(dset))
         if dims != spec["dims"]:
-            refuse(f"variable {name!r} has the dims {dims}, not {spec['dims']}")
-        raw = raw_attributes(dset.id)
-        encoding = {k: raw[k] for k in _DECODING if k in raw}
-        if set(encoding) != set(spec["encoding"]) or not all(
-                _equivalent(encoding[k], spec["encoding"][k]) for k in encoding):
-            refuse(f"variable {name!r} is stored with the encoding {encoding}, not "
-                   f"{spec['encoding']}")
-        values = _read(dset.id)
+            _refuse(path, spec, f"variable {name!r} has the dims {dims}, not {spec['dims']}")
+    encoding = _encoding_of(dset)
+    if set(encoding) != set(spec["encoding"]) or not all(
+            _equivalent(encoding[k], spec["encoding"][k]) for k in encoding):
+        _refuse(path, spec, f"variable {name!r} is stored with the encoding {encoding}, not "
+                            f"{spec['encoding']}")
+    values = _read(dset)
     var = xr.conventions.decode_cf_variable(
         name, xr.Variable(spec["dims"], values, _xarray_attrs(encoding)), decode_timedelta=False)
     out = np.asarray(var.values)
     if out.dtype != spec["dtype"]:
-        refuse(f"variable {name!r} decodes to {out.dtype}, not {spec['dtype']}")
+        _refuse(path, spec, f"variable {name!r} decodes to {out.dtype}, not {spec['dtype']}")
     return out
 
 
-def read_files(paths: tuple, name: str, spec: dict) -> np.ndarray:
-    """Variable ``name`` of several files stacked along a new leading axis (one dask task).
+def read_files(paths: tuple, specs: dict) -> dict:
+    """The variables of several files, each stacked along a new leading axis (one dask task).
+
+    Each file is opened once for all its variables.
 
     Parameters
     ----------
     paths : tuple of str
         The files, in archive order.
-    name : str
-        The variable (``r``, ``u``, ``y``).
-    spec : dict
-        What the variable must be like (from the archive's first file, see
-        :func:`lazy_signals`): ``shape``, ``raw_dtype``, ``dims``, ``encoding`` (the
+    specs : dict
+        ``{name: spec}``: what each variable must be like (from the archive's first file,
+        see :func:`lazy_signals`): ``shape``, ``raw_dtype``, ``dims``, ``encoding`` (the
         attributes that decide the decoding), ``dtype`` (decoded), ``first`` (its path).
 
     Returns
     -------
-    numpy.ndarray
-        ``(len(paths), *spec["shape"])``, decoded as xarray decodes the variable.
+    dict
+        ``{name: numpy.ndarray}`` of shape ``(len(paths), *spec["shape"])``, decoded as
+        xarray decodes the variable.
 
     Raises
     ------
     StructureError
-        A file lacks the variable or stores it otherwise (type, shape, dims, encoding)
-        than the first file did when the archive was opened; the message names the file.
+        A file lacks a variable or stores it otherwise (type, shape, dims, encoding) than
+        the first file did when the archive was opened; the message names the file.
     """
-    out = np.empty((len(paths),) + tuple(spec["shape"]), dtype=spec["dtype"])
+    out = {name: np.empty((len(paths),) + tuple(spec["shape"]), dtype=spec["dtype"])
+           for name, spec in specs.items()}
     for i, path in enumerate(paths):
-        out[i] = read_variable(path, name, spec)
+        fid = _open_for_reading(path)
+        try:
+            for name, spec in specs.items():
+                out[name][i] = _read_from(fid, path, name, spec)
+        finally:
+            fid.close()
     return out
 
 
@@ -417,10 +450,9 @@ def variable_spec(first: Path, name: str, template: xr.Variable) -> dict:
     """What a file's variable must be like to be read as ``template`` (the first file's)."""
     with _open(first) as f:
         dset = f[name]
-        raw = raw_attributes(dset.id)
-        spec = {"shape": dset.shape, "raw_dtype": dset.dtype, "dims": _dim_names(f, dset)}
-    spec.update(encoding={k: raw[k] for k in _DECODING if k in raw}, dtype=template.dtype,
-                first=str(first))
+        spec = {"shape": dset.shape, "raw_dtype": dset.dtype, "dims": _dim_names(f, dset),
+                "dimids": _dimids(dset.id), "encoding": _encoding_of(dset.id)}
+    spec.update(dtype=template.dtype, first=str(first))
     if spec["dims"] != template.dims:
         raise StructureError(f"{first}: variable {name!r} has the dims {spec['dims']} on disk but "
                              f"{template.dims} when xarray reads it; rewrite it with lcmr_xr.save.")
@@ -434,16 +466,19 @@ def lazy_signals(files: list[Path], template: xr.Dataset, per_chunk: int) -> dic
     from dask.base import tokenize
     from dask.highlevelgraph import HighLevelGraph
 
-    out = {}
     groups = [tuple(str(p) for p in files[i:i + per_chunk]) for i in range(0, len(files), per_chunk)]
     stamps = [(os.stat(p).st_mtime_ns, os.stat(p).st_size) for p in (files[0], files[-1])]
+    specs = {name: variable_spec(files[0], name, var.variable) for name, var in template.data_vars.items()}
+    token = tokenize(groups, sorted((n, s["shape"], str(s["dtype"])) for n, s in specs.items()), stamps)
+    load = f"archive-read-{token}"  # one task per group of files reads all their variables
+    loads = {(load, g): (read_files, paths, specs) for g, paths in enumerate(groups)}
+    out = {}
     for name, var in template.data_vars.items():
-        spec = variable_spec(files[0], name, var.variable)
-        key = f"archive-{name}-" + tokenize(groups, name, spec["shape"], str(spec["dtype"]), stamps)
+        key = f"archive-{name}-{token}"
         zeros = (0,) * var.ndim
-        graph = {(key, g, *zeros): (read_files, paths, name, spec) for g, paths in enumerate(groups)}
+        graph = {(key, g, *zeros): (operator.getitem, (load, g), name) for g in range(len(groups))}
         chunks = (tuple(len(p) for p in groups),) + tuple((n,) for n in var.shape)
-        out[name] = da.Array(HighLevelGraph.from_collections(key, graph, dependencies=()), key,
-                             chunks, dtype=spec["dtype"],
-                             meta=np.empty((0,) * (var.ndim + 1), dtype=spec["dtype"]))
+        layers = HighLevelGraph({load: loads, key: graph}, {load: set(), key: {load}})
+        out[name] = da.Array(layers, key, chunks, dtype=specs[name]["dtype"],
+                             meta=np.empty((0,) * (var.ndim + 1), dtype=specs[name]["dtype"]))
     return out
