@@ -57,11 +57,12 @@ experiments that malloc_trim does not give back; both workers paused at 90 % (36
 one was killed at 95 % and restarted, and the run stalled after 736 experiments (2.5/s
 until then).  Without P_std one worker with a 2 GB limit streamed 11-18 experiments/s.
 
-Measured in session 8 (load 2-6, warm page cache): directories opened from one h5py
-header pass per file, 100 files 0.66 s +1.9 MB, 1 600 files 12.1 s +4.5 MB, 10 000 files
-60.4 s +22.1 MB (6.0 ms, 5.3 ms CPU per file); consolidate_archive of 10 000 files 161 s
-(109 s CPU); consolidated 10 000 0.20 s +8.3 MB; append 39 ms; sweep graph 10 005 x 3
-0.80 s.
+Measured in session 8 (warm page cache): directories opened from one h5py header pass
+per file, at load 1.9-2.8: 100 files 0.38 s +1.9 MB, 1 600 files 5.3 s +4.7 MB, 10 000
+files 45.9 s +22.1 MB (4.6 ms, 4.2 ms CPU per file); consolidate_archive of 10 000 files
+116 s (91 s CPU); consolidated 10 000 0.19 s +8.4 MB; append 76 ms (31-80); sweep graph
+10 005 x 3 1.5 s.  At load 2-6 (tasks still opening each file per variable): 0.66 s,
+12.1 s, 60.4 s; consolidate 161 s.
 
 Measured in session 7 (load 2.5-5; the lead has the --rate command for a quiet machine):
 tasks writing their parts' values with netCDF4, unlabelled (old: the labelled block saved

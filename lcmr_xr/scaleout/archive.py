@@ -569,8 +569,8 @@ def open_archive(path, chunks=None) -> xr.Dataset:
     files dropped); its tasks read their files' values directly, and a file that changed
     after the open is refused by its task with a
     :class:`lcmr_xr.scaleout.directory.StructureError` naming it.  Measured (N = 3600,
-    fresh process, warm page cache, load 2-6): 100 files 0.66 s, +1.9 MB; 1 600
-    files 12 s, +4.5 MB; 10 000 files 60 s, +22 MB.  The header reads (HDF5 object and
+    fresh process, warm page cache, load 2-3): 100 files 0.38 s, +1.9 MB; 1 600
+    files 5.3 s, +4.7 MB; 10 000 files 46 s, +22 MB.  The header reads (HDF5 object and
     attribute opens, ~0.1 ms each, about 40 per file) bound this, so 10 000 files stay
     far from the 2 s that the consolidated form takes well under: consolidate large
     directories once (:func:`consolidate_archive`).
