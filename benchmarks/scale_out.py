@@ -79,6 +79,12 @@ peak 352 MB.  Before tasks kept only the asked variables, the 2x run stalled aft
 experiments with both workers at 360 MB of RSS (their pause threshold), of which 187 MB
 shared library pages (114 MB numba's LLVM, libllvmlite.so): the margin is thin.
 
+Measured in session 8 (``--record-memory``, load 3.6-5): one identify, traced / resident
+growth, blocks of slow bins (one block over all bins): N = 3600 window 30 9.9 / 6.3 MB
+(same), auto 12.5 / 7.9 MB (same); N = 36 000 window 30 33.4 / 29.8 MB (97.0 / 92.4), auto
+59.5 / 54.5 MB (123.1 / 118.3); before the blocks 160 and 411 MB traced.  Time blocks /
+one block: window 30 1.03 CPU (1.12 wall), auto 1.00 CPU (0.93 wall).
+
 The experiments are copies of one simulated experiment with a small random perturbation
 (cheap to make; identify costs the same).  Everything is written to a temporary directory
 that is removed at the end.  Timings on a shared machine vary: compare numbers of one run
