@@ -103,8 +103,6 @@ def test_directory_open_of_files_from_other_tools_and_other_variable_attributes(
 def test_directory_open_refuses_what_it_refused_and_a_file_of_another_structure(tmp_path):
     save_archive([_labelled(0), _labelled(1)], tmp_path, layout="files")
     # another metadata set: the same message as before
-    save(_labelled(2).drop_attrs() if hasattr(xr.Dataset, "drop_attrs") else _labelled(2),
-         tmp_path / "run2.nc")
     bad = _labelled(3)
     bad.attrs.pop("case")
     save(bad, tmp_path / "run2.nc")

@@ -146,12 +146,10 @@ def raw_attributes(oid) -> dict:
     return out
 
 
-def _xarray_attrs(raw: dict, keep_encoding: bool = True) -> dict:
+def _xarray_attrs(raw: dict) -> dict:
     """Attributes as xarray's h5netcdf backend hands them on (bytes decoded to str)."""
     out = {}
     for key, value in raw.items():
-        if keep_encoding is False and key in _DECODING:
-            continue
         if isinstance(value, bytes) and key not in ("_FillValue", "missing_value"):
             try:
                 value = value.decode("utf-8")
@@ -335,7 +333,8 @@ class DropConflicts:
 
 
 # ------------------------------------------------------------------ reading the data in tasks
-def _dim_names(f, dset) -> tuple:
+def _dim_names(dset) -> tuple:
+    """Names of the dimension scales attached to an h5py dataset (None where none is)."""
     names = []
     for dim in dset.dims:
         scales = list(dim.values())
@@ -391,7 +390,7 @@ def _read_from(fid, path, name: str, spec: dict) -> np.ndarray:
         _refuse(path, spec, f"variable {name!r} is {dset.dtype} of shape {dset.shape}, not "
                             f"{spec['raw_dtype']} of shape {spec['shape']}")
     if spec["dimids"] is None or _dimids(dset) != spec["dimids"]:  # resolve the dims' names
-        dims = _dim_names(None, h5py.Dataset(dset))
+        dims = _dim_names(h5py.Dataset(dset))
         if dims != spec["dims"]:
             _refuse(path, spec, f"variable {name!r} has the dims {dims}, not {spec['dims']}")
     encoding = _encoding_of(dset)
@@ -450,7 +449,7 @@ def variable_spec(first: Path, name: str, template: xr.Variable) -> dict:
     """What a file's variable must be like to be read as ``template`` (the first file's)."""
     with _open(first) as f:
         dset = f[name]
-        spec = {"shape": dset.shape, "raw_dtype": dset.dtype, "dims": _dim_names(f, dset),
+        spec = {"shape": dset.shape, "raw_dtype": dset.dtype, "dims": _dim_names(dset),
                 "dimids": _dimids(dset.id), "encoding": _encoding_of(dset.id)}
     spec.update(dtype=template.dtype, first=str(first))
     if spec["dims"] != template.dims:
