@@ -29,7 +29,9 @@ result (``experiment_error`` names its file and the reason) instead of failing t
 
 from __future__ import annotations
 
+import os
 import re
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -37,10 +39,12 @@ import xarray as xr
 
 from lcmr_xr import conventions as cv
 from lcmr_xr.scaleout import consolidated as con
+from lcmr_xr.scaleout import dirindex
 from lcmr_xr.scaleout import directory as dirx
 from lcmr_xr.transforms._coords import even_spacing
 
-__all__ = ["save_archive", "open_archive", "append_to_archive", "consolidate_archive", "archive_files"]
+__all__ = ["save_archive", "open_archive", "append_to_archive", "consolidate_archive", "index_archive",
+           "archive_files"]
 
 SUFFIX = ".nc"
 #: Dataset attribute that keeps the order of the experiments across save/open; dropped on open.
@@ -130,9 +134,13 @@ def archive_files(directory) -> list[Path]:
     []
     """
     directory = Path(directory)
+    paths = _nc_files(directory)
+    known = dirindex.read_index(directory) if paths and dirindex.ENABLED else None
     keyed = []
-    for path in _nc_files(directory):
-        index = dirx.order_index(path, directory)
+    for path in paths:
+        summary = _indexed(known, path)
+        index = (summary["attrs"].get(ORDER_ATTR) if summary is not None
+                 else dirx.order_index(path, directory))
         keyed.append((0 if index is not None else 1, int(index) if index is not None else 0, path.name, path))
     return [k[-1] for k in sorted(keyed)]
 
@@ -150,18 +158,77 @@ def _nc_files(directory) -> list[Path]:
     if not directory.is_dir():
         raise FileNotFoundError(f"archive directory {directory} does not exist; check the path "
                                 "or write one with lcmr_xr.scaleout.save_archive.")
-    return [p for p in sorted(directory.glob(f"*{SUFFIX}")) if not p.name.startswith(".")]
+    # names sorted as strings (as sorted paths of one directory), without pathlib's glob
+    return [directory / name for name in sorted(os.listdir(directory))
+            if name.endswith(SUFFIX) and not name.startswith(".")]
 
 
-def _existing_shapes(directory: Path) -> dict:
-    """``{path: (shape or None, order index)}`` of the files of an archive directory
-    (headers only; None for a file that is not an experiment)."""
-    shapes = {}
-    for path in _nc_files(directory):
-        header = dirx.read_header(path, directory)
-        shapes[path] = (_header_shape(header) if _is_experiment(header) else None,
-                        header["attrs"].get(ORDER_ATTR))
-    return shapes
+def _indexed(known, path: Path, st=None):
+    """The summary of ``path`` from the directory's index ``known`` if its entry is current."""
+    try:
+        st = os.stat(path) if st is None else st
+    except OSError:
+        return None
+    text = dirindex.trusted(known, path.name, st)
+    if text is None:
+        return None
+    try:
+        return dirindex.loads(text)
+    except (ValueError, TypeError, KeyError):  # a damaged entry: read the header instead
+        return None
+
+
+def _summaries(directory: Path, paths: list[Path], with_text: bool = False):
+    """``(path, stat, summary, text)`` of each file: from the directory's index where its
+    entry matches the file (:mod:`lcmr_xr.scaleout.dirindex`), else from its header.
+
+    ``summary`` is :func:`_summary` of the file's header; ``text`` (only ``with_text``)
+    is the summary as stored in the index (None: it cannot be stored), ``stat`` the
+    file's, taken before its header was read (None: it vanished).
+    """
+    known = dirindex.read_index(directory, warn=not with_text) if paths and dirindex.ENABLED else None
+    arrays: dict = {}
+    for path in paths:
+        try:
+            st = os.stat(path)
+        except OSError:
+            st = None  # gone since the listing: read_header says so
+        text = dirindex.trusted(known, path.name, st) if st is not None else None
+        summary = None
+        if text is not None:
+            try:
+                summary = dirindex.loads(text, arrays)
+            except (ValueError, TypeError, KeyError):
+                summary = None
+        if summary is None:
+            summary = _summary(dirx.read_header(path, directory))
+            text = dirindex.summary_text(summary) if with_text and st is not None else None
+        yield path, st, summary, text
+
+
+def _summary(header: dict) -> dict:
+    """What opening and appending need of one file's header (stored in the index).
+
+    ``attrs`` and ``scalars`` as read; ``experiment`` (an lcmr-xr-1 experiment file);
+    for experiments also ``shape`` (:func:`_header_shape`), ``structure`` (a digest of
+    the variables' names, shapes and types other than the scalar coordinates, of the
+    time coordinates and channel labels) and ``var_attrs`` (a digest of the attributes
+    of those variables).
+    """
+    out = {"attrs": header["attrs"], "scalars": header["scalars"], "experiment": _is_experiment(header)}
+    if out["experiment"]:
+        out["shape"] = _header_shape(header)
+        scalars = [n for n, (shape, _) in header["variables"].items() if shape == () and n != cv.EXPERIMENT]
+        variables = sorted((n, list(shape) if shape is not None else None, str(dtype))
+                           for n, (shape, dtype) in header["variables"].items()
+                           if n not in scalars and n != cv.EXPERIMENT)
+        slow = header[cv.SLOW_TIME]
+        out["structure"] = dirindex.digest([
+            variables, dirindex.bytes_digest(header[cv.TIME]),
+            None if slow is None else dirindex.bytes_digest(slow), header["inputs"], header["outputs"]])
+        out["var_attrs"] = dirindex.digest(
+            sorted([n, sorted(a.items())] for n, a in header["var_attrs"].items() if n not in scalars))
+    return out
 
 
 def _header_shape(header: dict) -> dict:
@@ -478,7 +545,10 @@ def _save_files(items, first, directory: Path, overwrite: bool) -> list[Path]:
             "ds.assign_coords(experiment=[f'run{i}' for i in range(n)])."
         )
     directory.mkdir(parents=True, exist_ok=True)
-    existing = _existing_shapes(directory)
+    scanned = [(path, st, summary["shape"] if summary["experiment"] else None,
+                summary["attrs"].get(ORDER_ATTR), text)
+               for path, st, summary, text in _summaries(directory, _nc_files(directory), with_text=True)]
+    existing = {path: (shape, order) for path, _, shape, order, _ in scanned}
     targets = {directory / n for n in names}
     conflicts = [f"{p.name} ({_describe(s) if s else 'not an lcmr-xr-1 experiment'})"
                  for p, (s, _) in existing.items()
@@ -501,7 +571,74 @@ def _save_files(items, first, directory: Path, overwrite: bool) -> list[Path]:
             out[cv.EXPERIMENT].attrs.update(cv.label_attrs("experiment"))
         out.attrs = {**out.attrs, ORDER_ATTR: start + i}
         written.append(save(out, directory / name))
+    rows = [(path.name, dirindex.stamp(st), text) for path, st, _, _, text in scanned
+            if st is not None and path not in targets]
+    _write_index(directory, rows, written)
     return written
+
+
+def _write_index(directory: Path, rows: list, new: list[Path]) -> None:
+    """Write the directory's index from ``rows`` of files it knows and the ``new`` files
+    (their headers read back); a failure only warns (the index is a shortcut)."""
+    try:
+        for path in new:
+            st = os.stat(path)  # before the read: a later change makes the entry stale
+            rows.append((path.name, dirindex.stamp(st),
+                         dirindex.summary_text(_summary(dirx.read_header(path, directory)))))
+        dirindex.write_index(directory, rows)
+    except (OSError, ValueError) as err:
+        warnings.warn(f"the archive index of {directory} was not written ({err}); the archive "
+                      "is complete but opens from every file's header (slower) until "
+                      "lcmr_xr.scaleout.index_archive(directory) writes it.", RuntimeWarning,
+                      stacklevel=4)
+
+
+def index_archive(directory) -> Path:
+    """Write (or bring up to date) the header index of an archive directory.
+
+    The library's writers of a directory archive keep the index current; this builds it
+    for a directory written by an older version or by other tools, so that
+    :func:`open_archive` takes each file's header facts from it instead of reading every
+    file (see :mod:`lcmr_xr.scaleout.dirindex`).
+
+    Parameters
+    ----------
+    directory : str or os.PathLike
+        Archive directory (``*.nc`` experiment files).
+
+    Returns
+    -------
+    pathlib.Path
+        The index file, ``directory / ".lcmr_archive_index.nc"`` (written atomically).
+
+    Raises
+    ------
+    FileNotFoundError, NotADirectoryError
+        ``directory`` does not exist or is a file.
+    ValueError
+        A file of the directory is not a readable NetCDF file (named).
+
+    Notes
+    -----
+    Entries of the current index that still match their files (name, size, times,
+    inode) are kept; every other file's header is read (about 4.6 ms a file).
+
+    Examples
+    --------
+    >>> import numpy as np, tempfile, os
+    >>> from lcmr_xr.experiment import experiment
+    >>> ds = experiment(np.ones((2, 8, 1)), np.ones((2, 8, 1)), np.ones((2, 4, 1)), factor=2,
+    ...                 sampling_period=0.5)
+    >>> with tempfile.TemporaryDirectory() as d:
+    ...     _ = save_archive(ds, d, layout="files")
+    ...     index_archive(d).name
+    '.lcmr_archive_index.nc'
+    """
+    directory = Path(directory)
+    rows = [(path.name, dirindex.stamp(st), text)
+            for path, st, _, text in _summaries(directory, _nc_files(directory), with_text=True)
+            if st is not None]
+    return dirindex.write_index(directory, rows)
 
 
 def _length_message(lengths: dict, where: str) -> str:
@@ -650,32 +787,25 @@ def _open_directory(directory: Path, chunks) -> xr.Dataset:
     files, foreign = [], []
     merged = dirx.DropConflicts()
     signatures: dict = {}  # variable attributes / structure -> (id, first file with them)
-    for path in paths:
-        header = dirx.read_header(path, directory)
-        attrs = header["attrs"]
+    for path, _, summary, _ in _summaries(directory, paths):
+        attrs = summary["attrs"]
         index = attrs.get(ORDER_ATTR)
         row = {"path": path, "key": (0 if index is not None else 1,
                                      int(index) if index is not None else 0, path.name)}
         files.append(row)
-        if not _is_experiment(header):
+        if not summary["experiment"]:
             foreign.append(row)
             continue
-        row["shape"] = _header_shape(header)
-        label = header["scalars"].get(cv.EXPERIMENT, path.stem)
+        row["shape"] = summary["shape"]
+        scalars = summary["scalars"]
+        label = scalars.get(cv.EXPERIMENT, path.stem)
         row["label"] = label
         row["meta"] = con.checked_metadata(  # as con.metadata_of of the file's dataset
-            label, {n: v for n, v in header["scalars"].items() if n != cv.EXPERIMENT}, attrs)
+            label, {n: v for n, v in scalars.items() if n != cv.EXPERIMENT}, attrs)
         merged.add({k: v for k, v in attrs.items() if k != ORDER_ATTR and k not in con.METADATA})
-        scalars = [n for n, (shape, _) in header["variables"].items() if shape == () and n != cv.EXPERIMENT]
-        structure = repr(sorted((n, shape, str(dtype)) for n, (shape, dtype) in header["variables"].items()
-                                if n not in scalars and n != cv.EXPERIMENT))
-        structure += repr([hash(header[cv.TIME].tobytes()), None if header[cv.SLOW_TIME] is None
-                           else hash(header[cv.SLOW_TIME].tobytes()), header["inputs"], header["outputs"]])
-        variable_attrs = repr(sorted((n, sorted(a.items())) for n, a in header["var_attrs"].items()
-                                     if n not in scalars))
-        for kind, sig in (("structure", structure), ("attrs", variable_attrs)):
+        for kind, sig in (("structure", summary["structure"]), ("attrs", summary["var_attrs"])):
             row[kind] = signatures.setdefault((kind, sig), (len(signatures), path))[0]
-        del header
+        del summary
     files.sort(key=lambda row: row["key"])
     if foreign:
         _refuse_foreign(min(foreign, key=lambda row: row["key"])["path"])
@@ -686,7 +816,7 @@ def _open_directory(directory: Path, chunks) -> xr.Dataset:
         raise ValueError(_length_message(lengths, f"the files of {directory}"))
     first = files[0]
     for row in files:
-        if not _same_shape(row["shape"], first["shape"]):
+        if row["shape"] != first["shape"] and not _same_shape(row["shape"], first["shape"]):
             raise ValueError(
                 f"{row['path'].name} ({_describe(row['shape'])}) does not match "
                 f"{first['path'].name} ({_describe(first['shape'])}); an archive holds "
