@@ -36,6 +36,10 @@ import numpy as np
 
 from lcmr_xr import conventions as cv
 
+# The functions below serve lcmr_xr.scaleout.archive (the public API: index_archive,
+# open_archive, save_archive); only this is public.
+__all__ = ["Unindexable"]
+
 #: Name of the index file in an archive directory (hidden; not a ``*.nc`` experiment).
 INDEX_NAME = cv.ARCHIVE_INDEX_FILE
 #: File attribute marking an index, and its version (an index of another version is ignored).
