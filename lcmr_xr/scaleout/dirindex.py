@@ -44,7 +44,9 @@ __all__ = ["Unindexable"]
 INDEX_NAME = cv.ARCHIVE_INDEX_FILE
 #: File attribute marking an index, and its version (an index of another version is ignored).
 INDEX_ATTR = cv.ARCHIVE_INDEX_VERSION_ATTR
-VERSION = 1
+#: Raise it whenever what a summary holds or how it is computed changes (digests included):
+#: one open may mix summaries from the index with summaries of headers read now.
+VERSION = 2
 #: Whether the library reads the index (False: every header is read, as without an index;
 #: ``benchmarks/scale_out.py`` compares the two).
 ENABLED = True
@@ -169,7 +171,11 @@ def digest(value) -> str:
 
 
 def bytes_digest(values: np.ndarray) -> str:
-    return hashlib.sha1(np.ascontiguousarray(values).view(np.uint8)).hexdigest()
+    """A digest of an array's type, shape and values (its bytes; objects by ``repr``)."""
+    values = np.asarray(values)
+    data = (repr(values.tolist()).encode("utf-8", "surrogatepass") if values.dtype.hasobject
+            else values.tobytes())
+    return hashlib.sha1(f"{values.dtype.str}{values.shape}".encode() + data).hexdigest()
 
 
 # ------------------------------------------------------------------ entries
