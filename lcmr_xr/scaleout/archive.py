@@ -139,9 +139,9 @@ def archive_files(directory) -> list[Path]:
     directory = Path(directory)
     paths = _nc_files(directory)
     known = dirindex.read_index(directory) if paths and dirindex.ENABLED else None
-    keyed = []
+    keyed, load = [], dirindex.loader()
     for path in paths:
-        summary = _indexed(known, path)
+        summary = _indexed(known, path, load)
         index = (summary["attrs"].get(ORDER_ATTR) if summary is not None
                  else dirx.order_index(path, directory))
         keyed.append((0 if index is not None else 1, int(index) if index is not None else 0, path.name, path))
@@ -166,8 +166,9 @@ def _nc_files(directory) -> list[Path]:
             if name.endswith(SUFFIX) and not name.startswith(".")]
 
 
-def _indexed(known, path: Path):
-    """The summary of ``path`` from the directory's index ``known`` if its entry is current."""
+def _indexed(known, path: Path, load):
+    """The summary of ``path`` from the directory's index ``known`` if its entry is current
+    (``load``: a :func:`lcmr_xr.scaleout.dirindex.loader`)."""
     try:
         st = os.stat(path)
     except OSError:
@@ -176,7 +177,7 @@ def _indexed(known, path: Path):
     if text is None:
         return None
     try:
-        return dirindex.loads(text)
+        return load(text)
     except (ValueError, TypeError, KeyError):  # a damaged entry: read the header instead
         return None
 
@@ -190,7 +191,7 @@ def _summaries(directory: Path, paths: list[Path], with_text: bool = False):
     file's, taken before its header was read (None: it vanished).
     """
     known = dirindex.read_index(directory, warn=not with_text) if paths and dirindex.ENABLED else None
-    arrays: dict = {}
+    load = dirindex.loader()
     for path in paths:
         try:
             st = os.stat(path)
@@ -200,7 +201,7 @@ def _summaries(directory: Path, paths: list[Path], with_text: bool = False):
         summary = None
         if text is not None:
             try:
-                summary = dirindex.loads(text, arrays)
+                summary = load(text)
             except (ValueError, TypeError, KeyError):
                 summary = None
         if summary is None:

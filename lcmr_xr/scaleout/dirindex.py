@@ -133,15 +133,21 @@ def _one_level(obj: dict, arrays: dict):
     raise ValueError(f"unknown tag in {sorted(obj)}")
 
 
-def loads(text: str, arrays: dict | None = None):
-    """``decode(json.loads(text))`` in one pass of the JSON parser.
+def loader():
+    """A function that turns stored summary texts into summaries: ``decode(json.loads(text))``
+    in one pass of the JSON parser (one parser for all the texts of one open).
 
-    ``arrays``: a dict shared by the calls of one open: an array equal to one decoded
-    before is returned as that same object, so that combining the attributes of thousands
-    of files compares identities (:class:`lcmr_xr.scaleout.directory.DropConflicts`).
+    An array equal to one that the same loader decoded before is returned as that same
+    object, so that combining the attributes of thousands of files compares identities
+    (:class:`lcmr_xr.scaleout.directory.DropConflicts`).
     """
-    memo = {} if arrays is None else arrays
-    return json.loads(text, object_hook=lambda obj: _one_level(obj, memo))
+    arrays: dict = {}
+    return json.JSONDecoder(object_hook=lambda obj: _one_level(obj, arrays)).decode
+
+
+def loads(text: str):
+    """``decode(json.loads(text))`` of one stored summary text (see :func:`loader`)."""
+    return loader()(text)
 
 
 def same(a, b) -> bool:
