@@ -69,11 +69,13 @@ files 45.9 s +22.1 MB (4.6 ms, 4.2 ms CPU per file); consolidate_archive of 10 0
 10 005 x 3 1.5 s.  At load 2-6 (tasks still opening each file per variable): 0.66 s,
 12.1 s, 60.4 s; consolidate 161 s.
 
-Measured in session 8 with the header index of directories (warm page cache, load
-1.7-3.5): directory from its index 100 / 1 600 / 10 000 files 0.09 s +1.8 MB, 0.19 s
-+10.1 MB, 1.34 s +41.6 MB; from every header 0.90 s, 11.1 s, 53.7 s (+2.0, +4.5, +21.4
-MB); consolidated 10 000 0.15 s +8.3 MB; consolidate_archive of 10 000 files 78 s (47 s
-CPU); append 54 ms; sweep graph 10 005 x 3 1.9 s.
+Measured in session 8 with the header index of directories (warm page cache), load
+1.2-2.4: directory from its index 100 / 1 600 / 10 000 files 0.08 s +2.0 MB, 0.20 s
++10.1 MB, 0.60 s +41.7 MB; from every header 0.74 s, 9.1 s, 60.0 s (+1.9, +4.5, +21.8
+MB); consolidated 10 000 0.14 s +8.1 MB; consolidate_archive of 10 000 files 60 s (53 s
+CPU); append 21 ms; sweep graph 10 005 x 3 1.2 s.  An earlier run at load 1.7-3.5:
+0.09 s, 0.19 s, 1.34 s from the index; 0.90 s, 11.1 s, 53.7 s from the headers;
+consolidate 78 s (47 s CPU).
 
 Measured in session 7 (load 2.5-5; the lead has the --rate command for a quiet machine):
 tasks writing their parts' values with netCDF4, unlabelled (old: the labelled block saved

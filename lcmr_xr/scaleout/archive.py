@@ -720,11 +720,12 @@ def open_archive(path, chunks=None) -> xr.Dataset:
     warning.  Opening never writes (a read-only directory opens).  The tasks read their
     files' values directly, and a file that changed after the open is refused by its
     task with a :class:`lcmr_xr.scaleout.directory.StructureError` naming it.  Measured
-    (N = 3600, fresh process, warm page cache, load 1.7-3.5): from the index, 100 /
-    1 600 / 10 000 files in 0.09 s / 0.19 s / 1.34 s, +1.8 / +10 / +42 MB; from every
-    file's header 0.90 s / 11 s / 54 s, +2.0 / +4.5 / +21 MB (the header reads, HDF5
-    object and attribute opens, ~0.1 ms each, about 40 per file, bound this): write the
-    index of a directory written by other tools once (:func:`index_archive`).
+    (N = 3600, fresh process, warm page cache, load 1.2-2.4): from the index, 100 /
+    1 600 / 10 000 files in 0.08 s / 0.20 s / 0.60 s, +2.0 / +10 / +42 MB (10 000:
+    1.34 s at load 1.7-3.5); from every file's header 0.74 s / 9.1 s / 60 s, +1.9 /
+    +4.5 / +22 MB (the header reads, HDF5 object and attribute opens, ~0.1 ms each,
+    about 40 per file, bound this): write the index of a directory written by other
+    tools once (:func:`index_archive`).
 
     Examples
     --------
