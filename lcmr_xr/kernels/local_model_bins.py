@@ -114,17 +114,20 @@ def _pivot_row(mr, mi, j, br, bi):
 def cholesky_planes(mr, mi, q, piv, rb):
     """In place: ``mr + 1j mi`` (q, c), real and imaginary parts in separate arrays, holds
     a Hermitian positive definite ``G`` (upper triangle of the first ``q`` columns read)
-    and right-hand sides ``X`` after it; its rows become ``[L^H | L^-1 X]``.  ``piv`` (q)
-    receives the pivots (squared diagonal of ``L``); the first non-positive pivot stops
-    the factorisation (that and later pivots are NaN).  ``rb`` (4, c) is scratch.
-    Returns the number of positive pivots.
+    and right-hand sides ``X`` after it; its rows become ``[L^H | L^-1 X]`` (the strict
+    lower triangle is scratch: overwritten, never read).  ``piv`` (q) receives the
+    pivots (squared diagonal of ``L``); the first non-positive pivot stops the
+    factorisation (that and later pivots are NaN).  ``rb`` (4, c) is scratch.  Returns
+    the number of positive pivots.
 
-    Two pivots at a time: rows ``j`` and ``j + 1`` of ``L^H`` are formed, then every
-    later row takes both updates in one pass (a rank-2 update), which halves the passes
-    over the rows and their loads and stores (measured 5.2 -> 4.8 us for the HDD's
-    20 x 40).  Separate real and imaginary parts, the pivot rows copied out (so the
-    compiler need not assume that the rows alias) and row views indexed from 0 (so that
-    it need not guard against negative indices): the inner loops vectorise.
+    Two pivots at a time: rows ``j`` and ``j + 1`` of ``L^H`` are formed, then the later
+    rows take both updates in one pass (a rank-2 update), two rows per pass, so that
+    each load of the pivot rows serves four row updates.  Separate real and imaginary
+    parts, the pivot rows copied out (so the compiler need not assume that the rows
+    alias) and row views indexed from 0 (so that it need not guard against negative
+    indices): the inner loops vectorise.  The updates start at the multiple of 4 at or
+    below the diagonal (the few lower-triangle entries so touched are scratch), so that
+    with ``c`` a multiple of 4 no scalar remainder loop runs.
     """
     c = mr.shape[1]
     for j in range(q):
@@ -145,11 +148,12 @@ def cholesky_planes(mr, mi, q, piv, rb):
         i = j + 1  # row j + 1 -= conj(l_j,j+1) row j, l = fr + 1j fi
         fr = r0r[i]
         fi = r0i[i]
-        ar = mr[i, i:]
-        ai = mi[i, i:]
-        br = r0r[i:]
-        bi = r0i[i:]
-        for t in range(c - i):
+        st = i & ~3
+        ar = mr[i, st:]
+        ai = mi[i, st:]
+        br = r0r[st:]
+        bi = r0i[st:]
+        for t in range(c - st):
             ar[t] -= fr * br[t] + fi * bi[t]
             ai[t] -= fr * bi[t] - fi * br[t]
         p = mr[i, i]
@@ -157,20 +161,38 @@ def cholesky_planes(mr, mi, q, piv, rb):
             return i
         piv[i] = p
         _pivot_row(mr, mi, i, r1r, r1i)
-        for i in range(j + 2, q):  # the later rows: both pivots at once
+        for i in range(j + 2, q, 2):  # the later rows, two at a time: both pivots at once
+            st = i & ~3
+            b0r = r0r[st:]
+            b0i = r0i[st:]
+            b1r = r1r[st:]
+            b1i = r1i[st:]
             f0r = r0r[i]
             f0i = r0i[i]
             f1r = r1r[i]
             f1i = r1i[i]
-            ar = mr[i, i:]
-            ai = mi[i, i:]
-            b0r = r0r[i:]
-            b0i = r0i[i:]
-            b1r = r1r[i:]
-            b1i = r1i[i:]
-            for t in range(c - i):
-                ar[t] -= (f0r * b0r[t] + f0i * b0i[t]) + (f1r * b1r[t] + f1i * b1i[t])
-                ai[t] -= (f0r * b0i[t] - f0i * b0r[t]) + (f1r * b1i[t] - f1i * b1r[t])
+            ar = mr[i, st:]
+            ai = mi[i, st:]
+            if i + 1 == q:  # an odd row left
+                for t in range(c - st):
+                    ar[t] -= (f0r * b0r[t] + f0i * b0i[t]) + (f1r * b1r[t] + f1i * b1i[t])
+                    ai[t] -= (f0r * b0i[t] - f0i * b0r[t]) + (f1r * b1i[t] - f1i * b1r[t])
+                break
+            g0r = r0r[i + 1]
+            g0i = r0i[i + 1]
+            g1r = r1r[i + 1]
+            g1i = r1i[i + 1]
+            cr = mr[i + 1, st:]
+            ci = mi[i + 1, st:]
+            for t in range(c - st):
+                pr = b0r[t]
+                pi = b0i[t]
+                ur = b1r[t]
+                ui = b1i[t]
+                ar[t] -= (f0r * pr + f0i * pi) + (f1r * ur + f1i * ui)
+                ai[t] -= (f0r * pi - f0i * pr) + (f1r * ui - f1i * ur)
+                cr[t] -= (g0r * pr + g0i * pi) + (g1r * ur + g1i * ui)
+                ci[t] -= (g0r * pi - g0i * pr) + (g1r * ui - g1i * ur)
         j += 2
     return q
 
@@ -179,14 +201,15 @@ def cholesky_planes(mr, mi, q, piv, rb):
 def cholesky_augmented(m, q):
     """:func:`cholesky_planes` on a complex ``m`` (q, c), in place; returns the pivots."""
     c = m.shape[1]
-    mr = np.empty((q, c))
-    mi = np.empty((q, c))
+    cp = (c + 3) & ~3  # (a multiple of 4, see cholesky_planes)
+    mr = np.zeros((q, cp))
+    mi = np.zeros((q, cp))
     for a in range(q):
         for col in range(c):
             mr[a, col] = m[a, col].real
             mi[a, col] = m[a, col].imag
     piv = np.empty(q)
-    cholesky_planes(mr, mi, q, piv, np.empty((4, c)))
+    cholesky_planes(mr, mi, q, piv, np.zeros((4, cp)))
     for a in range(q):
         for col in range(c):
             m[a, col] = complex(mr[a, col], mi[a, col])
@@ -472,24 +495,39 @@ def _products(rt, zt, b, j, slot_i, slot_j, base, x):
 
 
 @numba.njit(**_INNER)
-def direct_moments(rt, zt, b, k, slot_i, slot_j, rho_pow, mom, base, x):
+def direct_moments(rt, zt, b, k, n, slot_i, slot_j, rho_pow, mom, base, x, y):
     """``mom[a n_slots + s] = sum_r rho^a conj(base_i) base_j`` over the window of output
     bin ``k`` (padded samples ``k .. k + 2n``) by direct sums, ``(i, j) = (slot_i[s],
-    slot_j[s])``.  Power-major, so that the inner loops run over the slots."""
+    slot_j[s])``.  Power-major, so that the inner loops run over the slots.  The samples
+    at ``rho = +-u/n`` are summed in pairs: ``rho^a (x(+u) + (-1)^a x(-u))``, half the
+    multiply-adds of a sum sample by sample (``x``, ``y`` are scratch)."""
     ns = slot_i.shape[0]
+    p1 = rho_pow.shape[1]
+    n2 = 2 * ns
     # every weight is real: the sums run over the real and imaginary parts alike (in
     # compiled code a real times a complex128 is a full complex product)
     mf = mom.view(np.float64)
     xf = x.view(np.float64)
+    yf = y.view(np.float64)
     for f in range(mf.shape[0]):
         mf[f] = 0.0
-    for r in range(rho_pow.shape[0]):
-        _products(rt, zt, b, k + r, slot_i, slot_j, base, x)
-        for a in range(rho_pow.shape[1]):
-            w = rho_pow[r, a]
-            row = mf[2 * a * ns: 2 * (a + 1) * ns]  # a view: indices from 0 vectorise
-            for s in range(2 * ns):
-                row[s] += w * xf[s]
+    _products(rt, zt, b, k + n, slot_i, slot_j, base, x)  # rho = 0: the power 0 only
+    for s in range(n2):
+        mf[s] = xf[s]
+    for u in range(1, n + 1):
+        _products(rt, zt, b, k + n + u, slot_i, slot_j, base, x)
+        _products(rt, zt, b, k + n - u, slot_i, slot_j, base, y)
+        for s in range(n2):  # x <- x(+u) + x(-u), y <- x(+u) - x(-u)
+            xp = xf[s]
+            xm = yf[s]
+            xf[s] = xp + xm
+            yf[s] = xp - xm
+        for a in range(p1):
+            w = rho_pow[n + u, a]
+            row = mf[a * n2: (a + 1) * n2]  # a view: indices from 0 vectorise
+            src = xf if a % 2 == 0 else yf
+            for s in range(n2):
+                row[s] += w * src[s]
 
 
 @numba.njit(**_INNER)
@@ -509,18 +547,32 @@ def step_moments(rt, zt, b, k, n, slot_i, slot_j, shift, lead, mom, base, x_out,
     xo = x_out.view(np.float64)
     xi = x_in.view(np.float64)
     n2 = 2 * ns
-    for a in range(shift.shape[0] - 1, -1, -1):  # descending: lower powers are still old
+    bf = af[n2:]
+    # two powers per pass, descending (the lower powers are still old): a and a - 1 share
+    # the loads of the rows c < a
+    for a in range(shift.shape[0] - 1, -1, -2):
         la = lead[a]
+        if a == 0:
+            for s in range(n2):
+                mf[s] += xi[s] - la * xo[s]
+            break
+        lb = lead[a - 1]
         for s in range(n2):
             af[s] = xi[s] - la * xo[s]
-        for c in range(a + 1):
-            w = shift[a, c]
+            bf[s] = xi[s] - lb * xo[s]
+        for c in range(a):
+            wa = shift[a, c]
+            wb = shift[a - 1, c]
             row = mf[c * n2: (c + 1) * n2]  # a view: indices from 0 vectorise (an offset
             for s in range(n2):  # index might be negative to the compiler: wraparound)
-                af[s] += w * row[s]
+                r = row[s]
+                af[s] += wa * r
+                bf[s] += wb * r
         row = mf[a * n2: (a + 1) * n2]
+        low = mf[(a - 1) * n2: a * n2]
         for s in range(n2):
-            row[s] = af[s]
+            row[s] = af[s] + row[s]
+            low[s] = bf[s]
 
 
 @numba.njit(**_INNER)
@@ -543,7 +595,7 @@ def moments_and_floor(rt, zt, n, sel, restart, k_base, slot_i, slot_j, p1, mom_o
     rho_pow, shift, lead = _recurrence(n, p1)
     mom = np.empty(ns * p1, dtype=np.complex128)
     floor = np.empty(nr)
-    scratch = np.empty((4, max(ns, nr + 1 + zt.shape[2])), dtype=np.complex128)
+    scratch = np.empty((4, 2 * max(ns, nr + 1 + zt.shape[2])), dtype=np.complex128)
     for b in range(sel.shape[0]):
         valid = np.bool_(False)  # not the literal False: one compiled _advance, not two
         for k in range(sel.shape[1]):
@@ -591,7 +643,7 @@ def _advance(rt, zt, b, k, valid, sel_b, restart, k_base, n, slot_i, slot_j, rho
     bins).  A chunk starting inside a segment starts with direct sums.  ``floor``:
     ``2 eps (W + 2 restart)`` times the R energy of the samples the segment's windows
     cover, a bound of the absolute rounding of the windowed ``sum |R_p|^2``.
-    ``scratch`` (4, >= max(n_slots, n_bases)).
+    ``scratch`` (4, >= 2 max(n_slots, n_bases)): the last row holds two powers.
     """
     nr = rt.shape[2]
     phase = (k_base + k) % restart
@@ -606,7 +658,8 @@ def _advance(rt, zt, b, k, valid, sel_b, restart, k_base, n, slot_i, slot_j, rho
         want = want or sel_b[kk]
     if not want:
         return False
-    direct_moments(rt, zt, b, k, slot_i, slot_j, rho_pow, mom, scratch[0], scratch[1])
+    direct_moments(rt, zt, b, k, n, slot_i, slot_j, rho_pow, mom, scratch[0], scratch[1],
+                   scratch[2])
     width = rho_pow.shape[0]
     hi = min(end + width - 1, rt.shape[1])
     for p in range(nr):
@@ -761,10 +814,13 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
     wn = 2 * n + 1  # one experiment's window
     nan_c = complex(np.nan, np.nan)
     m = np.empty((q, q + nxw), dtype=np.complex128)
-    mr = np.zeros((q, q + nxw))  # m's real and imaginary planes for the Cholesky
-    mi = np.zeros((q, q + nxw))
+    # m's real and imaginary planes for the Cholesky, rows padded to a multiple of 4
+    # (cholesky_planes: no scalar remainder loops)
+    cpad = (q + nxw + 3) & ~3
+    mr = np.zeros((q, cpad))
+    mi = np.zeros((q, cpad))
     piv_a = np.empty(q)
-    rb_c = np.empty((4, q + nxw))
+    rb_c = np.zeros((4, cpad))
     # Y = L^-1 A~^H X transposed (nx, q) and v_i = Y_i delta_i (nz, q), real and imaginary
     # planes: the per-row products over the q shared coordinates run on contiguous rows
     ytr = np.empty((nx, q))
@@ -844,7 +900,8 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
                 gsg[a, c] = -1.0 if f >= n_flat else 1.0
     floors = np.empty((n_exp, nr))
     floor = np.empty(nr)
-    scratch = np.empty((4, max(slot_i.shape[0], nr + 1 + zt.shape[2])), dtype=np.complex128)
+    scratch = np.empty((4, 2 * max(slot_i.shape[0], nr + 1 + zt.shape[2])),
+                      dtype=np.complex128)
     for b in range(sel.shape[0]):
       valid = np.bool_(False)  # not the literal False: one compiled _advance, not two
       for k in range(sel.shape[1]):
