@@ -540,17 +540,12 @@ def local_model(R, Z, *, half_width, degrees=(3, 3, 3), circular: bool = True,
     n_max = int(widths.max())
     k = np.arange(m)
     if circular:
-        # the circular halo by slices (n_max < M): cheaper than a gathered copy
-        rt_p, zt_p = (np.concatenate([x[:, m - n_max:], x, x[:, :n_max]], axis=1)
-                      for x in (rt, zt))
         todo = np.ones((n_batch, m), dtype=bool)
         mirror = hermitian(rt) and hermitian(zt) and np.array_equal(
             widths, widths[:, (-k) % m])
         if mirror:  # real signals: fit 0..M/2, the rest is the conjugate
             todo[:, m // 2 + 1:] = False
     else:
-        pad = ((0, 0), (n_max, n_max), (0, 0))
-        rt_p, zt_p = np.pad(rt, pad), np.pad(zt, pad)
         todo = (k - widths >= 0) & (k + widths <= m - 1)
         mirror = False
 
@@ -580,8 +575,8 @@ def local_model(R, Z, *, half_width, degrees=(3, 3, 3), circular: bool = True,
         g, c0, c1, n = task
         sel = todo[g, c0:c1] & (widths[g, c0:c1] == n)
         rows = slice(g.start * n_exp, g.stop * n_exp)  # the group's experiments, consecutive
-        _fit_chunk(rt_p[rows, c0 + n_max - n: c1 + n_max + n],
-                   zt_p[rows, c0 + n_max - n: c1 + n_max + n], n, degrees, mode, sel,
+        _fit_chunk(_haloed(rt[rows], c0 - n, c1 + n, circular),
+                   _haloed(zt[rows], c0 - n, c1 + n, circular), n, degrees, mode, sel,
                    g.start * m + c0, m, n_exp * (2 * n + 1) - p_pool, out, n_exp, use_iv)
 
     with np.errstate(all="ignore"):
@@ -621,6 +616,22 @@ def local_model(R, Z, *, half_width, degrees=(3, 3, 3), circular: bool = True,
         G_cov=shaped["G_cov"] if covariance == "full" else shaped["G_var"],
         condition=cond, ill_posed=shaped["ill_posed"], dropped=shaped["dropped"],
     )
+
+
+def _haloed(x, lo, hi, circular):
+    """Bins ``lo .. hi - 1`` of ``x`` (batch, M, channels), a chunk with its halo: a view
+    inside the bins (a copy if ``x`` is read-only: numba compiles read-only arrays as
+    another type, a second 20-30 s compilation); past either end, a copy with the bins
+    of the other end (circular) or zeros.  No padded copy of the whole data."""
+    m = x.shape[1]
+    if lo >= 0 and hi <= m:
+        return x[:, lo:hi] if x.flags.writeable else x[:, lo:hi].copy()
+    if circular:
+        return np.take(x, np.arange(lo, hi) % m, axis=1)
+    out = np.zeros((x.shape[0], hi - lo, x.shape[2]), dtype=x.dtype)
+    a, b = max(lo, 0), min(hi, m)
+    out[:, a - lo: b - lo] = x[:, a:b]
+    return out
 
 
 def _check_instruments(instruments, Z):
