@@ -532,11 +532,11 @@ def local_model(R, Z, *, half_width, degrees=(3, 3, 3), circular: bool = True,
     # Bins-first layout (batch, bins, channel), padded with the widest halo on both ends
     n_batch = int(np.prod(batch, dtype=int))
     ex = (n_exp,) if pooled else ()
-    # (read only from here on: a view of the caller's arrays when no copy is needed)
-    rt = np.broadcast_to(R, batch + ex + (m, nr)).reshape(n_batch * n_exp, m, nr).astype(
-        complex, copy=False)
-    zt = np.broadcast_to(Z, batch + ex + (m, nzc)).reshape(n_batch * n_exp, m, nzc).astype(
-        complex, copy=False)
+    # (read only from here on: a view of the caller's arrays when no copy is needed, not
+    # a broadcast view where nothing is broadcast: those are read-only, see _haloed)
+    rt, zt = ((x if x.shape == batch + ex + (m, c) else np.broadcast_to(x, batch + ex + (m, c)))
+              .reshape(n_batch * n_exp, m, c).astype(complex, copy=False)
+              for x, c in ((R, nr), (Z, nzc)))
     n_max = int(widths.max())
     k = np.arange(m)
     if circular:
