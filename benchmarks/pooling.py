@@ -262,22 +262,40 @@ BAND_FORMS = {
 @contextlib.contextmanager
 def _captured_candidates():
     """Record every candidate window's fit as ``identify`` finishes it (the production
-    path: the kernels' ``_finish``, with its inputs and outputs), so that the pieces of
-    the band can be recombined without fitting again."""
+    path: the kernels' ``_finish``, with its inputs and outputs, and the local model's
+    ``G_cov`` that its terms were reduced from), so that the pieces of the band can be
+    recombined without fitting again.  The local models are fitted in one block of bins
+    meanwhile (``BLOCK_BYTES``); ``G_cov`` is completed over the circle as production
+    completes its terms (bins above ``M/2`` the conjugates of those below, for real
+    signals)."""
     from lcmr_xr.kernels import identification as kid
+    from lcmr_xr.kernels.closed_loop import mirror_source
 
-    calls, original = [], kid._finish
+    calls, blocks = [], []
+    original, terms, nbytes = kid._finish, kid.slow_bin_terms, kid.BLOCK_BYTES
+
+    def reducing(G, G_cov, **kw):
+        blocks.append(G_cov)
+        return terms(G, G_cov, **kw)
 
     def recording(fit, **kw):
         out = original(fit, **kw)
-        calls.append((fit, kw, out))
+        (C,) = blocks  # one block per candidate
+        blocks.clear()
+        m = fit["G"].shape[-3]
+        src = mirror_source(fit["G"])
+        if src is not None:  # mirrored: bin k > M/2 is the conjugate of bin M - k
+            C = np.take(C, src, axis=-3)
+            C[..., m // 2 + 1:, :, :] = np.conj(C[..., m // 2 + 1:, :, :])
+        # (a copy of the dict: the window choice empties the candidates' as it gathers)
+        calls.append(({**fit, "G_cov": C[..., :m, :, :]}, kw, dict(out)))
         return out
 
-    kid._finish = recording
+    kid._finish, kid.slow_bin_terms, kid.BLOCK_BYTES = recording, reducing, 1 << 62
     try:
         yield calls
     finally:
-        kid._finish = original
+        kid._finish, kid.slow_bin_terms, kid.BLOCK_BYTES = original, terms, nbytes
 
 
 def _band_pieces(fit, kw, out):

@@ -29,6 +29,11 @@ HDD experiments, N = 3600 (173 kB of data each), window 30, degrees 3-3-3, with 
    50 ms, their status (paused?) and spilled keys every 5 s.  The archive is written to
    ``--tmp`` (checked for space first) and deleted afterwards, or reused with
    ``--big-archive``; ``--big-lifetime`` restarts workers periodically (off by default).
+8. ``--record-memory`` runs only this: peak memory (fresh processes, as 6) of one
+   ``identify`` of the bundled HDD records ``datasets/hdd_case2_N3600.nc`` and
+   ``..._N36000.nc``, window 30 and "auto", with the local models fitted in blocks of
+   slow bins (the default) and in one block over all bins (the covariance of every bin
+   at once, as before the blocks), and the time of both alternating in one process.
 
 ``--rate N`` runs only this: ``sweep_to_disk`` on a 2-worker ``local_cluster`` over an
 archive of ``N`` experiments (every variable, then ``P``, ``P_std``, ``P_flag``), with the
@@ -74,6 +79,12 @@ peak 352 MB.  Before tasks kept only the asked variables, the 2x run stalled aft
 experiments with both workers at 360 MB of RSS (their pause threshold), of which 187 MB
 shared library pages (114 MB numba's LLVM, libllvmlite.so): the margin is thin.
 
+Measured in session 8 (``--record-memory``, load 3.6-5): one identify, traced / resident
+growth, blocks of slow bins (one block over all bins): N = 3600 window 30 9.9 / 6.3 MB
+(same), auto 12.5 / 7.9 MB (same); N = 36 000 window 30 33.4 / 29.8 MB (97.0 / 92.4), auto
+59.5 / 54.5 MB (123.1 / 118.3); before the blocks 160 and 411 MB traced.  Time blocks /
+one block: window 30 1.03 CPU (1.12 wall), auto 1.00 CPU (0.93 wall).
+
 The experiments are copies of one simulated experiment with a small random perturbation
 (cheap to make; identify costs the same).  Everything is written to a temporary directory
 that is removed at the end.  Timings on a shared machine vary: compare numbers of one run
@@ -98,6 +109,7 @@ from pathlib import Path
 import numpy as np
 
 N = 3600
+DATASETS = Path(__file__).resolve().parents[1] / "datasets"
 WINDOW = 30
 
 
@@ -556,6 +568,8 @@ def task_memory(path: str, per_task: int, which: str) -> dict:
 
 def memory(path: Path, per_task: int) -> None:
     """Item 6: peak memory per task, measured in fresh processes, against the data size."""
+    from lcmr_xr.kernels.identification import BLOCK_BYTES
+
     one = _in_fresh_process(task_memory, str(path), 1, "identify")
     task = _in_fresh_process(task_memory, str(path), per_task, "task")
     bound = 10 * one["data_mb"] + 100
@@ -570,10 +584,100 @@ def memory(path: Path, per_task: int) -> None:
     print(f"  one sweep task of {per_task:2d} experiments: {task['traced_mb']:6.1f} MB traced, "
           f"{task['hwm_mb']:6.1f} MB resident growth; data {task['data_mb']:.2f} MB, result "
           f"{task['result_mb']:.2f} MB")
-    print(f"  where it goes: the local model's full covariance of G, M (nz nr)^2 complex "
-          f"(M = {m}, nz = {nz}, nr = {nr}) = {cov:.1f} MB, as the compiled kernel returns it; the "
+    print(f"  the local model's covariance of G for all bins would be M (nz nr)^2 complex "
+          f"(M = {m}, nz = {nz}, nr = {nr}) = {cov:.1f} MB; identify holds at most "
+          f"{min(cov, BLOCK_BYTES / 1e6):.1f} MB of it (a block of slow bins at a time); the "
           f"process itself holds {one['rss_mb']:.0f} MB after the call (numba and its kernels "
           "included)")
+
+
+def record_memory(n: int, window, block_bytes: int | None = None) -> dict:
+    """Peak memory (MB) of one ``identify`` of the bundled HDD record of ``n`` samples
+    (``datasets/hdd_case2_N{n}.nc``), run in a fresh process as :func:`task_memory`.
+
+    ``block_bytes``: the eager path's ``lcmr_xr.kernels.identification.BLOCK_BYTES`` (None:
+    the default; a huge value fits every bin in one block, holding the covariance of all
+    bins at once as before the blocks).
+    """
+    import gc
+    import tracemalloc
+
+    import xarray as xr
+
+    from lcmr_xr.identification import identify
+    from lcmr_xr.kernels import identification as kid
+    from lcmr_xr.kernels.local_models import local_model
+
+    if block_bytes is not None:
+        kid.BLOCK_BYTES = block_bytes
+    ds = xr.load_dataset(DATASETS / f"hdd_case2_N{n}.nc")
+    r = np.exp(2j * np.pi * np.linspace(0, 1, 64))[:, None]
+    local_model(r, 2 * r + 0.5, half_width=4, degrees=(1, 1, 0))  # loads the compiled kernels
+    identify(ds.isel(time=slice(0, 1200), slow_time=slice(0, 1200 // int(ds.attrs["factor"]))),
+             window=window, errors="ignore")  # and the rest of identify's code
+    gc.collect()
+    with open("/proc/self/clear_refs", "w") as f:
+        f.write("5")  # VmHWM := VmRSS
+    before = _status_mb("VmRSS")
+    result = identify(ds, window=window, errors="ignore")
+    out = {"hwm_mb": _status_mb("VmHWM") - before, "result_mb": result.nbytes / 1e6,
+           "data_mb": ds[["r", "u", "y"]].nbytes / 1e6}
+    del result
+    gc.collect()
+    tracemalloc.start()
+    base = tracemalloc.get_traced_memory()[0]
+    result = identify(ds, window=window, errors="ignore")
+    out["traced_mb"] = (tracemalloc.get_traced_memory()[1] - base) / 1e6
+    tracemalloc.stop()
+    return out
+
+
+def block_timing(n: int, window, rounds: int = 7) -> dict:
+    """Wall and CPU seconds of one ``identify`` of the bundled record, blocks of bins (the
+    default) against one block over all bins, alternating in this process (medians)."""
+    import xarray as xr
+
+    from lcmr_xr.identification import identify
+    from lcmr_xr.kernels import identification as kid
+
+    ds = xr.load_dataset(DATASETS / f"hdd_case2_N{n}.nc")
+    default = kid.BLOCK_BYTES
+    times = {"blocks": [], "one block": []}
+    try:
+        identify(ds, window=window, errors="ignore")
+        for _ in range(rounds):
+            for name, nbytes in (("blocks", default), ("one block", 1 << 62)):
+                kid.BLOCK_BYTES = nbytes
+                t0, c0 = time.perf_counter(), time.process_time()
+                identify(ds, window=window, errors="ignore")
+                times[name].append((time.perf_counter() - t0, time.process_time() - c0))
+    finally:
+        kid.BLOCK_BYTES = default
+    return {name: tuple(float(np.median([t[i] for t in v])) for i in (0, 1))
+            for name, v in times.items()}
+
+
+def record_memory_report(rounds: int = 7) -> None:
+    """Item 8: one identify of the bundled HDD records (N = 3600 and 36 000), window 30 and
+    "auto": peak memory in blocks of bins and in one block, and the time ratio."""
+    print("one identify of the bundled HDD records (fresh processes; goal 10 x data + 100 MB):")
+    for n in (3600, 36000):
+        for window in (WINDOW, "auto"):
+            got = {name: _in_fresh_process(record_memory, n, window, nbytes)
+                   for name, nbytes in (("blocks", None), ("one block", 1 << 62))}
+            blk, one = got["blocks"], got["one block"]
+            print(f"  N = {n:6d}, window {window!s:>4}: data {blk['data_mb']:.2f} MB, goal "
+                  f"{10 * blk['data_mb'] + 100:.0f} MB; blocks {blk['traced_mb']:6.1f} MB traced, "
+                  f"{blk['hwm_mb']:6.1f} MB resident growth; one block {one['traced_mb']:6.1f} / "
+                  f"{one['hwm_mb']:6.1f} MB; result {blk['result_mb']:.1f} MB", flush=True)
+    for window in (WINDOW, "auto"):
+        t = block_timing(36000, window, rounds)
+        print(f"  N = 36000, window {window!s:>4}, time (median of {rounds}, alternating): blocks "
+              f"{t['blocks'][0]:.3f} s wall {t['blocks'][1]:.3f} s CPU, one block "
+              f"{t['one block'][0]:.3f} s wall {t['one block'][1]:.3f} s CPU; ratio "
+              f"{t['blocks'][0] / t['one block'][0]:.3f} wall, "
+              f"{t['blocks'][1] / t['one block'][1]:.3f} CPU (load {os.getloadavg()[0]:.1f})",
+              flush=True)
 
 
 # ------------------------------------------------------------------ the big run
@@ -762,6 +866,9 @@ def main(argv=None):
                          "(every variable, then P, P_std, P_flag); --per-task sets the chunks "
                          "(default here: open_archive's); run it on a quiet machine")
     ap.add_argument("--rate-rounds", type=int, default=1, help="repeats of --rate")
+    ap.add_argument("--record-memory", action="store_true",
+                    help="only part 8: one identify of the bundled N = 3600 and 36 000 HDD "
+                         "records, peak memory and time in blocks of bins against one block")
     ap.add_argument("--memory-limit", default="400MB", help="per-worker limit of part 7")
     ap.add_argument("--big-factor", type=float, default=5.0,
                     help="archive data / both workers' memory limits in part 7 (default 5)")
@@ -780,6 +887,9 @@ def main(argv=None):
         args.sizes, args.identify, args.files_max = [20, 100], 8, 100
     print(f"machine: {os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.1f} at the start "
           "(shared: compare numbers within the run)", flush=True)
+    if args.record_memory:
+        record_memory_report()
+        return
     if args.rate:
         rate_run(args.tmp, args.rate, args.per_task if "--per-task" in (argv or sys.argv) else None,
                  args.rate_rounds)

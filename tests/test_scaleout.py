@@ -413,6 +413,43 @@ def test_cli_errors_exit_2_and_write_nothing(tmp_path, capsys):
     assert not (tmp_path / "r.nc").exists()
 
 
+def test_cli_sweep_variables_writes_only_those(tmp_path, capsys):
+    exps = _stack(["e0", "e1"])
+    save_archive(exps, tmp_path / "arc")
+    status = _cli(["sweep", str(tmp_path / "arc"), "-o", str(tmp_path / "res.nc"), "--window", "12",
+                   "--degrees", "2-2-2", "--variables", "P", "P_std", "--scheduler", "synchronous"])
+    assert status == 0
+    got = open_dataset(tmp_path / "res.nc")
+    assert sorted(got.data_vars) == ["P", "P_std", "experiment_error"]
+    want = sweep(exps, window=[12], degrees=["2-2-2"]).compute(scheduler="synchronous")
+    xr.testing.assert_allclose(got.P, want.P, rtol=1e-12)
+    xr.testing.assert_allclose(got.P_std, want.P_std, rtol=1e-12)
+    assert "wrote" in capsys.readouterr().out
+
+
+def test_cli_sweep_variables_refused_before_anything_runs(tmp_path, capsys):
+    save_archive(_stack(["e0", "e1"]), tmp_path / "arc")
+    base = ["sweep", str(tmp_path / "arc"), "-o", str(tmp_path / "r.nc"), "--window", "12",
+            "--degrees", "2-2-2", "--scheduler", "synchronous"]
+    assert _cli(base + ["--variables", "P", "Pstd"]) == 2
+    err = capsys.readouterr().err
+    assert "['Pstd'] are not in this sweep's result" in err and "P_std" in err
+    assert _cli(base + ["--variables", "P", "--select", str(tmp_path / "c.nc")]) == 2
+    err = capsys.readouterr().err
+    assert "--select scores the local model" in err and "noise_variance_y" in err
+    assert not (tmp_path / "r.nc").exists() and not (tmp_path / "c.nc").exists()
+    assert not any(p.name.startswith(".r.nc") for p in tmp_path.iterdir())  # no parts either
+
+
+def test_cli_sweep_pooled_variables(tmp_path):
+    save_archive(_stack(["e0", "e1"]), tmp_path / "arc")
+    status = _cli(["sweep", str(tmp_path / "arc"), "-o", str(tmp_path / "res.nc"), "--window", "15",
+                   "--degrees", "2-2-2", "--pool", "2", "--variables", "P", "P_flag",
+                   "--scheduler", "synchronous"])
+    assert status == 0
+    assert sorted(open_dataset(tmp_path / "res.nc").data_vars) == ["P", "P_flag"]
+
+
 def test_cli_sweep_pools_experiments(tmp_path):
     exps = _stack(["e0", "e1", "e2"])
     save_archive(exps, tmp_path / "arc")

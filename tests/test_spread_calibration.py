@@ -74,9 +74,9 @@ def _pooled(seed, resonance, n_exp=8, n=960, factor=2):
 def _with_and_without(ds, n=960):
     """The pooled IV fit (window 30) finished with and without the calibration."""
     R, Z = kid.experiment_spectra(ds.r.values, ds.u.values, ds.y.values, factor=2)
-    fit = kid._fit(R, Z, half_width=30, degrees=(3, 3, 3), circular=True, covariance=True,
-                   noise_covariance=None, experiment_axis=-3, denominator="iv")
-    fit["T"] = np.moveaxis(fit["T"], -3, -2)
+    fit = kid._fit_blocks(R, Z, half_width=30, degrees=(3, 3, 3), covariance=True,
+                          noise_covariance=None, experiment_axis=-3, closed_loop="indirect",
+                          denominator="iv")
     kw = dict(n_fast=n, factor=2, nu=1, ny=1, closed_loop="indirect",
               dof=kid.window_dof(30, 2, (3, 3, 3), ds.sizes["experiment"]))
     calibrated = kid._finish(fit, **kw)
@@ -284,11 +284,11 @@ def test_proportional_grams_give_the_size_weight(monkeypatch):
     experiment's): the ratio is that of the weight ``n_a n_b / E^2 = 6 / 25``, to rounding."""
     ds = _unequal(4, 1.0, n_exp=5, n=480, same_r=True)
     R, Z = kid.experiment_spectra(ds.r.values, ds.u.values, ds.y.values, factor=2)
-    kw = dict(half_width=20, degrees=(3, 3, 3), circular=True, covariance=True,
-              noise_covariance=None, experiment_axis=-3, denominator="iv")
-    ratio = kid._fit(R, Z, **kw)["spread_ratio"]
+    kw = dict(half_width=20, degrees=(3, 3, 3), covariance=True, noise_covariance=None,
+              experiment_axis=-3, closed_loop="indirect", denominator="iv")
+    ratio = kid._fit_blocks(R, Z, **kw)["spread_ratio"]
     monkeypatch.setattr(kid, "group_weight", lambda a, b: 6 / 25)
-    sizes = kid._fit(R, Z, **kw)["spread_ratio"]
+    sizes = kid._fit_blocks(R, Z, **kw)["spread_ratio"]
     assert np.all(np.isfinite(ratio)) and ratio.max() > 0
     np.testing.assert_allclose(ratio, sizes, rtol=1e-10)
 

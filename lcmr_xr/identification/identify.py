@@ -636,7 +636,7 @@ def _fit_frequency_chunked(r, u, y, s, *, factor, check_rank, noise=None, pooled
     Zg = da.overlap.overlap(Zd, depth=depth, boundary=boundary)
     exp_ax = R.dims.index(cv.EXPERIMENT) if pooled else None
     n_exp = R.sizes[cv.EXPERIMENT] if pooled else 1
-    width = packed_width(nz, nr, s.covariance, n_exp)
+    width = packed_width(nz, nr, s.covariance, n_exp, closed_loop)
     blocks = [Rg, Zg]
     if noise is not None:  # (..., SF, nz nz) flat, so its blocks line up with R's and Z's
         if pooled:  # one noise covariance for all experiments: repeated along their dim
@@ -652,7 +652,8 @@ def _fit_frequency_chunked(r, u, y, s, *, factor, check_rank, noise=None, pooled
             known = np.take(known, 0, axis=exp_ax)
         return fit_packed(rb, zb, half_width=window, degrees=s.degrees, circular=False,
                           covariance=s.covariance, noise_covariance=known,
-                          experiment_axis=exp_ax, denominator=_kernel_denominator(s))
+                          experiment_axis=exp_ax, denominator=_kernel_denominator(s),
+                          closed_loop=closed_loop)
 
     chunks = Rg.chunks[:-1] + ((width,),)
     if pooled:  # the fit pools the experiment axis away

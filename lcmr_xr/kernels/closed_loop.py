@@ -46,7 +46,8 @@ class IndirectResult(NamedTuple):
 
 
 def indirect_first_row(G: np.ndarray, n_lifted_inputs: int, G_cov: np.ndarray | None = None,
-                       s_condition_limit: float = S_CONDITION_LIMIT) -> IndirectResult:
+                       s_condition_limit: float = S_CONDITION_LIMIT,
+                       mirrors: bool = True) -> IndirectResult:
     """First block row of the lifted plant from ``G = [S; PS_1]``.
 
     Parameters
@@ -60,6 +61,11 @@ def indirect_first_row(G: np.ndarray, n_lifted_inputs: int, G_cov: np.ndarray | 
         first-order covariance of ``vec(P_1)`` is returned.
     s_condition_limit : float, default 1e12
         Bins where ``cond(S)`` exceeds this are flagged and set to NaN.
+    mirrors : bool, default True
+        Look for an exactly mirrored estimate (:func:`mirror_source`: the bins are the
+        whole circle) and compute on half the bins then.  False: the bins are a block of
+        the circle (``lcmr_xr.kernels.identification`` fits long records in blocks and
+        mirrors the results itself); every bin is computed.
 
     Returns
     -------
@@ -76,7 +82,7 @@ def indirect_first_row(G: np.ndarray, n_lifted_inputs: int, G_cov: np.ndarray | 
     PS = G[..., nr:, :]
     finite = np.isfinite(G).all(axis=(-2, -1))
     S_safe = np.where(finite[..., None, None], S, np.eye(nr))
-    cond_s, svd = _condition(S_safe, vectors=G_cov is not None)
+    cond_s, svd = _condition(S_safe, vectors=G_cov is not None, mirrors=mirrors)
     cond = np.where(finite, cond_s, np.inf)
     singular = ~(cond < s_condition_limit)
     S_safe = np.where(singular[..., None, None], np.eye(nr), S_safe)
@@ -94,7 +100,7 @@ def indirect_first_row(G: np.ndarray, n_lifted_inputs: int, G_cov: np.ndarray | 
         # an exactly mirrored estimate: the covariance of bin M - k is the conjugate of
         # that of bin k, so the products run on bins 0..M/2 only
         m = G.shape[-3]
-        src = mirror_source(G)  # (the small array first)
+        src = mirror_source(G) if mirrors else None  # (the small array first)
         if src is not None and mirror_source(G_cov) is None:
             src = None
         part = slice(None) if src is None else slice(0, m // 2 + 1)
@@ -160,7 +166,7 @@ def mirror_source(G: np.ndarray) -> np.ndarray | None:
 _COMPARE_BLOCK = 2**18
 
 
-def _condition(S: np.ndarray, vectors: bool = False):
+def _condition(S: np.ndarray, vectors: bool = False, mirrors: bool = True):
     """``np.linalg.cond`` of every ``S`` (..., M, nr, nr), on half the bins of an exactly
     mirrored estimate (:func:`mirror_source`): one small SVD costs about 10 us through
     numpy, 1 s for the 90 000 bins of ``N = 180 000``.
@@ -168,7 +174,7 @@ def _condition(S: np.ndarray, vectors: bool = False):
     Returns the condition numbers and, with ``vectors``, ``(u, s, vh, half)``: the SVD
     on the bins it was computed on (``half``: bins ``0..M/2``), else None.
     """
-    src = mirror_source(S)
+    src = mirror_source(S) if mirrors else None
     part = S if src is None else S[..., : S.shape[-3] // 2 + 1, :, :]
     if vectors:
         u, sv, vh = np.linalg.svd(part)

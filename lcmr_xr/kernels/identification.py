@@ -13,7 +13,8 @@ from lcmr_xr.kernels.adaptive import (nonlinearity_factor, select_windows, small
                                       weak_direction)
 from lcmr_xr.kernels.closed_loop import frf_variance_from_first_row, indirect_first_row
 from lcmr_xr.kernels.lifting import frf_from_first_block_row, lift
-from lcmr_xr.kernels.local_models import hermitian, local_model, parameters_per_row
+from lcmr_xr.kernels.local_models import (_restart_interval, fits_half, hermitian, local_model,
+                                          parameters_per_row)
 from lcmr_xr.kernels.pooling import (MIN_SPLIT_EXPERIMENTS, group_weight, half_variances,
                                      mean_and_covariance, pooled_least_squares,
                                      rescale_covariance, split_halves, spread_calibration,
@@ -164,6 +165,10 @@ def recover_frf(G, G_cov, *, n_fast: int, factor: int, nu: int, ny: int,
     indirect method, the squared nonlinearity factor of the weakest direction of ``S``;
     ``inf`` where ``P`` is undetermined.
 
+    Two steps: :func:`slow_bin_terms` (per slow bin, the only step that reads ``G_cov``;
+    the eager path runs it on blocks of bins) and the recovery over all bins from what it
+    returns.
+
     Returns
     -------
     dict of ndarray
@@ -171,45 +176,102 @@ def recover_frf(G, G_cov, *, n_fast: int, factor: int, nu: int, ny: int,
         ``P_undetermined``, ``s_condition``, ``s_singular``, ``s_weak_rel_std`` (NaN
         without ``G_cov`` or for the direct method).
     """
-    f_ = int(factor)
-    nr = f_ * nu
+    terms = slow_bin_terms(G, G_cov, nr=int(factor) * nu, closed_loop=closed_loop)
+    return _recover(terms, n_fast=n_fast, factor=factor, nu=nu, ny=ny, closed_loop=closed_loop,
+                    ill_posed=ill_posed, dof=dof)
+
+
+def slow_bin_terms(G, G_cov, *, nr: int, closed_loop: str = "indirect",
+                   mirrors: bool = True) -> dict:
+    """Per slow bin, what the recovery of the fast FRF reads of the local model.
+
+    Everything :func:`recover_frf` needs from ``G_cov``, reduced bin by bin, so that the
+    covariance of a block of bins can be dropped once this has run (the eager path fits
+    long records in blocks of bins, ``_fit_blocks``).
+
+    Parameters
+    ----------
+    G : ndarray, complex, shape (..., M, nz, nr)
+    G_cov : ndarray, complex, shape (..., M, nz nr, nz nr), or None
+    nr : int
+        ``F nu``.
+    closed_loop : {"indirect", "direct"}
+    mirrors : bool, default True
+        The bins are the whole circle: an exactly mirrored estimate is computed on half of
+        them (:func:`lcmr_xr.kernels.closed_loop.indirect_first_row`).  False for a block.
+
+    Returns
+    -------
+    dict of ndarray
+        ``P1`` (..., M, ny, nr) and ``P1_cov`` (..., M, ny nr, ny nr) (None without
+        ``G_cov``); ``s_condition``, ``s_singular``, ``rho``, ``rho_v`` (..., M) (the
+        last two NaN without ``G_cov`` or for the direct method,
+        :func:`lcmr_xr.kernels.adaptive.weak_direction`); ``G_var`` (..., M, nz, nr), the
+        variances of ``G`` (NaN without ``G_cov``).
+    """
+    G = np.asarray(G)
     if closed_loop == "indirect":
-        ind = indirect_first_row(G, nr, G_cov)
+        ind = indirect_first_row(G, nr, G_cov, mirrors=mirrors)
         P1, P1_cov, s_cond, s_sing = ind.first_row, ind.first_row_cov, ind.s_condition, ind.singular
     else:
         P1, P1_cov = G, G_cov
         s_cond = np.ones(G.shape[:-2])
         s_sing = np.zeros(G.shape[:-2], dtype=bool)
-    m = G.shape[-3]
+    rho = rho_v = np.full(G.shape[:-2], np.nan)
+    if G_cov is not None and closed_loop == "indirect":
+        S_cov = G_cov[..., : nr * nr, : nr * nr]
+        src = ind.mirror  # G and G_cov exact mirrors (checked once, in the indirect step)
+        # S's SVD from the indirect step (on half the bins or all), if it is of the
+        # same matrices: the identity where G is not finite there, where S or S_cov
+        # is not finite in weak_direction
+        same = np.array_equal(np.isfinite(G).all(axis=(-2, -1)),
+                              np.isfinite(G[..., :nr, :]).all(axis=(-2, -1))
+                              & np.isfinite(S_cov).all(axis=(-2, -1)))
+        u, sv, vh, on_half = ind.s_svd if same else (None, None, None, None)
+        if src is not None:
+            # conjugation leaves rho unchanged: half the SVDs (about 10 us each)
+            half = slice(0, G.shape[-3] // 2 + 1)
+            rho, rho_v = (np.take(x, src, axis=-1) for x in
+                          weak_direction(G[..., half, :nr, :], S_cov[..., half, :, :],
+                                         svd=(u, sv, vh) if on_half is True else None))
+        else:
+            rho, rho_v = weak_direction(G[..., :nr, :], S_cov,
+                                        svd=(u, sv, vh) if on_half is False else None)
+    if G_cov is not None:
+        G_var = np.real(np.diagonal(G_cov, axis1=-2, axis2=-1)).reshape(G.shape)
+    else:
+        G_var = np.full(G.shape, np.nan)
+    return {"P1": P1, "P1_cov": P1_cov, "s_condition": s_cond, "s_singular": s_sing,
+            "rho": rho, "rho_v": rho_v, "G_var": G_var}
+
+
+def _recover(terms, *, n_fast, factor, nu, ny, closed_loop, ill_posed, dof,
+             calibration=None) -> dict:
+    """The fast FRF from :func:`slow_bin_terms` of every slow bin (:func:`recover_frf`).
+
+    ``calibration`` (..., M), optional: the pooled fits' factor on ``G_cov``
+    (:func:`lcmr_xr.kernels.pooling.spread_calibration`), applied here to what the terms
+    derive from it: ``P1_cov`` scales with it, ``rho`` and ``rho_v`` with its square root.
+    """
+    f_ = int(factor)
+    P1, P1_cov, s_sing = terms["P1"], terms["P1_cov"], terms["s_singular"]
+    rho, rho_v = terms["rho"], terms["rho_v"]
+    if calibration is not None and P1_cov is not None:
+        P1_cov = P1_cov * calibration[..., None, None]
+        root = np.sqrt(calibration)
+        rho, rho_v = rho * root, rho_v * root
+    lead_m = s_sing.shape
+    m = lead_m[-1]
     bins = np.arange(n_fast // 2 + 1)
     P = frf_from_first_block_row(P1, f_)[..., : n_fast // 2 + 1, :, :]
     # per slow bin: the factor turning the first-order std into the calibrated one
-    slow_factor = np.ones(G.shape[:-2])
-    undetermined = np.zeros(G.shape[:-2], dtype=bool)
-    rho = np.full(G.shape[:-2], np.nan)
+    slow_factor = np.ones(lead_m)
+    undetermined = np.zeros(lead_m, dtype=bool)
     if dof is not None:
         slow_factor = slow_factor * small_sample_factor(dof)
     if P1_cov is not None:
         P_var_lin = frf_variance_from_first_row(P1_cov, n_fast, f_, bins, ny, nu)
         if closed_loop == "indirect":
-            S_cov = G_cov[..., : nr * nr, : nr * nr]
-            src = ind.mirror  # G and G_cov exact mirrors (checked once, in the indirect step)
-            # S's SVD from the indirect step (on half the bins or all), if it is of the
-            # same matrices: the identity where G is not finite there, where S or S_cov
-            # is not finite in weak_direction
-            same = np.array_equal(np.isfinite(G).all(axis=(-2, -1)),
-                                  np.isfinite(G[..., :nr, :]).all(axis=(-2, -1))
-                                  & np.isfinite(S_cov).all(axis=(-2, -1)))
-            u, sv, vh, on_half = ind.s_svd if same else (None, None, None, None)
-            if src is not None:
-                # conjugation leaves rho unchanged: half the SVDs (about 10 us each)
-                half = slice(0, G.shape[-3] // 2 + 1)
-                rho, rho_v = (np.take(x, src, axis=-1) for x in
-                              weak_direction(G[..., half, :nr, :], S_cov[..., half, :, :],
-                                             svd=(u, sv, vh) if on_half is True else None))
-            else:
-                rho, rho_v = weak_direction(G[..., :nr, :], S_cov,
-                                            svd=(u, sv, vh) if on_half is False else None)
             nl, undetermined = nonlinearity_factor(rho, rho_v)
             undetermined = undetermined & ~s_sing
             slow_factor = slow_factor * nl
@@ -226,31 +288,40 @@ def recover_frf(G, G_cov, *, n_fast: int, factor: int, nu: int, ny: int,
         "P_var_linear": P_var_lin,
         "P_bad": np.take(slow_bad, bins % m, axis=-1),
         "P_undetermined": np.take(undetermined, bins % m, axis=-1),
-        "s_condition": s_cond,
+        "s_condition": terms["s_condition"],
         "s_singular": s_sing,
         "s_weak_rel_std": rho,
     }
 
 
-def packed_width(nz: int, nr: int, covariance: bool, n_exp: int = 1) -> int:
+def packed_width(nz: int, nr: int, covariance: bool, n_exp: int = 1,
+                 closed_loop: str = "indirect") -> int:
     """Length of the last axis of :func:`fit_packed`'s output (``n_exp`` transients; with
     ``n_exp >= MIN_SPLIT_EXPERIMENTS`` and ``covariance``, one more column for the
     split-half spread ratio)."""
+    ny = nz - nr if closed_loop == "indirect" else nz
     spread = 1 if covariance and n_exp >= MIN_SPLIT_EXPERIMENTS else 0
-    return nz * nr + (n_exp + 1) * nz + 2 + spread + ((nz * nr) ** 2 if covariance else 0)
+    reduced = nz * nr + 2 + (ny * nr) ** 2 if covariance else 0
+    return nz * nr + (n_exp + 1) * nz + 2 + spread + ny * nr + 2 + reduced
 
 
 def fit_packed(R, Z, *, half_width: int, degrees=(3, 3, 3), circular: bool = True,
                covariance: bool = True, noise_covariance=None,
-               experiment_axis: int | None = None, denominator: str = "ls") -> np.ndarray:
-    """Local model per bin, packed into one complex array ``(..., M, K)``.
+               experiment_axis: int | None = None, denominator: str = "ls",
+               closed_loop: str = "indirect") -> np.ndarray:
+    """Local model per bin, reduced to what the recovery reads and packed into one complex
+    array ``(..., M, K)``.
 
     One array (rather than a tuple) so that a frequency-chunked dask computation can run
     the fit with ``map_overlap``-style halos: columns are ``vec(G)`` (``nz nr``), ``T``
-    (``nz``), the noise variances (``nz``), the condition number, the ill-posed flag and,
-    with ``covariance``, the split-half spread ratio (pooled experiments,
-    ``E >= MIN_SPLIT_EXPERIMENTS``: :func:`split_half_spread`) and ``vec(G_cov)``.
-    :func:`finish_packed` unpacks it.
+    (``nz``), the noise variances (``nz``), the condition number, the ill-posed flag,
+    with ``covariance`` and pooled experiments (``E >= MIN_SPLIT_EXPERIMENTS``) the
+    split-half spread ratio (:func:`split_half_spread`), then :func:`slow_bin_terms`:
+    ``vec(P_1)`` (``ny nr``), the condition and the singular flag of ``S`` and, with
+    ``covariance``, the variances of ``G`` (``nz nr``), ``rho``, ``rho_v`` and
+    ``vec(cov(P_1))`` (``(ny nr)^2``).  ``G_cov`` itself is not kept: :func:`finish_packed`
+    needs none of it.  ``closed_loop`` as :func:`identify_arrays` (``R``, ``Z`` are the
+    spectra of :func:`experiment_spectra` for it).
 
     ``noise_covariance`` (..., M, nz, nz), optional: a noise covariance known per bin
     (e.g. from the spread over periods, :func:`lcmr_xr.kernels.pooling.mean_and_covariance`).
@@ -267,47 +338,150 @@ def fit_packed(R, Z, *, half_width: int, degrees=(3, 3, 3), circular: bool = Tru
     ``half_width + first_fit_window`` bins at each end are not those of the circular fit
     (trim them).
     """
-    fit = _fit(R, Z, half_width=half_width, degrees=degrees, circular=circular,
-               covariance=covariance, noise_covariance=noise_covariance,
-               experiment_axis=experiment_axis, denominator=denominator)
-    lead_m = fit["G"].shape[:-2]
-    T = fit["T"] if experiment_axis is None else \
-        np.moveaxis(fit["T"], -3, -2).reshape(lead_m + (-1,))
-    parts = [fit["G"].reshape(lead_m + (-1,)), T, fit["noise_variance"],
-             fit["condition"][..., None], fit["ill_posed"][..., None]]
-    if "spread_ratio" in fit:
-        parts.append(fit["spread_ratio"][..., None])
+    known = None
+    if covariance and noise_covariance is not None:
+        known = window_mean(np.asarray(noise_covariance), half_width, axis=-3, circular=circular)
+    terms = _fit_terms(R, Z, half_width=half_width, degrees=degrees, circular=circular,
+                       covariance=covariance, known_covariance=known,
+                       experiment_axis=experiment_axis, denominator=denominator,
+                       closed_loop=closed_loop)
+    lead_m = terms["G"].shape[:-2]
+    names = ["G", "T", "noise_variance", "condition", "ill_posed", "spread_ratio", "P1",
+             "s_condition", "s_singular"]
     if covariance:
-        parts.append(fit["G_cov"].reshape(lead_m + (-1,)))
-    return np.concatenate([np.asarray(p, dtype=complex) for p in parts], axis=-1)
+        names += ["G_var", "rho", "rho_v", "P1_cov"]
+    return np.concatenate([np.asarray(terms[k], dtype=complex).reshape(lead_m + (-1,))
+                           for k in names if k in terms], axis=-1)
 
 
-def _fit(R, Z, *, half_width, degrees, circular, covariance, noise_covariance, experiment_axis,
-         denominator="ls", instruments=None, halves_instruments=None):
-    """The local model's outputs that :func:`fit_packed` packs (``T`` (..., E, M, nz)
-    pooled), ``G_cov`` rebuilt from a known noise covariance when one is given.
-    ``instruments``: those of ``denominator="iv"`` when the caller has them already."""
+def _fit_terms(R, Z, *, half_width, degrees, circular, covariance, known_covariance,
+               experiment_axis, closed_loop, denominator="ls", instruments=None,
+               halves_instruments=None, bins=None, spread=True) -> dict:
+    """The local model at every bin (``bins``: those of the circle) reduced by
+    :func:`slow_bin_terms`: ``G``, ``T`` (pooled: (..., M, E, nz)), ``noise_variance``,
+    ``condition``, ``ill_posed`` and the terms; ``G_cov`` is dropped.  ``G_cov`` is
+    rebuilt from ``known_covariance`` (the window mean of a known noise covariance, on
+    the fitted bins) when given.  ``instruments``: those of ``denominator="iv"`` when the
+    caller has them already.  ``spread``: also the pooled fits' split-half spread ratio
+    (on these bins: the caller does it otherwise)."""
     if check_denominator(denominator, degrees) and instruments is None:
         instruments = denominator_instruments(R, Z, degrees=degrees, circular=circular,
                                               experiment_axis=experiment_axis)
     fit = local_model(R, Z, half_width=half_width, degrees=tuple(degrees), circular=circular,
                       covariance="full" if covariance else None, experiment_axis=experiment_axis,
-                      instruments=instruments if denominator == "iv" else None)
+                      instruments=instruments if denominator == "iv" else None, bins=bins)
     G_cov = fit.G_cov
-    if covariance and noise_covariance is not None:
-        known = window_mean(np.asarray(noise_covariance), half_width, axis=-3, circular=circular)
-        G_cov = rescale_covariance(G_cov, fit.noise_covariance, known)
-    out = {"G": fit.G, "T": fit.T, "noise_variance": fit.noise_variance,
-           "condition": fit.condition, "ill_posed": fit.ill_posed, "G_cov": G_cov}
-    if covariance and (_n_experiments(R, Z, experiment_axis) or 0) >= MIN_SPLIT_EXPERIMENTS:
-        G_var = np.real(np.diagonal(G_cov, axis1=-2, axis2=-1)).reshape(fit.G.shape)
-        # the pool's own ill-posed bins (P_bad) have no variance to check
-        G_var = np.where(fit.ill_posed[..., None, None], np.nan, G_var)
-        out["spread_ratio"] = split_half_spread(
-            R, Z, G_var, half_width=half_width, degrees=degrees, circular=circular,
-            experiment_axis=experiment_axis, denominator=denominator,
-            instruments=halves_instruments)
+    if covariance and known_covariance is not None:
+        G_cov = rescale_covariance(G_cov, fit.noise_covariance, known_covariance)
+    n_exp = _n_experiments(R, Z, experiment_axis)
+    out = {"G": fit.G, "T": fit.T if n_exp is None else np.moveaxis(fit.T, -3, -2),
+           "noise_variance": fit.noise_variance, "condition": fit.condition,
+           "ill_posed": fit.ill_posed}
+    # (a block of the circle or a chunk: no mirror there, the caller mirrors)
+    out.update(slow_bin_terms(fit.G, G_cov, nr=np.shape(R)[-1], closed_loop=closed_loop,
+                              mirrors=False))
+    del G_cov, fit
+    if spread and covariance and (n_exp or 0) >= MIN_SPLIT_EXPERIMENTS:
+        out["spread_ratio"] = _spread_ratio(R, Z, out, half_width=half_width, degrees=degrees,
+                                            circular=circular, experiment_axis=experiment_axis,
+                                            denominator=denominator,
+                                            instruments=halves_instruments)
     return out
+
+
+def _spread_ratio(R, Z, terms, **kwargs):
+    """:func:`split_half_spread` of a pooled fit's ``terms`` (the pool's own ill-posed
+    bins, ``P_bad``, have no variance to check)."""
+    G_var = np.where(terms["ill_posed"][..., None, None], np.nan, terms["G_var"])
+    return split_half_spread(R, Z, G_var, **kwargs)
+
+
+#: The eager path (:func:`identify_spectra`) fits the local models in blocks of slow bins
+#: holding about this much of their covariance (``(nz nr)^2`` complex per bin and record)
+#: at a time, reducing each block to :func:`slow_bin_terms` before the next: one
+#: identify's memory is then bounded by the record's per-bin results, not by its
+#: covariance (115 MB for an N = 36 000 HDD record).  Blocks start on multiples of the
+#: local model's moment restart interval, so the results are those of one fit over all
+#: bins, bit for bit.
+BLOCK_BYTES = 8 << 20
+
+
+def _fit_blocks(R, Z, *, half_width, degrees, covariance, noise_covariance, experiment_axis,
+                closed_loop, denominator="ls", instruments=None, halves_instruments=None
+                ) -> dict:
+    """:func:`_fit_terms` of every slow bin of the circle, fitted in blocks of bins
+    (:data:`BLOCK_BYTES`).  Spectra of real signals: the blocks cover bins ``0..M/2``
+    and the others are their mirrors, as in one fit over all bins
+    (:func:`lcmr_xr.kernels.local_models.fits_half`)."""
+    R, Z = np.asarray(R), np.asarray(Z)
+    iv = check_denominator(denominator, degrees)
+    if iv and instruments is None:
+        instruments = denominator_instruments(R, Z, degrees=degrees,
+                                              experiment_axis=experiment_axis)
+    known = None
+    if covariance and noise_covariance is not None:
+        known = window_mean(np.asarray(noise_covariance), half_width, axis=-3, circular=True)
+    m, nr, nz = R.shape[-2], R.shape[-1], Z.shape[-1]
+    n_exp = _n_experiments(R, Z, experiment_axis)
+    lead = np.broadcast_shapes(R.shape[:-2], Z.shape[:-2])
+    records = int(np.prod(lead, dtype=int)) // (n_exp or 1)  # outputs per bin
+    half = fits_half(R, Z, half_width=half_width, instruments=instruments if iv else None)
+    last = m // 2 + 1 if half else m  # bins fitted; the others mirrored
+    align = _restart_interval(int(half_width))
+    per_bin = 16 * records * ((nz * nr) ** 2 if covariance else nz * nr)
+    step = align * max(1, BLOCK_BYTES // (per_bin * align))
+    # the last block ends on the restart grid too (or at M): the few bins past M/2 it
+    # fits are dropped for the mirror
+    edges = list(range(0, last, step)) + [min(m, -(-last // align) * align)]
+    out = axes = None
+    for a, b in zip(edges[:-1], edges[1:]):
+        block = _fit_terms(R, Z, half_width=half_width, degrees=degrees, circular=True,
+                           covariance=covariance,
+                           known_covariance=None if known is None else known[..., a:b, :, :],
+                           experiment_axis=experiment_axis, closed_loop=closed_loop,
+                           denominator=denominator, instruments=instruments, bins=(a, b),
+                           spread=False)
+        if out is None:  # every per-bin output, all M bins: the bin axis of each
+            axes = {k: _bin_axis(k, n_exp) for k, v in block.items() if v is not None}
+            out = {k: (None if v is None else
+                       np.empty(v.shape[:v.ndim + axes[k]] + (m,) + v.shape[v.ndim + axes[k] + 1:],
+                                v.dtype)) for k, v in block.items()}
+        keep = min(b, last) - a
+        for k, ax in axes.items():
+            out[k][_bins_at(ax, slice(a, a + keep))] = block[k][_bins_at(ax, slice(0, keep))]
+        del block
+    if half:  # bins M/2+1..M-1 are the conjugates of (M-1)/2..1 (as local_model mirrors)
+        for k, ax in axes.items():
+            src = out[k][_bins_at(ax, slice((m - 1) // 2, 0, -1))]
+            dst = out[k][_bins_at(ax, slice(m // 2 + 1, m))]
+            if dst.dtype.kind == "c":
+                np.conjugate(src, out=dst)
+            else:
+                dst[...] = src
+    if covariance and (n_exp or 0) >= MIN_SPLIT_EXPERIMENTS:
+        out["spread_ratio"] = _spread_ratio(R, Z, out, half_width=half_width, degrees=degrees,
+                                            circular=True, experiment_axis=experiment_axis,
+                                            denominator=denominator,
+                                            instruments=halves_instruments)
+    return out
+
+
+def _bin_axis(name, n_exp) -> int:
+    """The slow-bin axis (negative) of a per-bin output of :func:`_fit_terms`."""
+    if name == "T":  # (..., M, nz), pooled (..., M, E, nz)
+        return -2 if n_exp is None else -3
+    return _BIN_AXES[name]
+
+
+#: The slow-bin axis of each per-bin output of :func:`_fit_terms` (``T``: :func:`_bin_axis`).
+_BIN_AXES = {"G": -3, "noise_variance": -2, "condition": -1, "ill_posed": -1, "P1": -3,
+             "P1_cov": -3, "s_condition": -1, "s_singular": -1, "rho": -1, "rho_v": -1,
+             "G_var": -3, "spread_ratio": -1}
+
+
+def _bins_at(axis: int, bins: slice) -> tuple:
+    """Index selecting ``bins`` on the (negative) ``axis``."""
+    return (Ellipsis, bins) + (slice(None),) * (-axis - 1)
 
 
 def split_half_spread(R, Z, G_var, *, half_width, degrees, circular=True,
@@ -386,47 +560,47 @@ def finish_packed(packed, *, nz: int, nr: int, n_fast: int, factor: int, nu: int
     """
     packed = np.asarray(packed)
     lead_m = packed.shape[:-1]
-    g = nz * nr
-    # copies, not views: a view would keep all of ``packed`` (with the (nz nr)^2 covariance
-    # columns, ~12 MB per HDD experiment) alive for as long as the small results live
-    G = packed[..., :g].reshape(lead_m + (nz, nr)).copy()
     ne = 1 if n_exp is None else n_exp
-    T = packed[..., g: g + ne * nz].copy()
-    T = T if n_exp is None else T.reshape(lead_m + (n_exp, nz))
-    o = g + ne * nz  # the remaining columns follow the transients
-    noise_variance = packed[..., o: o + nz].real.copy()
-    condition = packed[..., o + nz].real.copy()
-    ill_posed = packed[..., o + nz + 1].real != 0
-    fit = {"G": G, "T": T, "noise_variance": noise_variance, "condition": condition,
-           "ill_posed": ill_posed}
-    o += nz + 2
+    widths = [("G", nz * nr, (nz, nr)), ("T", ne * nz, (nz,) if n_exp is None else (ne, nz)),
+              ("noise_variance", nz, (nz,)), ("condition", 1, ()), ("ill_posed", 1, ())]
     if covariance and ne >= MIN_SPLIT_EXPERIMENTS:
-        fit["spread_ratio"] = packed[..., o].real.copy()
-        o += 1
-    fit["G_cov"] = packed[..., o:].reshape(lead_m + (g, g)) if covariance else None
-    return _finish(fit, n_fast=n_fast, factor=factor, nu=nu, ny=ny, closed_loop=closed_loop,
+        widths.append(("spread_ratio", 1, ()))
+    widths += [("P1", ny * nr, (ny, nr)), ("s_condition", 1, ()), ("s_singular", 1, ())]
+    if covariance:
+        widths += [("G_var", nz * nr, (nz, nr)), ("rho", 1, ()), ("rho_v", 1, ()),
+                   ("P1_cov", (ny * nr) ** 2, (ny * nr, ny * nr))]
+    complex_ = {"G", "T", "P1", "P1_cov"}
+    terms, o = {"P1_cov": None}, 0
+    for name, k, shape in widths:
+        # copies, not views: a view would keep all of ``packed`` alive for as long as the
+        # small results live
+        x = packed[..., o: o + k].reshape(lead_m + shape)
+        terms[name] = x.copy() if name in complex_ else x.real.copy()
+        o += k
+    terms["ill_posed"] = terms["ill_posed"] != 0
+    terms["s_singular"] = terms["s_singular"] != 0
+    if not covariance:
+        terms["G_var"] = np.full(terms["G"].shape, np.nan)
+        terms["rho"] = terms["rho_v"] = np.full(lead_m, np.nan)
+    return _finish(terms, n_fast=n_fast, factor=factor, nu=nu, ny=ny, closed_loop=closed_loop,
                    dof=dof)
 
 
 def _finish(fit: dict, *, n_fast, factor, nu, ny, closed_loop, dof) -> dict:
-    """The fast FRF and the per-bin outputs from a fit (``T`` as :func:`finish_packed`
-    returns it); ``fit["G_cov"]`` None: no covariance.  Pooled experiments
-    (``fit["spread_ratio"]``): ``G_cov`` is scaled per bin by
-    :func:`lcmr_xr.kernels.pooling.spread_calibration` before anything uses it, so the
-    band of ``P`` and the weak-direction test of ``S`` see the spread the halves show."""
-    G, G_cov = fit["G"], fit["G_cov"]
+    """The fast FRF and the per-bin outputs from the fitted terms (:func:`_fit_terms`;
+    ``T`` as :func:`finish_packed` returns it).  Pooled experiments
+    (``fit["spread_ratio"]``): the covariance is scaled per bin by
+    :func:`lcmr_xr.kernels.pooling.spread_calibration`, so the band of ``P``, the
+    weak-direction test of ``S`` and ``G_var`` see the spread the halves show."""
     calibration = None
-    if G_cov is not None and "spread_ratio" in fit:
+    if fit["P1_cov"] is not None and "spread_ratio" in fit:
         calibration = spread_calibration(fit["spread_ratio"])
-        G_cov = G_cov * calibration[..., None, None]
-    out = recover_frf(G, G_cov, n_fast=n_fast, factor=factor, nu=nu, ny=ny,
-                      closed_loop=closed_loop, ill_posed=fit["ill_posed"], dof=dof)
-    if G_cov is not None:
-        G_var = np.real(np.diagonal(G_cov, axis1=-2, axis2=-1)).reshape(G.shape)
-    else:
-        G_var = np.full(G.shape, np.nan)
-    out.update({"G": G, "G_var": G_var, "T": fit["T"], "noise_variance": fit["noise_variance"],
-                "condition": fit["condition"], "ill_posed": fit["ill_posed"]})
+    out = _recover(fit, n_fast=n_fast, factor=factor, nu=nu, ny=ny, closed_loop=closed_loop,
+                   ill_posed=fit["ill_posed"], dof=dof, calibration=calibration)
+    G_var = fit["G_var"] if calibration is None else fit["G_var"] * calibration[..., None, None]
+    out.update({"G": fit["G"], "G_var": G_var, "T": fit["T"],
+                "noise_variance": fit["noise_variance"], "condition": fit["condition"],
+                "ill_posed": fit["ill_posed"]})
     if calibration is not None:
         out["spread_calibration"] = calibration
     return out
@@ -435,14 +609,11 @@ def _finish(fit: dict, *, n_fast, factor, nu, ny, closed_loop, dof) -> dict:
 def _fit_and_finish(R, Z, *, half_width, degrees, covariance, noise_covariance, experiment_axis,
                     n_fast, factor, nu, ny, closed_loop, n_exp, denominator="ls",
                     instruments=None, halves_instruments=None) -> dict:
-    """:func:`fit_packed` then :func:`finish_packed` without the packed copy (eager data:
-    the (nz nr)^2 covariance columns, the bulk of the memory, are held once, not twice)."""
-    fit = _fit(R, Z, half_width=half_width, degrees=degrees, circular=True,
-               covariance=covariance, noise_covariance=noise_covariance,
-               experiment_axis=experiment_axis, denominator=denominator,
-               instruments=instruments, halves_instruments=halves_instruments)
-    if n_exp is not None:  # as finish_packed returns it: (..., M, E, nz)
-        fit["T"] = np.moveaxis(fit["T"], -3, -2)
+    """The local model in blocks of bins (:func:`_fit_blocks`), then :func:`_finish`."""
+    fit = _fit_blocks(R, Z, half_width=half_width, degrees=degrees, covariance=covariance,
+                      noise_covariance=noise_covariance, experiment_axis=experiment_axis,
+                      closed_loop=closed_loop, denominator=denominator,
+                      instruments=instruments, halves_instruments=halves_instruments)
     return _finish(fit, n_fast=n_fast, factor=factor, nu=nu, ny=ny, closed_loop=closed_loop,
                    dof=window_dof(half_width, R.shape[-1], degrees, n_exp or 1))
 
@@ -592,28 +763,35 @@ def finish_packed_auto(packed, *, windows, nz: int, nr: int, n_fast: int, factor
 
 def _choose_windows(outs, windows, m) -> dict:
     """Choose per slow bin among the finished candidates ``outs`` (ascending ``windows``)
-    and gather every array from the chosen one (module notes of ``kernels.adaptive``)."""
+    and gather every array from the chosen one (module notes of ``kernels.adaptive``).
+    The candidates' arrays are released as they are gathered (``outs`` is emptied)."""
     P = np.stack([o["P"] for o in outs])
     P_var = np.stack([o["P_var"] for o in outs])
     P_lin = np.stack([o["P_var_linear"] for o in outs])
     choice, bias2 = select_windows(P, P_var, P_lin, m)
-    fast_choice = np.take(choice, np.arange(P.shape[-3]) % m, axis=-1)
+    del P, P_var, P_lin
+    fast_choice = np.take(choice, np.arange(bias2.shape[-3]) % m, axis=-1)
+    widest_undetermined = outs[-1]["P_undetermined"]
 
     def gather(name):
-        """The chosen candidate's array, bin by bin (slow or fast bins)."""
-        stack = np.stack([o[name] for o in outs])
+        """The chosen candidate's array, bin by bin (slow or fast bins), without a stack
+        of all candidates' (each candidate's array is dropped once read)."""
         lead = choice.ndim  # (..., M) or (..., K): the bin axis is the last of ``lead``
-        idx = choice if stack.shape[lead] == m else fast_choice
-        idx = idx.reshape((1,) + idx.shape + (1,) * (stack.ndim - 1 - lead))
-        return np.take_along_axis(stack, idx, axis=0)[0]
+        first = outs[0][name]
+        idx = choice if first.shape[lead - 1] == m else fast_choice
+        idx = idx.reshape(idx.shape + (1,) * (first.ndim - lead))
+        out = outs[-1].pop(name).copy()
+        for j, o in enumerate(outs[:-1]):
+            np.copyto(out, o.pop(name), where=idx == j)
+        return out
 
-    out = {name: gather(name) for name in outs[0]}
+    out = {name: gather(name) for name in list(outs[0])}
     b2 = np.take_along_axis(
         bias2, fast_choice.reshape((1,) + fast_choice.shape + (1, 1)), axis=0)[0]
     # The widest candidate has the most data: where even it cannot determine the weakest
     # direction of S, a narrower window that seems to is a lucky draw (choosing among noisy
     # determinacy tests), so the bin stays undetermined.
-    undetermined = out["P_undetermined"] | outs[-1]["P_undetermined"]
+    undetermined = out["P_undetermined"] | widest_undetermined
     out["P_undetermined"] = undetermined
     out["P_var"] = np.where(undetermined[..., None, None], np.inf, out["P_var"] + b2)
     out["P_bias"] = np.sqrt(b2)

@@ -58,6 +58,7 @@ residual projector).  Tested against a per-bin ``numpy.linalg.solve`` IV oracle 
 from __future__ import annotations
 
 import functools
+import operator
 import threading
 from concurrent.futures import ThreadPoolExecutor
 from typing import NamedTuple
@@ -65,7 +66,8 @@ from typing import NamedTuple
 import numpy as np
 
 
-__all__ = ["CONDITION_LIMIT", "LocalModelFit", "hermitian", "local_model", "parameters_per_row"]
+__all__ = ["CONDITION_LIMIT", "LocalModelFit", "fits_half", "hermitian", "local_model",
+           "parameters_per_row"]
 
 #: Bins whose (column-scaled) regression matrix has a condition number estimate above
 #: this are flagged ``ill_posed``.  The normal equations lose about ``eps * cond**2`` of
@@ -338,7 +340,7 @@ def _check_half_width(half_width, batch, m, nr, degrees, n_exp=1):
 
 def local_model(R, Z, *, half_width, degrees=(3, 3, 3), circular: bool = True,
                 covariance: str | None = "full", experiment_axis: int | None = None,
-                instruments=None) -> LocalModelFit:
+                instruments=None, bins: tuple[int, int] | None = None) -> LocalModelFit:
     """Fit the local rational (LRM) or polynomial (LPM, ``Rd = 0``) model at every bin.
 
     Parameters
@@ -387,6 +389,18 @@ def local_model(R, Z, *, half_width, degrees=(3, 3, 3), circular: bool = True,
         mirrored only if the instruments are conjugate-symmetric too (to rounding); a
         fitted ``G_hat R + T_hat`` is so only to the fit's rounding: symmetrise it,
         ``(Zhat + Zhat[(-k) % M].conj()) / 2``, to keep the half cost.
+    bins : (int, int), optional
+        ``(start, stop)``: fit only the bins ``start..stop-1`` of the circular problem
+        (windows wrap around all ``M`` bins of ``R`` and ``Z``) and return the outputs on
+        those bins only, so that a caller can process a long record in blocks of bins
+        without holding every bin's ``G_cov``.  Only the block and its halo of the widest
+        window are read (and checked for NaN/inf).  The values are those of the whole fit
+        at those bins, bit for bit when ``start`` is a multiple of the moment restart
+        interval (the largest power of two not above the widest ``half_width``; the
+        restarts then fall on the same bins) and ``stop`` is one too or ``M``; to
+        rounding otherwise.  Every bin of the range is fitted by its own window: spectra
+        of real signals are NOT mirrored (:func:`fits_half` says whether the whole fit
+        would mirror; fit bins ``0..M/2`` then and mirror them).  Needs ``circular=True``.
 
     Returns
     -------
@@ -494,14 +508,19 @@ def local_model(R, Z, *, half_width, degrees=(3, 3, 3), circular: bool = True,
             f"R has {m} bins and Z has {Z.shape[-2]} (axis -2); pass spectra on the same bins."
         )
     use_iv = False
+    Zhat = None
     if instruments is not None:
         Zhat = _check_instruments(instruments, Z)
         use_iv = rd > 0  # the LPM has no denominator: IV is least squares there
         if use_iv:  # the kernel reads the instruments as nz more channels after Z
             lead = np.broadcast_shapes(Z.shape[:-2], Zhat.shape[:-2])
-            Z = np.concatenate([np.broadcast_to(Z, lead + Z.shape[-2:]),
-                                np.broadcast_to(Zhat, lead + Z.shape[-2:])], axis=-1)
-    nzc = Z.shape[-1]  # channels the kernel reads (2 nz with instruments)
+            Z = np.broadcast_to(Z, lead + Z.shape[-2:])
+            Zhat = np.broadcast_to(Zhat, lead + Z.shape[-2:])
+            _, Zhat, _ = _experiments_last(R, Zhat, experiment_axis)
+        else:  # checked all the same
+            _check_finite_instruments(Zhat)
+            Zhat = None
+    nzc = nz * (2 if use_iv else 1)  # channels the kernel reads (2 nz with instruments)
     R, Z, n_exp = _experiments_last(R, Z, experiment_axis)
     pooled = experiment_axis is not None
     hw_lead = np.shape(half_width)[:-1]
@@ -520,29 +539,47 @@ def local_model(R, Z, *, half_width, degrees=(3, 3, 3), circular: bool = True,
         raise ValueError(
             f"covariance must be 'full', 'diag' or None, got {covariance!r}."
         )
+    if bins is not None:  # the block and its wrapped halo only, from here on
+        start, stop = _check_bins(bins, m, circular)
+        widths = widths[:, start:stop]
+        halo = int(widths.max())
+        near = np.arange(start - halo, stop + halo) % m
+        R, Z = np.take(R, near, axis=-2), np.take(Z, near, axis=-2)
+        Zhat = None if Zhat is None else np.take(Zhat, near, axis=-2)
+        m = stop - start
     if not (np.all(np.isfinite(R)) and np.all(np.isfinite(Z))):
         raise ValueError(
             "R and Z must be finite (found NaN or inf); drop or interpolate the bad bins "
             "before fitting."
         )
+    if Zhat is not None:
+        _check_finite_instruments(Zhat)
+        Z = np.concatenate([Z, Zhat], axis=-1)
     p_row = parameters_per_row(nr, degrees)
     # pooled: the shared G, N, D plus one transient term (Rm + 1 parameters) per experiment
     p_pool = p_row + (n_exp - 1) * (rm + 1)
 
-    # Bins-first layout (batch, bins, channel), padded with the widest halo on both ends
+    # Bins-first layout (batch, bins, channel)
     n_batch = int(np.prod(batch, dtype=int))
     ex = (n_exp,) if pooled else ()
+    n_max = int(widths.max())
+    # bins= : the data come haloed, output bin j is the data's bin n_max + j (bin start + j
+    # of the circle); otherwise the data are the M bins, each chunk takes its halo
+    # (_haloed: no padded copy of the whole data, 75 MB at M = 2^19 with nr = 4, nz = 5)
+    origin = 0 if bins is None else n_max
     # (read only from here on: a view of the caller's arrays when no copy is needed, not
     # a broadcast view where nothing is broadcast: those are read-only, see _haloed)
-    rt, zt = ((x if x.shape == batch + ex + (m, c) else np.broadcast_to(x, batch + ex + (m, c)))
-              .reshape(n_batch * n_exp, m, c).astype(complex, copy=False)
+    rt, zt = ((x if x.shape == batch + ex + (m + 2 * origin, c)
+               else np.broadcast_to(x, batch + ex + (m + 2 * origin, c)))
+              .reshape(n_batch * n_exp, m + 2 * origin, c).astype(complex, copy=False)
               for x, c in ((R, nr), (Z, nzc)))
-    n_max = int(widths.max())
     k = np.arange(m)
-    if circular:
+    if bins is not None:
         todo = np.ones((n_batch, m), dtype=bool)
-        mirror = hermitian(rt) and hermitian(zt) and np.array_equal(
-            widths, widths[:, (-k) % m])
+        mirror = False
+    elif circular:
+        todo = np.ones((n_batch, m), dtype=bool)
+        mirror = _mirrors(rt, zt, widths)
         if mirror:  # real signals: fit 0..M/2, the rest is the conjugate
             todo[:, m // 2 + 1:] = False
     else:
@@ -575,8 +612,9 @@ def local_model(R, Z, *, half_width, degrees=(3, 3, 3), circular: bool = True,
         g, c0, c1, n = task
         sel = todo[g, c0:c1] & (widths[g, c0:c1] == n)
         rows = slice(g.start * n_exp, g.stop * n_exp)  # the group's experiments, consecutive
-        _fit_chunk(_haloed(rt[rows], c0 - n, c1 + n, circular),
-                   _haloed(zt[rows], c0 - n, c1 + n, circular), n, degrees, mode, sel,
+        lo, hi = origin + c0 - n, origin + c1 + n
+        _fit_chunk(_haloed(rt[rows], lo, hi, circular), _haloed(zt[rows], lo, hi, circular),
+                   n, degrees, mode, sel,
                    g.start * m + c0, m, n_exp * (2 * n + 1) - p_pool, out, n_exp, use_iv)
 
     with np.errstate(all="ignore"):
@@ -656,12 +694,69 @@ def _check_instruments(instruments, Z):
             f"the leading dims of instruments {W.shape[:-2]} do not broadcast with Z's "
             f"{Z.shape[:-2]}."
         ) from None
+    return W  # (checked for NaN/inf by local_model, on the bins it reads)
+
+
+def _check_finite_instruments(W):
     if not np.all(np.isfinite(W)):
         raise ValueError(
             "instruments must be finite (found NaN or inf); predict Z at every bin (where a "
             "first fit failed, use another prediction or instruments=None)."
         )
-    return W
+
+
+def _check_bins(bins, m, circular):
+    """The validated ``(start, stop)`` of ``local_model(..., bins=)``."""
+    if not circular:
+        raise ValueError("bins= selects bins of the circular fit; with circular=False the "
+                         "caller passes the haloed block itself (drop bins).")
+    try:
+        start, stop = (operator.index(b) for b in bins)
+    except (TypeError, ValueError):
+        raise ValueError(f"bins must be two integers (start, stop), got {bins!r}.") from None
+    if not 0 <= start < stop <= m:
+        raise ValueError(f"bins=({start}, {stop}) must satisfy 0 <= start < stop <= M = {m}.")
+    return start, stop
+
+
+def _mirrors(rt, zt, widths) -> bool:
+    """Whether a circular fit of ``rt`` (batch, M, nr), ``zt`` (batch, M, nzc) with the
+    half-widths ``widths`` (batch, M) fits bins ``0..M/2`` and mirrors the others."""
+    m = widths.shape[-1]
+    return hermitian(rt) and hermitian(zt) and np.array_equal(
+        widths, widths[:, (-np.arange(m)) % m])
+
+
+def fits_half(R, Z, *, half_width, instruments=None) -> bool:
+    """Whether :func:`local_model` (circular) fits only bins ``0..M/2`` of these spectra
+    and mirrors the others: spectra of real signals (:func:`hermitian`, instruments too)
+    and a window per bin that is symmetric too.  A caller fitting in blocks of bins
+    (``bins=``) then needs the blocks of bins ``0..M/2`` only.
+
+    Parameters
+    ----------
+    R, Z, half_width, instruments
+        As :func:`local_model` (``instruments``: pass None for a model without a
+        denominator, whose fit ignores them).
+
+    Returns
+    -------
+    bool
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> x = np.fft.fft(np.random.default_rng(0).standard_normal((16, 2)), axis=0)
+    >>> fits_half(x[:, :1], x[:, 1:], half_width=3), fits_half(x[:, :1], 1j * x[:, 1:], half_width=3)
+    (True, False)
+    """
+    R, Z = np.asarray(R), np.asarray(Z)
+    m = R.shape[-2]
+    flat = [np.reshape(x, (-1, m, x.shape[-1])) for x in
+            (R, Z) + (() if instruments is None else (np.asarray(instruments),))]
+    widths = np.broadcast_to(np.asarray(half_width), np.shape(half_width)[:-1] + (m,))
+    return all(hermitian(x) for x in flat) and np.array_equal(
+        widths, widths[..., (-np.arange(m)) % m])
 
 
 def _experiments_last(R, Z, axis):

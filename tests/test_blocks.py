@@ -1,0 +1,146 @@
+"""The eager path fits the local models in blocks of slow bins and keeps per bin only what
+the finishing steps read (``kernels.identification._fit_blocks``, ``BLOCK_BYTES``); its
+results are those of one fit over all bins.  Blocks are forced small here (16 bins, the
+restart interval of window 30), so that many blocks, their edges, the circular halo at
+bins 0 and M-1 and the mirrored half spectrum are exercised."""
+
+import numpy as np
+import pytest
+
+from lcmr_xr import hdd
+from lcmr_xr.kernels import identification as ki
+from lcmr_xr.kernels.local_models import fits_half, local_model
+
+WINDOW = 30
+
+
+@pytest.fixture(scope="module")
+def record():
+    exp = hdd.simulate(n_samples=1200, seed=3)
+    factor = int(exp.attrs["factor"])
+    R, Z = ki.experiment_spectra(exp.r.values, exp.u.values, exp.y.values, factor=factor)
+    return R, Z, dict(n_fast=exp.sizes["time"], factor=factor, nu=exp.sizes["input"])
+
+
+def _force_blocks(monkeypatch, nbytes):
+    """Set the block size; return the list that collects the bins of every block fitted."""
+    calls = []
+    real = ki.local_model
+
+    def spy(*args, **kwargs):
+        if kwargs.get("bins") is not None:
+            calls.append(kwargs["bins"])
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(ki, "local_model", spy)
+    monkeypatch.setattr(ki, "BLOCK_BYTES", nbytes)
+    return calls
+
+
+def _assert_same(got: dict, want: dict, names=None):
+    names = sorted(want) if names is None else names
+    for name in names:
+        a, b = np.asarray(got[name]), np.asarray(want[name])
+        assert a.shape == b.shape, name
+        if a.dtype.kind == "b":
+            np.testing.assert_array_equal(a, b, err_msg=name)
+        else:
+            np.testing.assert_allclose(a, b, rtol=1e-12, atol=0, equal_nan=True, err_msg=name)
+
+
+def _run(monkeypatch, nbytes, fn, *args, **kwargs):
+    calls = _force_blocks(monkeypatch, nbytes)
+    out = fn(*args, **kwargs)
+    monkeypatch.undo()
+    return out, calls
+
+
+@pytest.mark.parametrize("real", [True, False], ids=["real-mirrored", "complex-every-bin"])
+def test_blocks_equal_one_fit_over_all_bins(monkeypatch, record, real):
+    R, Z, shape = record
+    if not real:  # not conjugate-symmetric: every bin is fitted, no mirror
+        R, Z = R * np.exp(0.3j), Z * np.exp(0.3j)
+    m = R.shape[-2]
+    assert fits_half(R, Z, half_width=WINDOW) is real
+    kw = dict(half_width=WINDOW, degrees=(3, 3, 3), **shape)
+    small, calls = _run(monkeypatch, 1, ki.identify_spectra, R, Z, **kw)
+    whole, one = _run(monkeypatch, 1 << 60, ki.identify_spectra, R, Z, **kw)
+    # 16-bin blocks, back to back from bin 0; real signals: up to M/2 (rounded up to the
+    # restart grid), complex ones: every bin, the last block ending at M
+    last = -(-(m // 2 + 1) // 16) * 16 if real else m
+    assert len(calls) == -(-last // 16) > 10 and len(one) == 1
+    assert calls[0][0] == 0 and calls[-1][1] == last
+    assert all(a[1] == b[0] and (a[1] - a[0]) == 16 for a, b in zip(calls[:-1], calls[1:]))
+    _assert_same(small, whole)
+    # ... and to the whole-circle pipeline: one local model over all bins (mirrored by the
+    # kernel for real signals), its full G_cov, then recover_frf
+    fit = local_model(R, Z, half_width=WINDOW, degrees=(3, 3, 3))
+    ref = ki.recover_frf(fit.G, fit.G_cov, ny=Z.shape[-1] - R.shape[-1], ill_posed=fit.ill_posed,
+                         dof=fit.dof, **shape)
+    ref.update(G=fit.G, T=fit.T, noise_variance=fit.noise_variance, condition=fit.condition,
+               ill_posed=fit.ill_posed,
+               G_var=np.real(np.diagonal(fit.G_cov, axis1=-2, axis2=-1)).reshape(fit.G.shape))
+    _assert_same(small, ref)
+    assert np.isfinite(small["P_var"]).mean() > 0.5  # a real test: bands where determined
+
+
+def test_auto_window_blocks_equal_one_fit(monkeypatch, record):
+    R, Z, shape = record
+    kw = dict(windows=(12, 19, 30), degrees=(3, 3, 3), **shape)
+    small, calls = _run(monkeypatch, 1, ki.identify_spectra_auto, R, Z, **kw)
+    whole, _ = _run(monkeypatch, 1 << 60, ki.identify_spectra_auto, R, Z, **kw)
+    assert {b - a for a, b in calls} >= {8, 16}  # each candidate on its own restart grid
+    _assert_same(small, whole)
+    assert set(np.unique(small["window"])) > {12}
+
+
+def test_pooled_blocks_equal_one_fit(monkeypatch):
+    """Pooled experiments with instruments, the split-half spread and its calibration
+    (applied to the reduced terms) and a known noise covariance."""
+    exps = [hdd.simulate(n_samples=600, seed=s) for s in range(4)]
+    factor = int(exps[0].attrs["factor"])
+    spectra = [ki.experiment_spectra(e.r.values, e.u.values, e.y.values, factor=factor)
+               for e in exps]
+    R = np.stack([s[0] for s in spectra])
+    Z = np.stack([s[1] for s in spectra])
+    noise = np.abs(Z[0])[:, :, None] * np.abs(Z[1])[:, None, :] * 1e-4 + 0j  # (M, nz, nz)
+    shape = dict(n_fast=exps[0].sizes["time"], factor=factor, nu=exps[0].sizes["input"])
+    kw = dict(half_width=20, degrees=(3, 3, 3), experiment_axis=-3, denominator="iv", **shape)
+    for extra in ({}, {"noise_covariance": noise}):
+        small, calls = _run(monkeypatch, 1, ki.identify_spectra, R, Z, **kw, **extra)
+        whole, _ = _run(monkeypatch, 1 << 60, ki.identify_spectra, R, Z, **kw, **extra)
+        assert len(calls) > 5
+        _assert_same(small, whole)
+        assert np.any(small["spread_calibration"] > 1)
+
+
+def test_local_model_bins_are_those_of_the_whole_fit(record):
+    """``bins=``: aligned blocks give the whole fit's values bit for bit (bins 0..M/2 of
+    real signals, where the whole fit fits them; every bin otherwise, including the blocks
+    whose windows wrap around bins 0 and M-1); an unaligned block agrees to rounding."""
+    R, Z, _ = record
+    m = R.shape[-2]
+    for real in (True, False):
+        Rx, Zx = (R, Z) if real else (R * 1j ** 0.5, Z * 1j ** 0.5)
+        whole = local_model(Rx, Zx, half_width=WINDOW)
+        blocks = [(0, 48), (m // 2 - 15, m // 2 + 1)] if real else [(0, 32), (m - 40, m), (16, m)]
+        for a, b in blocks:
+            part = local_model(Rx, Zx, half_width=WINDOW, bins=(a, b))
+            for name in ("G", "T", "noise_covariance", "G_cov", "condition", "ill_posed"):
+                if a % 16 == 0 and (b % 16 == 0 or b == m or real):
+                    np.testing.assert_array_equal(getattr(part, name), getattr(whole, name)[a:b],
+                                                  err_msg=f"{name} {(a, b)}")
+                else:  # the recurrence's rounding: relative to the largest of its kind
+                    want = np.asarray(getattr(whole, name)[a:b], dtype=complex)
+                    np.testing.assert_allclose(getattr(part, name), want, rtol=1e-6,
+                                               atol=1e-9 * np.max(np.abs(want)),
+                                               err_msg=f"{name} {(a, b)}")
+    with pytest.raises(ValueError, match="0 <= start < stop"):
+        local_model(R, Z, half_width=WINDOW, bins=(10, m + 1))
+    with pytest.raises(ValueError, match="circular=False"):
+        local_model(R, Z, half_width=WINDOW, bins=(0, 10), circular=False)
+    bad = Z.copy()
+    bad[m - 1, 0] = np.nan  # in the halo of bins 0..: checked; far from bins 100..200: not read
+    with pytest.raises(ValueError, match="finite"):
+        local_model(R, bad, half_width=WINDOW, bins=(0, 16))
+    local_model(R, bad, half_width=WINDOW, bins=(100, 200))
