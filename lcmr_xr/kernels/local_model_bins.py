@@ -524,32 +524,18 @@ def step_moments(rt, zt, b, k, n, slot_i, slot_j, shift, lead, mom, base, x_out,
     xo = x_out.view(np.float64)
     xi = x_in.view(np.float64)
     n2 = 2 * ns
-    bf = af[n2:]
-    # two powers per pass, descending (the lower powers are still old): a and a - 1 share
-    # the loads of the rows c < a
-    for a in range(shift.shape[0] - 1, -1, -2):
+    for a in range(shift.shape[0] - 1, -1, -1):  # descending: lower powers are still old
         la = lead[a]
-        if a == 0:
-            for s in range(n2):
-                mf[s] += xi[s] - la * xo[s]
-            break
-        lb = lead[a - 1]
         for s in range(n2):
             af[s] = xi[s] - la * xo[s]
-            bf[s] = xi[s] - lb * xo[s]
-        for c in range(a):
-            wa = shift[a, c]
-            wb = shift[a - 1, c]
+        for c in range(a + 1):
+            w = shift[a, c]
             row = mf[c * n2: (c + 1) * n2]  # a view: indices from 0 vectorise (an offset
             for s in range(n2):  # index might be negative to the compiler: wraparound)
-                r = row[s]
-                af[s] += wa * r
-                bf[s] += wb * r
+                af[s] += w * row[s]
         row = mf[a * n2: (a + 1) * n2]
-        low = mf[(a - 1) * n2: a * n2]
         for s in range(n2):
-            row[s] = af[s] + row[s]
-            low[s] = bf[s]
+            row[s] = af[s]
 
 
 @numba.njit(**_INNER)
@@ -572,7 +558,7 @@ def moments_and_floor(rt, zt, n, sel, restart, k_base, slot_i, slot_j, p1, mom_o
     rho_pow, shift, lead = _recurrence(n, p1)
     mom = np.empty(ns * p1, dtype=np.complex128)
     floor = np.empty(nr)
-    scratch = np.empty((4, 2 * max(ns, nr + 1 + zt.shape[2])), dtype=np.complex128)
+    scratch = np.empty((4, max(ns, nr + 1 + zt.shape[2])), dtype=np.complex128)
     for b in range(sel.shape[0]):
         valid = np.bool_(False)  # not the literal False: one compiled _advance, not two
         for k in range(sel.shape[1]):
@@ -620,7 +606,7 @@ def _advance(rt, zt, b, k, valid, sel_b, restart, k_base, n, slot_i, slot_j, rho
     bins).  A chunk starting inside a segment starts with direct sums.  ``floor``:
     ``2 eps (W + 2 restart)`` times the R energy of the samples the segment's windows
     cover, a bound of the absolute rounding of the windowed ``sum |R_p|^2``.
-    ``scratch`` (4, >= 2 max(n_slots, n_bases)): the last row holds two powers.
+    ``scratch`` (4, >= max(n_slots, n_bases)).
     """
     nr = rt.shape[2]
     phase = (k_base + k) % restart
@@ -874,8 +860,7 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
                 gsg[a, c] = -1.0 if f >= n_flat else 1.0
     floors = np.empty((n_exp, nr))
     floor = np.empty(nr)
-    scratch = np.empty((4, 2 * max(slot_i.shape[0], nr + 1 + zt.shape[2])),
-                      dtype=np.complex128)
+    scratch = np.empty((4, max(slot_i.shape[0], nr + 1 + zt.shape[2])), dtype=np.complex128)
     for b in range(sel.shape[0]):
       valid = np.bool_(False)  # not the literal False: one compiled _advance, not two
       for k in range(sel.shape[1]):
