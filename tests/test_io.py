@@ -201,3 +201,39 @@ def test_lazy_reopen_of_held_files_does_not_crash(tmp_path):
                          timeout=120)
     assert run.returncode == 0, run.stderr[-2000:]
     assert run.stdout.strip() == "ok"
+
+
+def test_atomic_writes_list_their_directory_o1_times_and_still_clean_dead_writers(tmp_path, monkeypatch):
+    """A sweep writes thousands of files into one directory: a write must not list it each
+    time (that was O(files) per write), and a killed writer's temporary is still removed."""
+    import subprocess
+    import sys
+
+    from lcmr_xr.io import _atomic
+
+    for i in range(200):
+        (tmp_path / f"part{i}.nc").write_bytes(b"")
+    dead = int(subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"],
+                              capture_output=True, text=True, check=True).stdout)
+    host = _atomic._host_tag()
+    before = tmp_path / f".a.nc.{host}-{dead}.before00.tmp"  # left before our first write
+    before.write_bytes(b"x")
+    listings = []
+    real = os.scandir
+    monkeypatch.setattr(_atomic.os, "scandir", lambda d: listings.append(d) or real(d))
+
+    def write(name):
+        _atomic.atomic_write(tmp_path / name, lambda tmp: open(tmp, "wb").close())
+
+    write("a.nc")
+    assert not before.exists() and len(listings) == 1  # the first write lists and cleans
+    during = tmp_path / f".a.nc.{host}-{dead}.during00.tmp"  # a writer killed meanwhile
+    during.write_bytes(b"x")
+    other = tmp_path / f".b.nc.{host}-{dead}.during00.tmp"  # another name's: not a.nc's to remove
+    other.write_bytes(b"x")
+    for i in range(600):
+        write("a.nc" if i % 2 else f"new{i}.nc")
+    # about one listing per directory size (>= 200 + new files) of writes, not one per write
+    assert 2 <= len(listings) <= 1 + 600 // 200
+    assert not during.exists() and other.exists()
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".") and "during00" not in p.name]

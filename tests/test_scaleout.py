@@ -78,7 +78,8 @@ def test_archive_round_trip_names_order_and_laziness(tmp_path):
     files = save_archive(exps, tmp_path)
     assert [p.name for p in files] == ["b10.nc", "a_2_x.nc", "c.nc"]
     arc = open_archive(tmp_path)
-    assert arc.r.chunks is not None and arc.r.chunks[0] == (1, 1, 1)  # one file per chunk
+    assert arc.r.chunks is not None and arc.r.chunks[0] == (3,)  # up to 16 files per chunk
+    assert open_archive(tmp_path, chunks={"experiment": 1}).r.chunks[0] == (1, 1, 1)
     xr.testing.assert_identical(arc.compute(), exps)
 
 

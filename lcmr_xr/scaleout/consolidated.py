@@ -79,9 +79,15 @@ def metadata_of(label, ds: xr.Dataset) -> dict:
     for name, var in ds.coords.items():
         if var.ndim == 0 and name != cv.EXPERIMENT:
             out[name] = var.values.item()
+    return checked_metadata(label, out, ds.attrs)
+
+
+def checked_metadata(label, scalars: dict, attrs: dict) -> dict:
+    """:func:`metadata_of` from the scalar coordinates' values and the attributes."""
+    out = dict(scalars)
     for name in METADATA:
-        if name in ds.attrs and name not in out:
-            value = ds.attrs[name]
+        if name in attrs and name not in out:
+            value = attrs[name]
             out[name] = value.item() if isinstance(value, np.generic) else value
     for name, value in out.items():
         if not isinstance(value, (str, bool, int, float)):
