@@ -666,7 +666,7 @@ def _open_directory(directory: Path, chunks) -> xr.Dataset:
         row["meta"] = con.checked_metadata(  # as con.metadata_of of the file's dataset
             label, {n: v for n, v in header["scalars"].items() if n != cv.EXPERIMENT}, attrs)
         merged.add({k: v for k, v in attrs.items() if k != ORDER_ATTR and k not in con.METADATA})
-        scalars = [n for n, (shape, _) in header["variables"].items() if shape == () and n != cv.EXPERIMENT]
+        scalars = [n for n in header["scalars"] if n != cv.EXPERIMENT]  # metadata coordinates
         structure = repr(sorted((n, shape, str(dtype)) for n, (shape, dtype) in header["variables"].items()
                                 if n not in scalars and n != cv.EXPERIMENT))
         structure += repr([hash(header[cv.TIME].tobytes()), None if header[cv.SLOW_TIME] is None
@@ -722,9 +722,8 @@ def _open_directory(directory: Path, chunks) -> xr.Dataset:
                 decoded[ident] = _variable_attrs(_as_part(other, by_id[ident]))
         for name, attrs in decoded[ident].items():
             merged_vars.setdefault(name, dirx.DropConflicts()).add(attrs)
-    per_chunk = int((chunks or {}).get(cv.EXPERIMENT, EXPERIMENTS_PER_CHUNK))
     ordered = [row["path"] for row in files]
-    signals = dirx.lazy_signals(ordered, template, per_chunk)
+    signals = dirx.lazy_signals(ordered, template, _files_per_chunk(chunks, len(ordered)))
     labels = np.asarray([row["label"] for row in files],
                         dtype=template[cv.EXPERIMENT].dtype if template[cv.EXPERIMENT].dtype == object else None)
     data_vars = {
@@ -748,6 +747,22 @@ def _open_directory(directory: Path, chunks) -> xr.Dataset:
         return validate_experiment(combined, check_values=False)
     except ValueError as err:
         raise ValueError(f"archive {directory}: {err}") from err
+
+
+def _files_per_chunk(chunks, n_files: int) -> int:
+    """Files per dask chunk (task) of a directory archive from ``chunks["experiment"]``, as
+    dask reads it: -1 or None one chunk, "auto" the default."""
+    value = (chunks or {}).get(cv.EXPERIMENT, EXPERIMENTS_PER_CHUNK)
+    if value is None or (isinstance(value, (int, np.integer)) and value == -1):
+        return max(1, n_files)
+    if isinstance(value, str) and value == "auto":
+        return EXPERIMENTS_PER_CHUNK
+    if isinstance(value, (int, np.integer)) and not isinstance(value, bool) and value > 0:
+        return int(value)
+    raise ValueError(
+        f"chunks['experiment'] = {value!r} is no positive number of experiments per chunk; "
+        f"pass e.g. {{'experiment': {EXPERIMENTS_PER_CHUNK}}} (-1: one chunk, 'auto': the default)."
+    )
 
 
 def _as_part(ds: xr.Dataset, path: Path) -> xr.Dataset:
