@@ -58,3 +58,23 @@ def test_chunks_along_experiment_refused_with_the_remedy(tmp_path):
         with pytest.raises(ValueError, match=r"chunks\['experiment'\] .* positive number of "
                                              r"experiments per chunk"):
             open_archive(tmp_path, chunks={"experiment": bad})
+
+
+def test_consolidating_refuses_to_drop_other_data_variables(tmp_path):
+    # the consolidated form holds r, u, y only: extra data variables of the files are
+    # refused by name (they were dropped without a word), and nothing is written
+    from lcmr_xr.scaleout import consolidate_archive
+
+    items = [_labelled(i).assign(gain=xr.DataArray(1.5 + i),
+                                 temp=("time", np.full(_labelled(i).sizes["time"], 20.0 + i)))
+             for i in range(3)]
+    save_archive(items, tmp_path / "d", layout="files")
+    with pytest.raises(ValueError, match=r"data variables \['gain', 'temp'\] besides r, u, y.*"
+                                         r"drop_vars"):
+        consolidate_archive(tmp_path / "d", tmp_path / "c.nc")
+    assert not (tmp_path / "c.nc").exists()
+    save_archive([ds.drop_vars(["gain", "temp"]) for ds in items], tmp_path / "d", overwrite=True,
+                 layout="files")
+    consolidate_archive(tmp_path / "d", tmp_path / "c.nc")
+    xr.testing.assert_identical(open_archive(tmp_path / "c.nc").compute(),
+                                open_archive(tmp_path / "d").compute())

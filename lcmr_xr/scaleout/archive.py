@@ -446,6 +446,13 @@ def consolidate_archive(directory, path, *, overwrite: bool = False, progress=No
                               "or choose another path.")
     # checks every file's header (reads no data); its tasks read con.BATCH files each
     lazy = open_archive(directory, chunks={cv.EXPERIMENT: con.BATCH})
+    extra = sorted(name for name in lazy.data_vars if name not in ("r", "u", "y"))
+    if extra:  # the consolidated form holds r, u, y only: refuse rather than drop them
+        raise ValueError(
+            f"the experiments of {directory} hold the data variables {extra} besides r, u, y; "
+            "a consolidated archive keeps only r, u, y and would lose them. Keep the directory "
+            f"archive, or save the experiments without them first (ds.drop_vars({extra}))."
+        )
     attrs = dict(lazy.attrs)
     total = lazy.sizes[cv.EXPERIMENT]
 
