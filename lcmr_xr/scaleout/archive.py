@@ -424,7 +424,8 @@ def consolidate_archive(directory, path, *, overwrite: bool = False, progress=No
     :func:`open_archive` read them.  The directory is left as it was.  The result opens
     identical to the directory (attributes, metadata coordinates, values).  The values
     are copied as they are: NaN in an experiment is reported by the sweep that identifies
-    it.
+    it.  Files with data variables besides ``r``, ``u``, ``y`` are refused (the
+    consolidated form holds those three only).
 
     Examples
     --------
@@ -541,7 +542,8 @@ def open_archive(path, chunks=None) -> xr.Dataset:
         Dask chunks.  Default ``None``: :data:`EXPERIMENTS_PER_CHUNK` experiments (files
         of a directory) per chunk, whole records along ``time``, which
         :func:`lcmr_xr.identify` needs.  For a consolidated archive only the
-        ``experiment`` entry is used (``{"experiment": 64}``).
+        ``experiment`` entry is used (``{"experiment": 64}``; a directory also takes -1
+        or None, one chunk, and ``"auto"``, the default).
 
     Returns
     -------
