@@ -633,6 +633,32 @@ def test_chunking_and_batch_grouping_do_not_change_results(monkeypatch):
                                            rtol=1e-9, atol=1e-300)
 
 
+
+@pytest.mark.parametrize("circular", [True, False])
+def test_chunks_as_views_of_read_only_data_same_fit_no_new_compilation(monkeypatch, circular):
+    """Chunks take their bins as views of the data (a copy only at the ends, or of
+    read-only data): many chunks give the one-chunk fit, read-only input gives the
+    writeable input's fit and compiles no second version of the loop."""
+    rng = np.random.default_rng(6)
+    R = np.exp(2j * np.pi * rng.random((150, 2)))
+    Z = rng.standard_normal((150, 2)) + 1j * rng.standard_normal((150, 2))
+    kw = {"half_width": 6, "degrees": (2, 1, 1), "circular": circular, "covariance": None}
+    one = local_model(R, Z, **kw)
+    per_bin = lm._CHUNK_BYTES // lm._chunk_elements(2, 2, None)
+    monkeypatch.setattr(lm, "_CHUNK_BYTES", 16 * per_bin)  # 16-bin chunks
+    many = local_model(R, Z, **kw)
+    R_ro, Z_ro = R.copy(), Z.copy()
+    R_ro.flags.writeable = Z_ro.flags.writeable = False
+    ro = local_model(R_ro, Z_ro, **kw)
+    assert all(sig[0].mutable and sig[1].mutable for sig in lmb.fit_bins.signatures)
+    for fit in (many, ro):
+        for name in ("G", "T", "noise_covariance", "condition", "ill_posed"):
+            np.testing.assert_allclose(getattr(fit, name), getattr(one, name), rtol=1e-9,
+                                       atol=1e-300)
+    assert not circular or not one.ill_posed.any()
+    assert circular or one.ill_posed[:6].all() and not one.ill_posed[6:-6].any()
+
+
 # ------------------------------------------------------- windows per bin, real signals
 def test_window_per_bin_matches_oracle():
     """An integer array of half-widths: every bin is the oracle's fit at its own window."""

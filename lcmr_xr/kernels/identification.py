@@ -426,6 +426,8 @@ def _fit_blocks(R, Z, *, half_width, degrees, covariance, noise_covariance, expe
     lead = np.broadcast_shapes(R.shape[:-2], Z.shape[:-2])
     records = int(np.prod(lead, dtype=int)) // (n_exp or 1)  # outputs per bin
     half = fits_half(R, Z, half_width=half_width, instruments=instruments if iv else None)
+    if half and known is not None:  # bin M - k rebuilt from its own known covariance unless mirrored
+        half = hermitian(np.reshape(np.asarray(noise_covariance), (-1, m, nz * nz)))
     last = m // 2 + 1 if half else m  # bins fitted; the others mirrored
     align = _restart_interval(int(half_width))
     per_bin = 16 * records * ((nz * nr) ** 2 if covariance else nz * nr)

@@ -472,24 +472,39 @@ def _products(rt, zt, b, j, slot_i, slot_j, base, x):
 
 
 @numba.njit(**_INNER)
-def direct_moments(rt, zt, b, k, slot_i, slot_j, rho_pow, mom, base, x):
+def direct_moments(rt, zt, b, k, n, slot_i, slot_j, rho_pow, mom, base, x, y):
     """``mom[a n_slots + s] = sum_r rho^a conj(base_i) base_j`` over the window of output
     bin ``k`` (padded samples ``k .. k + 2n``) by direct sums, ``(i, j) = (slot_i[s],
-    slot_j[s])``.  Power-major, so that the inner loops run over the slots."""
+    slot_j[s])``.  Power-major, so that the inner loops run over the slots.  The samples
+    at ``rho = +-u/n`` are summed in pairs: ``rho^a (x(+u) + (-1)^a x(-u))``, half the
+    multiply-adds of a sum sample by sample (``x``, ``y`` are scratch)."""
     ns = slot_i.shape[0]
+    p1 = rho_pow.shape[1]
+    n2 = 2 * ns
     # every weight is real: the sums run over the real and imaginary parts alike (in
     # compiled code a real times a complex128 is a full complex product)
     mf = mom.view(np.float64)
     xf = x.view(np.float64)
+    yf = y.view(np.float64)
     for f in range(mf.shape[0]):
         mf[f] = 0.0
-    for r in range(rho_pow.shape[0]):
-        _products(rt, zt, b, k + r, slot_i, slot_j, base, x)
-        for a in range(rho_pow.shape[1]):
-            w = rho_pow[r, a]
-            row = mf[2 * a * ns: 2 * (a + 1) * ns]  # a view: indices from 0 vectorise
-            for s in range(2 * ns):
-                row[s] += w * xf[s]
+    _products(rt, zt, b, k + n, slot_i, slot_j, base, x)  # rho = 0: the power 0 only
+    for s in range(n2):
+        mf[s] = xf[s]
+    for u in range(1, n + 1):
+        _products(rt, zt, b, k + n + u, slot_i, slot_j, base, x)
+        _products(rt, zt, b, k + n - u, slot_i, slot_j, base, y)
+        for s in range(n2):  # x <- x(+u) + x(-u), y <- x(+u) - x(-u)
+            xp = xf[s]
+            xm = yf[s]
+            xf[s] = xp + xm
+            yf[s] = xp - xm
+        for a in range(p1):
+            w = rho_pow[n + u, a]
+            row = mf[a * n2: (a + 1) * n2]  # a view: indices from 0 vectorise
+            src = xf if a % 2 == 0 else yf
+            for s in range(n2):
+                row[s] += w * src[s]
 
 
 @numba.njit(**_INNER)
@@ -606,7 +621,8 @@ def _advance(rt, zt, b, k, valid, sel_b, restart, k_base, n, slot_i, slot_j, rho
         want = want or sel_b[kk]
     if not want:
         return False
-    direct_moments(rt, zt, b, k, slot_i, slot_j, rho_pow, mom, scratch[0], scratch[1])
+    direct_moments(rt, zt, b, k, n, slot_i, slot_j, rho_pow, mom, scratch[0], scratch[1],
+                   scratch[2])
     width = rho_pow.shape[0]
     hi = min(end + width - 1, rt.shape[1])
     for p in range(nr):

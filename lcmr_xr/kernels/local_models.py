@@ -559,35 +559,30 @@ def local_model(R, Z, *, half_width, degrees=(3, 3, 3), circular: bool = True,
     # pooled: the shared G, N, D plus one transient term (Rm + 1 parameters) per experiment
     p_pool = p_row + (n_exp - 1) * (rm + 1)
 
-    # Bins-first layout (batch, bins, channel), padded with the widest halo on both ends
+    # Bins-first layout (batch, bins, channel)
     n_batch = int(np.prod(batch, dtype=int))
     ex = (n_exp,) if pooled else ()
-    # (read only from here on: a view of the caller's arrays when no copy is needed)
     n_max = int(widths.max())
-    if bins is None:
-        rt = np.broadcast_to(R, batch + ex + (m, nr)).reshape(n_batch * n_exp, m, nr).astype(
-            complex, copy=False)
-        zt = np.broadcast_to(Z, batch + ex + (m, nzc)).reshape(n_batch * n_exp, m, nzc).astype(
-            complex, copy=False)
+    # bins= : the data come haloed, output bin j is the data's bin n_max + j (bin start + j
+    # of the circle); otherwise the data are the M bins, each chunk takes its halo
+    # (_haloed: no padded copy of the whole data, 75 MB at M = 2^19 with nr = 4, nz = 5)
+    origin = 0 if bins is None else n_max
+    # (read only from here on: a view of the caller's arrays when no copy is needed, not
+    # a broadcast view where nothing is broadcast: those are read-only, see _haloed)
+    rt, zt = ((x if x.shape == batch + ex + (m + 2 * origin, c)
+               else np.broadcast_to(x, batch + ex + (m + 2 * origin, c)))
+              .reshape(n_batch * n_exp, m + 2 * origin, c).astype(complex, copy=False)
+              for x, c in ((R, nr), (Z, nzc)))
     k = np.arange(m)
-    if bins is not None:  # already haloed: output bin j is bin start + j of the circle
-        rt, zt = (np.broadcast_to(x, batch + ex + (m + 2 * n_max, c)).reshape(
-            n_batch * n_exp, m + 2 * n_max, c).astype(complex, copy=False)
-            for x, c in ((R, nr), (Z, nzc)))
-        rt_p, zt_p = rt, zt
+    if bins is not None:
         todo = np.ones((n_batch, m), dtype=bool)
         mirror = False
     elif circular:
-        # the circular halo by slices (n_max < M): cheaper than a gathered copy
-        rt_p, zt_p = (np.concatenate([x[:, m - n_max:], x, x[:, :n_max]], axis=1)
-                      for x in (rt, zt))
         todo = np.ones((n_batch, m), dtype=bool)
         mirror = _mirrors(rt, zt, widths)
         if mirror:  # real signals: fit 0..M/2, the rest is the conjugate
             todo[:, m // 2 + 1:] = False
     else:
-        pad = ((0, 0), (n_max, n_max), (0, 0))
-        rt_p, zt_p = np.pad(rt, pad), np.pad(zt, pad)
         todo = (k - widths >= 0) & (k + widths <= m - 1)
         mirror = False
 
@@ -617,8 +612,9 @@ def local_model(R, Z, *, half_width, degrees=(3, 3, 3), circular: bool = True,
         g, c0, c1, n = task
         sel = todo[g, c0:c1] & (widths[g, c0:c1] == n)
         rows = slice(g.start * n_exp, g.stop * n_exp)  # the group's experiments, consecutive
-        _fit_chunk(rt_p[rows, c0 + n_max - n: c1 + n_max + n],
-                   zt_p[rows, c0 + n_max - n: c1 + n_max + n], n, degrees, mode, sel,
+        lo, hi = origin + c0 - n, origin + c1 + n
+        _fit_chunk(_haloed(rt[rows], lo, hi, circular), _haloed(zt[rows], lo, hi, circular),
+                   n, degrees, mode, sel,
                    g.start * m + c0, m, n_exp * (2 * n + 1) - p_pool, out, n_exp, use_iv)
 
     with np.errstate(all="ignore"):
@@ -658,6 +654,22 @@ def local_model(R, Z, *, half_width, degrees=(3, 3, 3), circular: bool = True,
         G_cov=shaped["G_cov"] if covariance == "full" else shaped["G_var"],
         condition=cond, ill_posed=shaped["ill_posed"], dropped=shaped["dropped"],
     )
+
+
+def _haloed(x, lo, hi, circular):
+    """Bins ``lo .. hi - 1`` of ``x`` (batch, M, channels), a chunk with its halo: a view
+    inside the bins (a copy if ``x`` is read-only: numba compiles read-only arrays as
+    another type, a second 20-30 s compilation); past either end, a copy with the bins
+    of the other end (circular) or zeros.  No padded copy of the whole data."""
+    m = x.shape[1]
+    if lo >= 0 and hi <= m:
+        return x[:, lo:hi] if x.flags.writeable else x[:, lo:hi].copy()
+    if circular:
+        return np.take(x, np.arange(lo, hi) % m, axis=1)
+    out = np.zeros((x.shape[0], hi - lo, x.shape[2]), dtype=x.dtype)
+    a, b = max(lo, 0), min(hi, m)
+    out[:, a - lo: b - lo] = x[:, a:b]
+    return out
 
 
 def _check_instruments(instruments, Z):

@@ -222,7 +222,7 @@ def _summary(header: dict) -> dict:
     out = {"attrs": header["attrs"], "scalars": header["scalars"], "experiment": _is_experiment(header)}
     if out["experiment"]:
         out["shape"] = _header_shape(header)
-        scalars = [n for n, (shape, _) in header["variables"].items() if shape == () and n != cv.EXPERIMENT]
+        scalars = [n for n in header["scalars"] if n != cv.EXPERIMENT]  # metadata coordinates
         variables = sorted((n, list(shape) if shape is not None else None, str(dtype))
                            for n, (shape, dtype) in header["variables"].items()
                            if n not in scalars and n != cv.EXPERIMENT)
@@ -501,7 +501,8 @@ def consolidate_archive(directory, path, *, overwrite: bool = False, progress=No
     :func:`open_archive` read them.  The directory is left as it was.  The result opens
     identical to the directory (attributes, metadata coordinates, values).  The values
     are copied as they are: NaN in an experiment is reported by the sweep that identifies
-    it.
+    it.  Files with data variables besides ``r``, ``u``, ``y`` are refused (the
+    consolidated form holds those three only).
 
     Examples
     --------
@@ -523,6 +524,13 @@ def consolidate_archive(directory, path, *, overwrite: bool = False, progress=No
                               "or choose another path.")
     # checks every file's header (reads no data); its tasks read con.BATCH files each
     lazy = open_archive(directory, chunks={cv.EXPERIMENT: con.BATCH})
+    extra = sorted(name for name in lazy.data_vars if name not in ("r", "u", "y"))
+    if extra:  # the consolidated form holds r, u, y only: refuse rather than drop them
+        raise ValueError(
+            f"the experiments of {directory} hold the data variables {extra} besides r, u, y; "
+            "a consolidated archive keeps only r, u, y and would lose them. Keep the directory "
+            f"archive, or save the experiments without them first (ds.drop_vars({extra}))."
+        )
     attrs = dict(lazy.attrs)
     total = lazy.sizes[cv.EXPERIMENT]
 
@@ -681,7 +689,8 @@ def open_archive(path, chunks=None) -> xr.Dataset:
         Dask chunks.  Default ``None``: :data:`EXPERIMENTS_PER_CHUNK` experiments (files
         of a directory) per chunk, whole records along ``time``, which
         :func:`lcmr_xr.identify` needs.  For a consolidated archive only the
-        ``experiment`` entry is used (``{"experiment": 64}``).
+        ``experiment`` entry is used (``{"experiment": 64}``; a directory also takes -1
+        or None, one chunk, and ``"auto"``, the default).
 
     Returns
     -------
@@ -867,9 +876,8 @@ def _open_directory(directory: Path, chunks) -> xr.Dataset:
                 decoded[ident] = _variable_attrs(_as_part(other, by_id[ident]))
         for name, attrs in decoded[ident].items():
             merged_vars.setdefault(name, dirx.DropConflicts()).add(attrs)
-    per_chunk = int((chunks or {}).get(cv.EXPERIMENT, EXPERIMENTS_PER_CHUNK))
     ordered = [row["path"] for row in files]
-    signals = dirx.lazy_signals(ordered, template, per_chunk)
+    signals = dirx.lazy_signals(ordered, template, _files_per_chunk(chunks, len(ordered)))
     labels = np.asarray([row["label"] for row in files],
                         dtype=template[cv.EXPERIMENT].dtype if template[cv.EXPERIMENT].dtype == object else None)
     data_vars = {
@@ -893,6 +901,22 @@ def _open_directory(directory: Path, chunks) -> xr.Dataset:
         return validate_experiment(combined, check_values=False)
     except ValueError as err:
         raise ValueError(f"archive {directory}: {err}") from err
+
+
+def _files_per_chunk(chunks, n_files: int) -> int:
+    """Files per dask chunk (task) of a directory archive from ``chunks["experiment"]``, as
+    dask reads it: -1 or None one chunk, "auto" the default."""
+    value = (chunks or {}).get(cv.EXPERIMENT, EXPERIMENTS_PER_CHUNK)
+    if value is None or (isinstance(value, (int, np.integer)) and value == -1):
+        return max(1, n_files)
+    if isinstance(value, str) and value == "auto":
+        return EXPERIMENTS_PER_CHUNK
+    if isinstance(value, (int, np.integer)) and not isinstance(value, bool) and value > 0:
+        return int(value)
+    raise ValueError(
+        f"chunks['experiment'] = {value!r} is no positive number of experiments per chunk; "
+        f"pass e.g. {{'experiment': {EXPERIMENTS_PER_CHUNK}}} (-1: one chunk, 'auto': the default)."
+    )
 
 
 def _as_part(ds: xr.Dataset, path: Path) -> xr.Dataset:

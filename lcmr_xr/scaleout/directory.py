@@ -248,6 +248,13 @@ def read_header(path: Path, directory: Path) -> dict:
                 header["var_attrs"][name] = raw
                 if len(shape) == 0:
                     header["scalars"][name] = _decoded_scalar(name, _read(dset)[()], raw)
+        # a 0-d variable is a (metadata) coordinate only if a ``coordinates`` attribute
+        # names it, as xarray decodes it; the others are data variables
+        named = set()
+        for raw in (header["attrs"], *header["var_attrs"].values()):
+            if isinstance(raw.get("coordinates"), str):
+                named.update(raw["coordinates"].split())
+        header["scalars"] = {n: v for n, v in header["scalars"].items() if n in named}
         return header
     finally:
         fid.close()
@@ -402,6 +409,9 @@ def _read_from(fid, path, name: str, spec: dict) -> np.ndarray:
     var = xr.conventions.decode_cf_variable(
         name, xr.Variable(spec["dims"], values, _xarray_attrs(encoding)), decode_timedelta=False)
     out = np.asarray(var.values)
+    if h5py.check_string_dtype(dset.dtype) is not None:  # str objects, as xarray decodes them
+        out = np.array([v.decode("utf-8") if isinstance(v, bytes) else v for v in out.flat],
+                       dtype=object).reshape(out.shape)
     if out.dtype != spec["dtype"]:
         _refuse(path, spec, f"variable {name!r} decodes to {out.dtype}, not {spec['dtype']}")
     return out
@@ -451,7 +461,9 @@ def variable_spec(first: Path, name: str, template: xr.Variable) -> dict:
         dset = f[name]
         spec = {"shape": dset.shape, "raw_dtype": dset.dtype, "dims": _dim_names(dset),
                 "dimids": _dimids(dset.id), "encoding": _encoding_of(dset.id)}
-    spec.update(dtype=template.dtype, first=str(first))
+    # strings as objects: a fixed width (the first file's) would truncate longer ones
+    spec.update(dtype=np.dtype(object) if template.dtype.kind in "SU" else template.dtype,
+                first=str(first))
     if spec["dims"] != template.dims:
         raise StructureError(f"{first}: variable {name!r} has the dims {spec['dims']} on disk but "
                              f"{template.dims} when xarray reads it; rewrite it with lcmr_xr.save.")

@@ -1,0 +1,80 @@
+"""Directory archives: inputs the header pass must read as a lazy xarray open of every file
+does (the oracle of tests/test_archive_directory.py): 0-d data variables (not metadata
+coordinates) and the dask spellings of one chunk along ``experiment``."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import xarray as xr
+
+from lcmr_xr.scaleout import open_archive, save_archive
+from test_archive_directory import _assert_same_as_oracle, _labelled, _oracle_open
+
+
+def test_scalar_data_variables_stay_data_variables(tmp_path):
+    # a 0-d data variable is no scalar coordinate (no metadata): xarray keeps it a data
+    # variable of every file, so the archive has it along experiment, like r, u, y
+    items = [_labelled(i).assign(gain=xr.DataArray(1.5 + i, attrs={"units": "1"}))
+             for i in range(3)]
+    save_archive(items, tmp_path, layout="files")
+    got = _assert_same_as_oracle(tmp_path)
+    assert "gain" in got.data_vars and "gain" not in got.coords
+    assert got.gain.values.tolist() == [1.5, 2.5, 3.5]
+    assert got.seed.values.tolist() == [0, 1, 2]  # the metadata coordinate is still one
+
+
+def test_string_data_variables_read_whole(tmp_path):
+    # strings (0-d and along time) of other lengths in other files: read as str objects,
+    # none cut to the first file's width; the values those of the oracle
+    notes = ["Kanal ä", "Kanal ä, längerer Text", "k"]
+    items = [_labelled(i).assign(note=xr.DataArray(notes[i]),
+                                 tag=("time", np.array([f"t{j * 10 ** i}" for j in range(480)])))
+             for i in range(3)]
+    save_archive(items, tmp_path, layout="files")
+    want, parts = _oracle_open(tmp_path)
+    got = open_archive(tmp_path).compute()
+    assert got.note.values.tolist() == notes == want.note.values.tolist()
+    assert got.tag.values.tolist() == want.tag.values.tolist()
+    assert got.tag.values[2, 479] == "t47900"
+    xr.testing.assert_identical(got.drop_vars(["note", "tag"]),
+                                want.drop_vars(["note", "tag"]).compute())
+    for part in parts:
+        part.close()
+
+
+@pytest.mark.parametrize("whole", [-1, None, "auto"])
+def test_one_chunk_spellings_of_dask(tmp_path, whole):
+    save_archive([_labelled(i) for i in range(5)], tmp_path, layout="files")
+    got = open_archive(tmp_path, chunks={"experiment": whole})
+    want = (5,) if whole in (-1, None) else got.r.chunks[0]
+    assert got.r.chunks[0] == want and sum(got.r.chunks[0]) == 5
+    np.testing.assert_array_equal(got.y.values[4], _labelled(4).y.values)
+
+
+def test_chunks_along_experiment_refused_with_the_remedy(tmp_path):
+    save_archive([_labelled(i) for i in range(2)], tmp_path, layout="files")
+    for bad in (0, -2, 2.5, "many"):
+        with pytest.raises(ValueError, match=r"chunks\['experiment'\] .* positive number of "
+                                             r"experiments per chunk"):
+            open_archive(tmp_path, chunks={"experiment": bad})
+
+
+def test_consolidating_refuses_to_drop_other_data_variables(tmp_path):
+    # the consolidated form holds r, u, y only: extra data variables of the files are
+    # refused by name (they were dropped without a word), and nothing is written
+    from lcmr_xr.scaleout import consolidate_archive
+
+    items = [_labelled(i).assign(gain=xr.DataArray(1.5 + i),
+                                 temp=("time", np.full(_labelled(i).sizes["time"], 20.0 + i)))
+             for i in range(3)]
+    save_archive(items, tmp_path / "d", layout="files")
+    with pytest.raises(ValueError, match=r"data variables \['gain', 'temp'\] besides r, u, y.*"
+                                         r"drop_vars"):
+        consolidate_archive(tmp_path / "d", tmp_path / "c.nc")
+    assert not (tmp_path / "c.nc").exists()
+    save_archive([ds.drop_vars(["gain", "temp"]) for ds in items], tmp_path / "d", overwrite=True,
+                 layout="files")
+    consolidate_archive(tmp_path / "d", tmp_path / "c.nc")
+    xr.testing.assert_identical(open_archive(tmp_path / "c.nc").compute(),
+                                open_archive(tmp_path / "d").compute())
