@@ -69,6 +69,14 @@ files 45.9 s +22.1 MB (4.6 ms, 4.2 ms CPU per file); consolidate_archive of 10 0
 10 005 x 3 1.5 s.  At load 2-6 (tasks still opening each file per variable): 0.66 s,
 12.1 s, 60.4 s; consolidate 161 s.
 
+Measured in session 8 with the header index of directories (warm page cache), load
+1.2-2.4: directory from its index 100 / 1 600 / 10 000 files 0.08 s +2.0 MB, 0.20 s
++10.1 MB, 0.60 s +41.7 MB; from every header 0.74 s, 9.1 s, 60.0 s (+1.9, +4.5, +21.8
+MB); consolidated 10 000 0.14 s +8.1 MB; consolidate_archive of 10 000 files 60 s (53 s
+CPU); append 21 ms; sweep graph 10 005 x 3 1.2 s.  An earlier run at load 1.7-3.5:
+0.09 s, 0.19 s, 1.34 s from the index; 0.90 s, 11.1 s, 53.7 s from the headers;
+consolidate 78 s (47 s CPU).
+
 Measured in session 7 (load 2.5-5; the lead has the --rate command for a quiet machine):
 tasks writing their parts' values with netCDF4, unlabelled (old: the labelled block saved
 by xarray), one core, 160 experiments, 16 per task, alternating in one process: 112 -> 96
@@ -171,10 +179,14 @@ def make_directory(path: Path, n: int, base) -> None:
 
 def cached_directory(root: Path, n: int) -> Path:
     """A directory archive of ``n`` files (:func:`make_directory`) built once under ``root``
-    by a ``nice -n 19`` subprocess and reused by later runs (10 000 files: ~2 min, 1.8 GB)."""
+    by a ``nice -n 19`` subprocess and reused by later runs (10 000 files: ~2 min, 1.8 GB).
+
+    Its header index is written (``index_archive``, as a user of a directory written
+    before the index existed would) when it has none that lists every file."""
     path = root / f"N{N}-{n}"
     marker = path / ".built"  # not a *.nc file: not part of the archive
     if marker.is_file():
+        _ensure_index(path, n)
         return path
     shutil.rmtree(path, ignore_errors=True)
     root.mkdir(parents=True, exist_ok=True)
@@ -184,13 +196,27 @@ def cached_directory(root: Path, n: int) -> Path:
     marker.write_text(f"{n} files, N = {N}\n")
     print(f"    (directory of {n} files built in {time.perf_counter() - t0:.0f} s at nice 19, kept in "
           f"{path} for later runs)", flush=True)
+    _ensure_index(path, n)
     return path
+
+
+def _ensure_index(path: Path, n: int) -> None:
+    from lcmr_xr.scaleout import dirindex, index_archive
+
+    known = dirindex.read_index(path, warn=False)
+    if known is not None and len(known[0]) == n:
+        return
+    t0 = time.perf_counter()
+    index_archive(path)
+    print(f"    (header index of the {n} files written by index_archive in "
+          f"{time.perf_counter() - t0:.1f} s)", flush=True)
 
 
 _OPEN = """
 import json, sys, time, psutil
 import dask.array, h5netcdf, h5py, netCDF4, xarray  # imports are not the open
-from lcmr_xr.scaleout import open_archive
+from lcmr_xr.scaleout import dirindex, open_archive
+dirindex.ENABLED = sys.argv[2] == "index"  # "headers": read every file's header
 proc = psutil.Process(); before = proc.memory_info().rss
 t0, c0 = time.perf_counter(), time.process_time(); ds = open_archive(sys.argv[1])
 dt, cpu = time.perf_counter() - t0, time.process_time() - c0
@@ -204,10 +230,11 @@ def _env():
                                                          os.environ.get("PYTHONPATH", "")])}
 
 
-def time_open(path: Path) -> dict:
-    """Open time and RSS growth of ``open_archive`` in a fresh process."""
-    out = subprocess.run([sys.executable, "-c", _OPEN, str(path)], capture_output=True, text=True,
-                         env=_env(), check=True)
+def time_open(path: Path, index: bool = True) -> dict:
+    """Open time and RSS growth of ``open_archive`` in a fresh process (a directory: from
+    its header index, or with ``index=False`` from every file's header)."""
+    out = subprocess.run([sys.executable, "-c", _OPEN, str(path), "index" if index else "headers"],
+                         capture_output=True, text=True, env=_env(), check=True)
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
@@ -939,7 +966,8 @@ def main(argv=None):
     try:
         print(f"open_archive (fresh process; N = {N}, {base[['r', 'u', 'y']].nbytes / 1e3:.0f} kB per "
               "experiment; goal for 10 000: < 2 s, < 100 MB):")
-        print(f"  {'experiments':>11} | {'consolidated':>22} | {'directory of files (warm page cache)':>22}")
+        print(f"  {'experiments':>11} | {'consolidated':>22} | directory of files (warm page cache): "
+              "from its header index | from every file's header")
         largest, consolidating = None, None
         for n in sorted(args.sizes):
             t0 = time.perf_counter()
@@ -949,8 +977,10 @@ def main(argv=None):
             row = f"  {n:>11} | {c['seconds']:7.3f} s {c['mb']:+7.1f} MB | "
             if n <= args.files_max:
                 directory = cached_directory(args.files_cache, n)
-                d = time_open(directory)
-                row += (f"{d['seconds']:7.2f} s {d['mb']:+7.1f} MB  ({d['seconds'] / n * 1e3:.1f} ms, "
+                x = time_open(directory, index=True)
+                d = time_open(directory, index=False)
+                row += (f"{x['seconds']:7.2f} s {x['mb']:+7.1f} MB | "
+                        f"{d['seconds']:7.2f} s {d['mb']:+7.1f} MB  ({d['seconds'] / n * 1e3:.1f} ms, "
                         f"{d['cpu'] / n * 1e3:.1f} ms CPU per file)")
                 if n == max(k for k in args.sizes if k <= args.files_max):
                     consolidating = time_consolidate(directory, tmp / f"cc{n}.nc")

@@ -1,12 +1,19 @@
-"""``lcmr-xr archive consolidate``: turn a directory of per-experiment files into one archive file.
+"""``lcmr-xr archive``: consolidate a directory of per-experiment files into one archive
+file, or write the header index of a directory.
 
     lcmr-xr archive consolidate ARCHIVE_DIR -o ARCHIVE.nc [--overwrite]
+    lcmr-xr archive index ARCHIVE_DIR
 
 The directory is left as it was; the new file is written atomically (temporary file, then
 rename) and opens in a fraction of a second however many experiments it holds.  The output
 is checked before anything is read: it may not lie inside the directory, and an existing
 file is replaced only with ``--overwrite``.  Progress (experiments copied) is shown on
 stderr, as plain lines when stderr is not a terminal.
+
+``archive index`` writes (atomically) the hidden ``.lcmr_archive_index.nc`` of a directory
+written by an older version or by other tools, from which ``open_archive`` takes the
+files' header facts instead of reading every file (:mod:`lcmr_xr.scaleout.dirindex`);
+the library's own writers keep it current.
 """
 
 from __future__ import annotations
@@ -42,7 +49,7 @@ def add_archive_parser(subparsers) -> argparse.ArgumentParser:
     ('consolidate', 'runs', 'runs.nc', False)
     """
     arc = subparsers.add_parser(
-        "archive", help="manage experiment archives (consolidate a directory into one file)",
+        "archive", help="manage experiment archives (consolidate or index a directory)",
         formatter_class=HelpFormatter, description="Manage experiment archives.")
     actions = arc.add_subparsers(dest="action", required=True)
     con = actions.add_parser(
@@ -55,6 +62,14 @@ def add_archive_parser(subparsers) -> argparse.ArgumentParser:
     con.add_argument("-o", "--output", type=Path, required=True,
                      help="archive file to write (.nc; not inside the directory)")
     add_overwrite(con)
+    idx = actions.add_parser(
+        "index", help="write the header index of an archive directory (faster open_archive)",
+        formatter_class=HelpFormatter,
+        description="Write the hidden header index (.lcmr_archive_index.nc) of an archive "
+                    "directory, so that open_archive takes each file's header facts from it "
+                    "instead of reading every file. Entries that still match their files are "
+                    "kept; the experiment files are not changed.")
+    idx.add_argument("directory", type=Path, help="archive directory (one experiment .nc per file)")
     arc.set_defaults(func=run_archive)
     return arc
 
@@ -80,8 +95,16 @@ def run_archive(args) -> int:
     ...                                output=Path("x.nc"), overwrite=False))
     2
     """
-    from lcmr_xr.scaleout.archive import consolidate_archive
+    from lcmr_xr.scaleout.archive import consolidate_archive, index_archive
 
+    if args.action == "index":
+        try:
+            path = index_archive(args.directory)
+        except (ValueError, FileNotFoundError, NotADirectoryError, OSError) as exc:
+            print(error_line("archive", exc), file=sys.stderr)
+            return 2
+        print(f"wrote {path}")
+        return 0
     terminal = _is_terminal(sys.stderr)
     shown = [0]
 
