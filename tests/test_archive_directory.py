@@ -153,3 +153,21 @@ def test_task_reader_checks_the_dims_by_name_when_the_dimension_ids_differ(tmp_p
                                   _labelled(0).r.values)
     with pytest.raises(StructureError, match=r"'r' has the dims \('time', 'input'\), not"):
         read_files((str(path),), {"r": {**other_ids, "dims": ("input", "time")}})
+
+
+def test_a_file_rewritten_in_place_gives_new_dask_names(tmp_path):
+    # The names digest every file's stamp: a middle file re-saved with other values must not
+    # share its chunks' keys with the earlier open (a cluster holding persisted chunks of
+    # that open would otherwise serve the old values for the new file).
+    exps = [_labelled(i) for i in range(5)]
+    save_archive(xr.concat(exps, dim="experiment"), tmp_path / "arc", layout="files")
+    before = open_archive(tmp_path / "arc", chunks={"experiment": 1})
+    middle = archive_files(tmp_path / "arc")[2]
+    changed = open_dataset(middle).load()
+    changed["r"] = changed.r.copy(data=2.0 * changed.r.values)
+    save(changed, middle)
+    after = open_archive(tmp_path / "arc", chunks={"experiment": 1})
+    assert before.r.data.name != after.r.data.name
+    np.testing.assert_array_equal(after.r.isel(experiment=2).values, 2.0 * exps[2].r.values)
+    # the same files give the same names (dask can still share work between equal opens)
+    assert open_archive(tmp_path / "arc").r.data.name == open_archive(tmp_path / "arc").r.data.name

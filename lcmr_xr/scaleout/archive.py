@@ -811,11 +811,12 @@ def _open_directory(directory: Path, chunks) -> xr.Dataset:
     files, foreign = [], []
     merged = dirx.DropConflicts()
     signatures: dict = {}  # variable attributes / structure -> (id, first file with them)
-    for path, _, summary, _ in _summaries(directory, paths):
+    for path, st, summary, _ in _summaries(directory, paths):
         attrs = summary["attrs"]
         index = attrs.get(ORDER_ATTR)
         row = {"path": path, "key": (0 if index is not None else 1,
-                                     int(index) if index is not None else 0, path.name)}
+                                     int(index) if index is not None else 0, path.name),
+               "stamp": None if st is None else dirindex.stamp(st)}
         files.append(row)
         if not summary["experiment"]:
             foreign.append(row)
@@ -877,7 +878,8 @@ def _open_directory(directory: Path, chunks) -> xr.Dataset:
         for name, attrs in decoded[ident].items():
             merged_vars.setdefault(name, dirx.DropConflicts()).add(attrs)
     ordered = [row["path"] for row in files]
-    signals = dirx.lazy_signals(ordered, template, _files_per_chunk(chunks, len(ordered)))
+    signals = dirx.lazy_signals(ordered, template, _files_per_chunk(chunks, len(ordered)),
+                                stamps=[row["stamp"] for row in files])
     labels = np.asarray([row["label"] for row in files],
                         dtype=template[cv.EXPERIMENT].dtype if template[cv.EXPERIMENT].dtype == object else None)
     data_vars = {

@@ -470,15 +470,24 @@ def variable_spec(first: Path, name: str, template: xr.Variable) -> dict:
     return spec
 
 
-def lazy_signals(files: list[Path], template: xr.Dataset, per_chunk: int) -> dict:
+def lazy_signals(files: list[Path], template: xr.Dataset, per_chunk: int, stamps=None) -> dict:
     """``{name: dask array}`` of every data variable of ``template`` over ``files`` (leading
-    ``experiment`` axis, ``per_chunk`` files per task)."""
+    ``experiment`` axis, ``per_chunk`` files per task).
+
+    The arrays' dask names digest every file's ``stamps`` (size, times, inode, as the
+    caller took them; stat-ed here when not given): a file rewritten in place gives new
+    names, so a cluster that still holds the old chunks (``persist``) never serves them
+    for the new contents.
+    """
     import dask.array as da
     from dask.base import tokenize
     from dask.highlevelgraph import HighLevelGraph
 
     groups = [tuple(str(p) for p in files[i:i + per_chunk]) for i in range(0, len(files), per_chunk)]
-    stamps = [(os.stat(p).st_mtime_ns, os.stat(p).st_size) for p in (files[0], files[-1])]
+    if stamps is None:
+        from lcmr_xr.scaleout.dirindex import stamp
+
+        stamps = [stamp(os.stat(p)) for p in files]
     specs = {name: variable_spec(files[0], name, var.variable) for name, var in template.data_vars.items()}
     token = tokenize(groups, sorted((n, s["shape"], str(s["dtype"])) for n, s in specs.items()), stamps)
     load = f"archive-read-{token}"  # one task per group of files reads all their variables
