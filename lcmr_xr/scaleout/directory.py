@@ -91,6 +91,18 @@ def _open_id(path):
                 raise
 
 
+def _archive_file_id(path, directory):
+    """:func:`_open_id` of a file of archive ``directory``; one that HDF5 cannot open is
+    named, with what to do."""
+    try:
+        return _open_id(path)
+    except OSError as err:
+        raise ValueError(
+            f"{path} in archive {directory} is not a readable NetCDF file (truncated, corrupt, "
+            f"or another format: {err}); move it out of the archive directory."
+        ) from err
+
+
 #: Per on-disk attribute type: its numpy dtype, h5py's memory type and string info
 #: (the conversions cost more than the read).
 _ATTR_TYPES: dict = {}
@@ -218,13 +230,7 @@ def read_header(path: Path, directory: Path) -> dict:
     """
     from h5py import h5d, h5g
 
-    try:
-        fid = _open_id(path)
-    except OSError as err:
-        raise ValueError(
-            f"{path} in archive {directory} is not a readable NetCDF file (truncated, corrupt, "
-            f"or another format: {err}); move it out of the archive directory."
-        ) from err
+    fid = _archive_file_id(path, directory)
     try:
         header = {"path": path, "attrs": restored(raw_attributes(fid)), "variables": {},
                   "var_attrs": {}, "scalars": {}, cv.TIME: None, cv.SLOW_TIME: None, "inputs": None,
@@ -266,13 +272,7 @@ def order_index(path: Path, directory: Path):
 
     from lcmr_xr.scaleout.archive import ORDER_ATTR
 
-    try:
-        fid = _open_id(path)
-    except OSError as err:
-        raise ValueError(
-            f"{path} in archive {directory} is not a readable NetCDF file (truncated, corrupt, "
-            f"or another format: {err}); move it out of the archive directory."
-        ) from err
+    fid = _archive_file_id(path, directory)
     try:
         if not h5a.exists(fid, ORDER_ATTR.encode()):
             return None
