@@ -401,8 +401,15 @@ def pooled_band_forms(groups: int, first_group: int = 0, n_exp: int = 8, denomin
                     zlin[b].append(z[keep, 0])
         print(f"  band forms: group {g} done ({len(calls)} candidates"
               f"{'' if windows is None else f' {windows}'})", file=sys.stderr, flush=True)
-    med = lambda x: np.array([np.median(np.concatenate(v), axis=0) if v else [np.nan] * 2
-                              for v in x])
+    def med(parts_per_band):
+        # a band whose bins are all flagged (0-500 Hz) has nothing to take a median of: NaN
+        # (np.median of an empty slice would warn "Mean of empty slice")
+        out = []
+        for parts in parts_per_band:
+            x = np.concatenate(parts) if parts else np.empty((0, 2))
+            out.append(np.median(x, axis=0) if len(x) else np.full(x.shape[1:], np.nan))
+        return np.array(out)
+
     return BANDS_HZ, cover, flagged, med(c_s), med(ratio2), med(zlin), np.array(t2)
 
 
