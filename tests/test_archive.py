@@ -445,3 +445,24 @@ def test_sweep_runs_unchanged_on_a_remote_scheduler(tmp_path):
             except subprocess.TimeoutExpired:
                 proc.kill()
                 proc.wait()
+
+
+@pytest.mark.parametrize("layout", ["consolidated", "files"])
+def test_an_experiment_sampled_0_05_percent_slower_is_refused(tmp_path, layout):
+    # The sample times must agree to rounding: np.isclose's absolute slack (1e-8 s, 0.1 % of
+    # a 10 us sample time) once let such an experiment into a consolidated archive, where it
+    # took the archive's time coordinate.
+    from lcmr_xr.experiment import experiment
+
+    def sampled(th, label):
+        ds = experiment(np.ones((8, 1)), np.ones((8, 1)), np.ones((4, 1)), factor=2,
+                        sampling_period=th)
+        return ds.assign_coords(experiment=label)
+
+    path = tmp_path / ("arc.nc" if layout == "consolidated" else "arc")
+    save_archive(sampled(1e-5, "a"), path, layout=layout)
+    with pytest.raises(ValueError, match=r"another shape.*Th=1e-05 s.*|another shape.*Th=1\.0005e-05 s"):
+        append_to_archive(sampled(1.0005e-5, "b"), path)
+    if layout == "consolidated":  # (a directory's open compares the time coordinates exactly)
+        append_to_archive(sampled(1e-5 * (1 + 1e-12), "c"), path)  # rounding: the same
+    assert open_archive(path).sizes["experiment"] == (2 if layout == "consolidated" else 1)
