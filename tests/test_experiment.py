@@ -205,3 +205,17 @@ def test_experiment_keeps_dask_inputs_lazy():
     rd = xr.DataArray(r, dims=("time", "input")).chunk({"time": 6})
     ds = experiment(rd, u, y, factor=F, sampling_period=TH)
     assert dask.is_dask_collection(ds["r"].data)
+
+
+def test_time_spacings_must_agree_to_1e_6_relative_without_absolute_slack():
+    # Sample times of fast sampled-data systems are ~10 us: an absolute slack of 1e-8 s
+    # (np.isclose's default) would be 0.1 % of them, and let a 0.05 % mismatch through.
+    th = 1e-5
+    r = np.ones((8, 1))
+    ds = experiment(r, r, np.ones((4, 1)), factor=2, sampling_period=th)
+    with pytest.raises(ValueError, match="'slow_time' is spaced by 2.001.*e-05 s.*= 2e-05 s"):
+        validate_experiment(ds.assign_coords(slow_time=ds.slow_time * 1.0005))
+    validate_experiment(ds.assign_coords(slow_time=ds.slow_time * (1 + 1e-9)))  # rounding: fine
+    rt = xr.DataArray(r, dims=("time", "input"), coords={"time": np.arange(8) * th})
+    with pytest.raises(ValueError, match="disagrees with the spacing"):
+        experiment(rt, rt, np.ones((4, 1)), factor=2, sampling_period=th * 1.0005)

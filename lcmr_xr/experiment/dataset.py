@@ -242,7 +242,7 @@ def experiment(
     if n < 2:
         raise ValueError(f"r has {n} fast sample(s); an experiment needs at least 2 slow samples.")
     _, th = even_spacing(fast_t[0], TIME)
-    if sampling_period is not None and not np.isclose(th, float(sampling_period), rtol=1e-6):
+    if sampling_period is not None and not np.isclose(th, float(sampling_period), rtol=1e-6, atol=0.0):
         raise ValueError(
             f"sampling_period={sampling_period} s disagrees with the spacing {th} s of the time "
             "coordinate; drop one of them."
@@ -344,7 +344,7 @@ def _check_time(ds, dim: str, expected_spacing: float | None, hint: str = "") ->
             f"{dim!r} starts at {start} s instead of 0",
             f"shift it: ds.assign_coords({dim}=ds.{dim} - ds.{dim}[0]).",
         )
-    if expected_spacing is not None and not np.isclose(spacing, expected_spacing, rtol=1e-6):
+    if expected_spacing is not None and not np.isclose(spacing, expected_spacing, rtol=1e-6, atol=0.0):
         _fail(
             f"{dim!r} is spaced by {spacing} s, but factor * (time spacing) = {expected_spacing} s",
             "the slow period must be F times the fast period: check the factor attribute and "
