@@ -147,7 +147,7 @@ def archive_files(directory) -> list[Path]:
     known = dirindex.read_index(directory) if paths and dirindex.ENABLED else None
     keyed, load = [], dirindex.loader()
     for path in paths:
-        summary = _indexed(known, path, load)
+        summary = _from_index(known, path, load)[2]
         index = (summary["attrs"].get(ORDER_ATTR) if summary is not None
                  else dirx.order_index(path, directory))
         keyed.append((0 if index is not None else 1, int(index) if index is not None else 0, path.name, path))
@@ -172,20 +172,21 @@ def _nc_files(directory) -> list[Path]:
             if name.endswith(SUFFIX) and not name.startswith(".")]
 
 
-def _indexed(known, path: Path, load):
-    """The summary of ``path`` from the directory's index ``known`` if its entry is current
-    (``load``: a :func:`lcmr_xr.scaleout.dirindex.loader`)."""
+def _from_index(known, path: Path, load) -> tuple:
+    """``(stat, text, summary)`` of ``path`` from the directory's index ``known``
+    (``load``: a :func:`lcmr_xr.scaleout.dirindex.loader`); ``text`` and ``summary`` are
+    None where its entry is missing, out of date or damaged, ``stat`` where it vanished."""
     try:
         st = os.stat(path)
     except OSError:
-        return None
+        return None, None, None
     text = dirindex.trusted(known, path.name, st)
     if text is None:
-        return None
+        return st, None, None
     try:
-        return load(text)
+        return st, text, load(text)
     except (ValueError, TypeError, KeyError):  # a damaged entry: read the header instead
-        return None
+        return st, None, None
 
 
 def _summaries(directory: Path, paths: list[Path], with_text: bool = False):
@@ -199,17 +200,7 @@ def _summaries(directory: Path, paths: list[Path], with_text: bool = False):
     known = dirindex.read_index(directory, warn=not with_text) if paths and dirindex.ENABLED else None
     load = dirindex.loader()
     for path in paths:
-        try:
-            st = os.stat(path)
-        except OSError:
-            st = None  # gone since the listing: read_header says so
-        text = dirindex.trusted(known, path.name, st) if st is not None else None
-        summary = None
-        if text is not None:
-            try:
-                summary = load(text)
-            except (ValueError, TypeError, KeyError):
-                summary = None
+        st, text, summary = _from_index(known, path, load)  # st None: gone (read_header says so)
         if summary is None:
             summary = _summary(dirx.read_header(path, directory))
             text = dirindex.summary_text(summary) if with_text and st is not None else None
