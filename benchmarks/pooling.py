@@ -549,12 +549,14 @@ def pooled_band_forms(groups: int, first_group: int = 0, n_exp: int = 8, denomin
               f"{'' if windows is None else f' {windows}'})", file=sys.stderr, flush=True)
 
     def med(parts_per_band):
-        # a band whose bins are all flagged (0-500 Hz) has nothing to take a median of: NaN
-        # (np.median of an empty slice would warn "Mean of empty slice")
+        # over the finite values (a bin whose S is singular has a NaN P and is no
+        # undetermined bin); a band whose bins are all flagged (0-500 Hz) has nothing to
+        # take a median of: NaN (np.median of an empty slice would warn "Mean of empty slice")
         out = []
         for parts in parts_per_band:
             x = np.concatenate(parts) if parts else np.empty((0, 2))
-            out.append(np.median(x, axis=0) if len(x) else np.full(x.shape[1:], np.nan))
+            out.append([np.median(c[np.isfinite(c)]) if np.isfinite(c).any() else np.nan
+                        for c in x.T])
         return np.array(out)
 
     return (BANDS_HZ, cover, flagged, factor, med(c_s), med(ratio2), med(zlin),
