@@ -55,7 +55,7 @@ from lcmr_xr.kernels.adaptive import (K95, nonlinearity_factor, second_order_var
                                       small_sample_factor, weak_direction)
 from lcmr_xr.kernels.closed_loop import frf_variance_from_first_row, indirect_first_row
 from lcmr_xr.kernels.lifting import frf_from_first_block_row
-from lcmr_xr.kernels.pooling import half_variances, spread_calibration
+from lcmr_xr.kernels.pooling import half_variances, p_spread_factor, spread_calibration
 from lcmr_xr.simulation import simulate_closed_loop
 
 N, CASE, WINDOW, DEGREES = 3600, 2, 30, (3, 3, 3)
@@ -260,6 +260,9 @@ BAND_FORMS = {
     "1/(1 - k rho)": lambda v, v2, q, rv: v / (1 - q) ** 2,
     "no c_S": lambda v, v2, q, rv: v,
 }
+#: The form ``identify`` uses for pooled fits calibrated by their halves (on top of the
+#: halves' factor on ``P``, ``P_spread_calibration``); single records keep the bound form.
+PRODUCTION_FORM = "1/(1 - k rho)"
 
 
 def _halves(R, Z, kw, covariance):
@@ -415,6 +418,7 @@ def _band_pieces(fit, kw, out, ratio=None):
     ``identify`` would compute with it: the undetermined flag recomputed)."""
     production = ratio is None
     cal = spread_calibration(fit["spread_ratio"] if production else ratio)
+    pf = 1.0
     G, C = fit["G"], fit["G_cov"] * cal[..., None, None]
     n_fast, f_, nu, ny = kw["n_fast"], kw["factor"], kw["nu"], kw["ny"]
     nr = f_ * nu
@@ -433,18 +437,22 @@ def _band_pieces(fit, kw, out, ratio=None):
     und_slow = nonlinearity_factor(rho, rho_v)[1] & ~fit["s_singular"]
     und = und_slow[slow][:, None, None]
     if production:
-        # the pieces are production's: the bound form gives identify's P_var (and v its
-        # P_var_linear), the flag is identify's
+        # the pieces are production's: its form times the halves' factor on P gives
+        # identify's P_var (and v its P_var_linear), the flag is identify's
         np.testing.assert_array_equal(und[:, 0, 0], out["P_undetermined"])
+        P_h = [frf_from_first_block_row(fit[h], f_)[..., : bins.size, :, :]
+               for h in ("P1_half_a", "P1_half_b")]
+        pf = p_spread_factor(*P_h, v, und[:, 0, 0], weight=fit["half_weight"][slow])
+        np.testing.assert_allclose(pf, out["P_spread_calibration"], rtol=1e-12)
         with np.errstate(divide="ignore", invalid="ignore"):
             check = np.where(und, np.inf,
-                             dof ** 2 * BAND_FORMS["bound c_S"](v, v2, K95 * rho[slow, None, None],
-                                                                rho_v[slow, None, None]))
+                             dof ** 2 * pf * BAND_FORMS[PRODUCTION_FORM](
+                                 v, v2, K95 * rho[slow, None, None], rho_v[slow, None, None]))
         ok = np.isfinite(out["P_var"])
         np.testing.assert_allclose(check[ok], out["P_var"][ok], rtol=1e-9)
         np.testing.assert_allclose(v, out["P_var_linear"], rtol=1e-9)
     return dict(v=v, v2=v2, q=K95 * rho[slow, None, None], rho_v=rho_v[slow, None, None],
-                dof=dof, und=und, P=out["P"], cal=cal, t2=t2)
+                dof=dof, und=und, P=out["P"], cal=cal, t2=t2, pf=pf)
 
 
 def pooled_band_forms(groups: int, first_group: int = 0, n_exp: int = 8, denominator="iv",
@@ -515,7 +523,7 @@ def pooled_band_forms(groups: int, first_group: int = 0, n_exp: int = 8, denomin
                 undetermined = chosen(und) | und[-1]
                 var_c = np.where(undetermined, np.inf, chosen(var) + chosen(bias2))
                 P_c = chosen(P)
-                first = cal_name == "production" and name == "bound c_S"
+                first = cal_name == "production" and name == PRODUCTION_FORM
                 if first:  # identify's own result
                     np.testing.assert_allclose(np.sqrt(var_c), pooled.P_std.values, rtol=1e-9)
                     np.testing.assert_array_equal(P_c, pooled.P.values)
@@ -524,7 +532,7 @@ def pooled_band_forms(groups: int, first_group: int = 0, n_exp: int = 8, denomin
                     v2 = np.stack([p["v2"] for p in pieces])
                     dof = np.stack([np.broadcast_to(p["dof"], p["v"].shape) for p in pieces])
                     with np.errstate(divide="ignore", invalid="ignore"):
-                        cs = chosen(1 + K95 * rv / (1 - q))
+                        cs = chosen(1 / (1 - q))
                         r2 = chosen(v2 / v)
                         # the error over the calibrated first-order variance (ln 2 = 0.69 if right)
                         z = np.abs(P_c - truth) ** 2 / (chosen(dof) ** 2 * chosen(v))
@@ -538,7 +546,7 @@ def pooled_band_forms(groups: int, first_group: int = 0, n_exp: int = 8, denomin
                         # (fast bins, both inputs, for the factors on P)
                         ssel = (sf > lo) & (sf < hi)
                         factor[cal_name][gi, b] = (np.median(pieces[-1]["pf"][sel])
-                                                   if "pf" in pieces[-1] else
+                                                   if cal_name in P_CALIBRATIONS else
                                                    np.median(pieces[-1]["cal"][ssel]))
                     if first:
                         keep = sel & ~undetermined[:, 0, 0]
