@@ -25,7 +25,8 @@ degrees 3-3-3):
    lower) and the coverage of the 95 % discs per band (goal 90-99 % in every band; a
    flagged bin, whose band is unbounded, counts as covered), with the fraction of bins
    flagged undetermined and the median factor the split halves put on the pooled
-   covariance (``spread_calibration``); the goal lines say met or NOT met.
+   covariance (``spread_calibration``) and the median factor of the halves' ``P`` on its band
+   (``P_spread_calibration``, VCM/PZT); the goal lines say met or NOT met.
    ``--first-group g`` starts at group ``g`` (seeds ``500 + 8 g + e``);
    ``--band-forms`` prints instead the pooled coverage per form of the ``S^-1`` factor
    (:data:`BAND_FORMS`), each from the same pooled fit per group (:func:`pooled_band_forms`).
@@ -209,7 +210,10 @@ def disturbances_pooled(groups: int, n_exp: int = 8, denominators=("ls", "iv"),
                     cal = frf.get("spread_calibration")
                     sf = frf.slow_frequency.values
                     c = 1.0 if cal is None else np.median(cal.values[(sf >= lo) & (sf < hi) & (sf > 0)])
-                    extra.append([[flagged, c]] * 2)
+                    # the halves' factor on the band of P, median per input (1 for one record)
+                    pcal = frf.get(cv.P_SPREAD_CALIBRATION)
+                    pc = [1.0, 1.0] if pcal is None else np.median(pcal.values[sel, 0], axis=0)
+                    extra.append([[flagged, c, pc[0]], [flagged, c, pc[1]]])
                 stats[name, d].append(np.concatenate(
                     [np.stack([t.median_error.values, t.coverage.values], axis=-1),
                      np.array(extra)], axis=-1))
@@ -236,7 +240,9 @@ def report_disturbances(bands, stats, n_exp=8):
                      c1[0], c1[1]]
             print(f"   {f'{lo:g}-{hi:g}':<15}" + "".join(f"{c:>11.3g}" for c in cells)
                   + f"   flagged {stats['pooled', d][:, b, 0, 2].mean():.2f}, spread "
-                    f"calibration {np.median(stats['pooled', d][:, b, 0, 3]):.2f}")
+                    f"calibration {np.median(stats['pooled', d][:, b, 0, 3]):.2f}, factor on P "
+                    f"{np.median(stats['pooled', d][:, b, 0, 4]):.2f}/"
+                    f"{np.median(stats['pooled', d][:, b, 1, 4]):.2f}")
         cover = stats["pooled", d][:, :, :, 1].mean(axis=0)  # (band, input)
         misses = [f"{lo:g}-{hi:g} Hz {name} {cover[b, i]:.3f}" for b, (lo, hi) in enumerate(bands)
                   for i, name in enumerate(hdd.INPUTS) if not 0.90 <= cover[b, i] <= 0.99]
@@ -628,7 +634,9 @@ def pooling_cost(n_exp: int = 64, repeat: int = 3, calibrations=(), loop: bool =
     """Seconds (best of ``repeat``, the variants run in turn each round so that a change
     of load hits them alike): ``n_exp`` experiments pooled, with production's split-half
     calibration and with each of ``calibrations`` (names of :data:`CALIBRATIONS`, swapped
-    in for production's ratio) and without any (``"no calibration"``), against
+    in for production's ratio), with the calibration of ``G_cov`` alone (``"G calibration
+    only"``: no factor on ``P``, the band as before it) and without any (``"no
+    calibration"``), against
     identifying them one by one in one call and (``loop``) in a loop of calls."""
     from lcmr_xr.kernels import identification as kid
 
@@ -641,9 +649,15 @@ def pooling_cost(n_exp: int = 64, repeat: int = 3, calibrations=(), loop: bool =
         spread, limit = kid._spread_ratio, kid.MIN_SPLIT_EXPERIMENTS
         if name == "no calibration":
             kid.MIN_SPLIT_EXPERIMENTS = n_exp + 1
+        elif name == "G calibration only":  # no factor on P (the halves' P not formed)
+            def ratio_only(R, Z, t, **k):
+                G_var = np.where(t["ill_posed"][..., None, None], np.nan, t["G_var"])
+                k.pop("closed_loop", None)
+                return {"spread_ratio": kid.split_half_spread(R, Z, G_var, **k)}
+            kid._spread_ratio = ratio_only
         elif name != "pooled":
             fn = CALIBRATIONS[name]
-            kid._spread_ratio = lambda R, Z, t, **k: fn(R, Z, t, k)
+            kid._spread_ratio = lambda R, Z, t, **k: {"spread_ratio": fn(R, Z, t, k)}
         try:
             yield
         finally:
@@ -655,7 +669,7 @@ def pooling_cost(n_exp: int = 64, repeat: int = 3, calibrations=(), loop: bool =
 
     runs = {"pooled": lambda: pooled("pooled")}
     runs.update({name: (lambda name=name: pooled(name))
-                 for name in ("no calibration", *calibrations)})
+                 for name in ("G calibration only", "no calibration", *calibrations)})
     runs["one by one, one call"] = lambda: lcmr_xr.identify(exps, **kw)
     if loop:
         runs["one by one, loop"] = lambda: [lcmr_xr.identify(exps.isel(experiment=e), **kw)
