@@ -104,6 +104,15 @@ growth, blocks of slow bins (one block over all bins): N = 3600 window 30 9.9 / 
 59.5 / 54.5 MB (123.1 / 118.3); before the blocks 160 and 411 MB traced.  Time blocks /
 one block: window 30 1.03 CPU (1.12 wall), auto 1.00 CPU (0.93 wall).
 
+Measured in session 9 (``--record-memory --record-sizes 3600 36000 180000
+--record-no-one-block``, load 2.6-5.4, main's code and this back to back): one identify
+traced, window="auto" holding of the narrower candidates only what the choice reads and
+refitting the bins they win: N = 3600 12.5 MB (same: held whole within HELD_BYTES),
+N = 36 000 59.5 -> 36.9 MB, N = 180 000 271.8 -> 158.8 MB (goal 186; window 30 141.5
+MB).  Auto / window 30 (paired, alternating, CPU): 2.46 / 2.69 / 2.71 before, 2.74 /
+2.79 / 2.79 after (noise of this shared machine: the N = 3600 path is unchanged); in the
+kernel, new auto / previous auto in one process 0.96, 1.03, 0.98.
+
 The experiments are copies of one simulated experiment with a small random perturbation
 (cheap to make; identify costs the same).  Everything is written to a temporary directory
 that is removed at the end.  Timings on a shared machine vary: compare numbers of one run
