@@ -35,6 +35,14 @@ HDD experiments, N = 3600 (173 kB of data each), window 30, degrees 3-3-3, with 
    slow bins (the default) and in one block over all bins (the covariance of every bin
    at once, as before the blocks), and the time of both alternating in one process.
 
+``--directory-appends`` runs only this: for the directory archives of ``--sizes`` (the
+cached ones of ``--files-cache``), the open from the header index, ``append_to_archive`` of
+one experiment six times in a fresh process (median of the last five; the first also pays
+first-call costs: xarray's first ``to_netcdf`` imports ``distributed``, ~0.5-0.9 s), the
+open with a journal as full as it gets before a compaction and the compaction a write
+then runs; the directory is put back as it was afterwards.  The script runs against an
+older checkout too (``PYTHONPATH`` of that checkout), which measures "before".
+
 ``--rate N`` runs only this: ``sweep_to_disk`` on a 2-worker ``local_cluster`` over an
 archive of ``N`` experiments (every variable, then ``P``, ``P_std``, ``P_flag``), with the
 rate of its task phase, the time of the assembly and the CPU per experiment of the workers
@@ -76,6 +84,14 @@ MB); consolidated 10 000 0.14 s +8.1 MB; consolidate_archive of 10 000 files 60 
 CPU); append 21 ms; sweep graph 10 005 x 3 1.2 s.  An earlier run at load 1.7-3.5:
 0.09 s, 0.19 s, 1.34 s from the index; 0.90 s, 11.1 s, 53.7 s from the headers;
 consolidate 78 s (47 s CPU).
+
+Measured in session 9 (``--directory-appends``, this session's library against the one
+before it, alternating, load 4-5): append one experiment into 100 / 1 600 / 10 000 files,
+median 39-66 / 43-81 / 37-60 ms (before: 66-117 / 175-262 / 710-1 053 ms; every append
+decoded every index entry, checked every file's shape and rewrote the index); the write
+that compacts 625 journal files into the base of 10 000 0.25-0.3 s (in a process with the
+imports done); open of 10 000 files from the index 0.8-1.9 s before and after, 1.7 s with
+625 journal files.
 
 Measured in session 7 (load 2.5-5; the lead has the --rate command for a quiet machine):
 tasks writing their parts' values with netCDF4, unlabelled (old: the labelled block saved

@@ -373,7 +373,8 @@ def save_archive(experiments, path, *, overwrite: bool = False, layout: str | No
     header index (:mod:`lcmr_xr.scaleout.dirindex`: one journal file, folded into the base
     ``.lcmr_archive_index.nc`` by a compaction now and then), so that
     :func:`open_archive` reads no file's header.  Two processes writing at once keep each
-    other's entries.  A directory without an index (of this version) gets one first, as
+    other's entries (they may give their experiments the same order index; those are
+    then ordered by file name).  A directory without an index (of this version) gets one first, as
     :func:`index_archive` writes it (every header read once).
 
     All experiments of an archive must agree as its open requires: the same shape and

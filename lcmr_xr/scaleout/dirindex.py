@@ -298,9 +298,9 @@ def _read_base(directory: Path, warn: bool) -> _Rows | None:
     if not all(len(c) == len(names) for c in [texts, *columns, *([orders] if orders else [])]):
         _ignored(path, "columns of different lengths", warn)
         return None
-    rows = _Rows((str(name), (tuple(int(c[i]) for c in columns), text, st.st_mtime_ns,
-                              None if orders is None else int(orders[i])))
-                 for i, (name, text) in enumerate(zip(names.tolist(), texts.tolist())))
+    written = st.st_mtime_ns
+    rows = _Rows((name, (stamp, text, written, order)) for name, stamp, text, order in zip(
+        names.tolist(), zip(*columns), texts.tolist(), orders or [None] * len(names)))
     rows.ordered = orders is not None
     return rows
 
