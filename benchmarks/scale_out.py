@@ -86,12 +86,12 @@ CPU); append 21 ms; sweep graph 10 005 x 3 1.2 s.  An earlier run at load 1.7-3.
 consolidate 78 s (47 s CPU).
 
 Measured in session 9 (``--directory-appends``, this session's library against the one
-before it, alternating, load 4-5): append one experiment into 100 / 1 600 / 10 000 files,
-median 39-66 / 43-81 / 37-60 ms (before: 66-117 / 175-262 / 710-1 053 ms; every append
-decoded every index entry, checked every file's shape and rewrote the index); the write
-that compacts 625 journal files into the base of 10 000 0.25-0.3 s (in a process with the
-imports done); open of 10 000 files from the index 0.8-1.9 s before and after, 1.7 s with
-625 journal files.
+before it, five runs alternating, load 3.6-5.9): append one experiment into 100 / 1 600 /
+10 000 files, median 39-78 / 43-81 / 37-71 ms (before: 66-130 / 149-263 / 710-1 475 ms;
+every append decoded every index entry, checked every file's shape and rewrote the
+index); the compaction of 128 / 128 / 625 journal files 0.14-0.32 / 0.30-0.58 / 1.9-2.6 s
+(0.25-0.3 s at 10 000 with an empty journal, in process); open of 10 000 files from the
+index 0.8-2.3 s before and after, 1.6-2.6 s with 625 journal files.
 
 Measured in session 7 (load 2.5-5; the lead has the --rate command for a quiet machine):
 tasks writing their parts' values with netCDF4, unlabelled (old: the labelled block saved
