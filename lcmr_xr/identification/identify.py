@@ -151,7 +151,8 @@ def identify(experiment: xr.Dataset, *, method: str = "lrm", window=DEFAULT_WIND
         per slow bin by their spread (variable ``spread_calibration``, at least 1;
         docs/uncertainty.md); their ``P`` put a further factor on the variance of ``P``
         per fast bin and entry (``P_spread_calibration``, at least 1), and the band's
-        factor for the nonlinearity of ``S^-1`` is the milder ``1 / (1 - k rho)``.  Lazy data work along the other leading dims (not with
+        factor for the nonlinearity of ``S^-1`` is the milder ``1 / (1 - k rho)``.  Lazy
+        data work along the other leading dims (not with
         ``frequency_chunks``).  ``degrees`` with ``Rm = -1`` (no transient term) is
         accepted only for steady-state periodic records (a ``period`` dim, transient
         periods dropped).

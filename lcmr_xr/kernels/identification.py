@@ -305,7 +305,8 @@ def _slow_recovery(terms, *, closed_loop, ill_posed, dof, calibration=None,
     subset of the bins are those of all bins there): ``rho`` with the ``calibration``
     applied, the ``factor`` turning the first-order standard deviation into the calibrated
     one (``mild``: a pooled fit's band calibrated by its halves' ``P``, the pooled form of
-    the nonlinearity factor; the flag is the same), ``undetermined`` and ``bad`` (ill-posed or ``S`` singular).  Of
+    the nonlinearity factor; the flag is the same), ``undetermined`` and ``bad``
+    (ill-posed or ``S`` singular).  Of
     ``terms["P1_cov"]`` only whether it is None is read."""
     s_sing, covariance = terms["s_singular"], terms["P1_cov"] is not None
     rho, rho_v = terms["rho"], terms["rho_v"]
@@ -647,7 +648,8 @@ def finish_packed(packed, *, nz: int, nr: int, n_fast: int, factor: int, nu: int
     widths = [("G", nz * nr, (nz, nr)), ("T", ne * nz, (nz,) if n_exp is None else (ne, nz)),
               ("noise_variance", nz, (nz,)), ("condition", 1, ()), ("ill_posed", 1, ())]
     if covariance and ne >= MIN_SPLIT_EXPERIMENTS:
-        widths += [("spread_ratio", 1, ()), ("half_weight", 1, ()), ("P1_half_a", ny * nr, (ny, nr)),
+        widths += [("spread_ratio", 1, ()), ("half_weight", 1, ()),
+                   ("P1_half_a", ny * nr, (ny, nr)),
                    ("P1_half_b", ny * nr, (ny, nr))]
     widths += [("P1", ny * nr, (ny, nr)), ("s_condition", 1, ()), ("s_singular", 1, ())]
     if covariance:

@@ -41,7 +41,8 @@ from lcmr_xr.kernels.local_models import CONDITION_LIMIT
 
 __all__ = ["MIN_SPLIT_EXPERIMENTS", "PooledFit", "SPREAD_SMOOTHING", "group_weight",
            "half_variances", "mean_and_covariance", "p_spread_factor", "pooled_least_squares",
-           "rescale_covariance", "split_halves", "spread_calibration", "spread_ratio", "window_mean"]
+           "rescale_covariance", "split_halves", "spread_calibration", "spread_ratio",
+           "window_mean"]
 
 #: Neighbouring slow bins (each side) over which the split-half spread ratio of pooled
 #: experiments is averaged (a bin alone has a few degrees of freedom; the local model's
@@ -480,7 +481,8 @@ def p_spread_factor(P_a, P_b, P_var, undetermined, weight=0.25,
     Examples
     --------
     >>> a = np.array([2.0, 2.0, 0.0, 2.0]).reshape(4, 1, 1) + 0j
-    >>> p_spread_factor(a, 0 * a, np.ones((4, 1, 1)), np.zeros(4, bool), smoothing=1).ravel().round(3).tolist()
+    >>> f = p_spread_factor(a, 0 * a, np.ones((4, 1, 1)), np.zeros(4, bool), smoothing=1)
+    >>> f.ravel().round(3).tolist()
     [1.443, 1.443, 1.443, 1.0]
     """
     with np.errstate(all="ignore"):
