@@ -405,7 +405,10 @@ def _captured_candidates(calibrations=None):
             C[..., m // 2 + 1:, :, :] = np.conj(C[..., m // 2 + 1:, :, :])
         # (a copy of the dict: the window choice empties the candidates' as it gathers)
         extra = {"ratios": ratios.pop()} if ratios else {}
-        calls.append(({**fit, "G_cov": C[..., :m, :, :], **extra}, kw, dict(out)))
+        # copies of the outputs: window="auto" gathers the chosen bins into the widest
+        # candidate's arrays in place once every candidate is finished
+        calls.append(({**fit, "G_cov": C[..., :m, :, :], **extra}, kw,
+                      {k: np.copy(v) for k, v in out.items()}))
         return out
 
     kid._finish, kid.slow_bin_terms, kid.BLOCK_BYTES = recording, reducing, 1 << 62
