@@ -405,10 +405,11 @@ def _captured_candidates(calibrations=None):
             C[..., m // 2 + 1:, :, :] = np.conj(C[..., m // 2 + 1:, :, :])
         # (a copy of the dict: the window choice empties the candidates' as it gathers)
         extra = {"ratios": ratios.pop()} if ratios else {}
-        # copies of the outputs: window="auto" gathers the chosen bins into the widest
-        # candidate's arrays in place once every candidate is finished
-        calls.append(({**fit, "G_cov": C[..., :m, :, :], **extra}, kw,
-                      {k: np.copy(v) for k, v in out.items()}))
+        # copies of the fit and its outputs: window="auto" gathers the chosen bins into the
+        # widest candidate's arrays in place once every candidate is finished (its ``G``
+        # is the fit's own array)
+        copy = lambda d: {k: np.copy(v) if isinstance(v, np.ndarray) else v for k, v in d.items()}
+        calls.append(({**copy(fit), "G_cov": C[..., :m, :, :], **extra}, kw, copy(out)))
         return out
 
     kid._finish, kid.slow_bin_terms, kid.BLOCK_BYTES = recording, reducing, 1 << 62
