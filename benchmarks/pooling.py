@@ -43,16 +43,19 @@ import argparse
 import contextlib
 import sys
 import time
+import warnings
 
 import numpy as np
 import xarray as xr
 
 import lcmr_xr
 from lcmr_xr import conventions as cv, hdd
-from lcmr_xr.kernels.adaptive import (K95, second_order_variance, select_windows,
+from lcmr_xr.kernels.adaptive import (K95, nonlinearity_factor, second_order_variance,
+                                      select_windows,
                                       small_sample_factor, weak_direction)
 from lcmr_xr.kernels.closed_loop import frf_variance_from_first_row, indirect_first_row
-from lcmr_xr.kernels.pooling import spread_calibration
+from lcmr_xr.kernels.lifting import frf_from_first_block_row
+from lcmr_xr.kernels.pooling import half_variances, spread_calibration
 from lcmr_xr.simulation import simulate_closed_loop
 
 N, CASE, WINDOW, DEGREES = 3600, 2, 30, (3, 3, 3)
@@ -259,24 +262,128 @@ BAND_FORMS = {
 }
 
 
+def _halves(R, Z, kw, covariance):
+    """The two halves' local models of :func:`lcmr_xr.kernels.identification.split_half_spread`
+    (same window, degrees, denominator and instruments), with ``covariance``."""
+    from lcmr_xr.kernels import identification as kid
+    from lcmr_xr.kernels.local_models import local_model
+    from lcmr_xr.kernels.pooling import split_halves
+
+    R, Z = kid._broadcast_leading(R, Z)
+    ax = kw["experiment_axis"]
+    zhats = kw.get("instruments")
+    if zhats is None:
+        zhats = kid.half_instruments(R, Z, degrees=kw["degrees"], circular=kw["circular"],
+                                     experiment_axis=ax, denominator=kw["denominator"])
+    halves = split_halves(R.shape[ax])
+    fits = [local_model(np.take(R, idx, axis=ax), np.take(Z, idx, axis=ax),
+                        half_width=kw["half_width"], degrees=tuple(kw["degrees"]),
+                        circular=kw["circular"], covariance=covariance, experiment_axis=ax,
+                        instruments=zhat) for idx, zhat in zip(halves, zhats)]
+    G = [np.where(f.ill_posed[..., None, None], np.nan, f.G) for f in fits]
+    V = [half_variances(np.moveaxis(np.take(R, idx, axis=ax), ax, -3), kw["half_width"],
+                        circular=kw["circular"])[..., None, :] for idx in halves]
+    return fits, G, V
+
+
+def _mean_ratio(num, den):
+    """Per bin, the mean over the entries of ``num / den`` (finite, ``den > 0``; NaN if none)."""
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        ok = np.isfinite(num) & np.isfinite(den) & (den > 0)
+        total = np.where(ok, num / np.where(ok, den, 1.0), 0.0).sum(axis=(-2, -1))
+        count = ok.sum(axis=(-2, -1))
+        return np.where(count > 0, total / np.maximum(count, 1), np.nan)
+
+
+def _ratio_gram(R, Z, terms, kw, noise="pool"):
+    """``w |G_a - G_b|^2 / G_var`` with the halves' Gram weight (the random-group variance
+    of the pooled estimate); ``noise``: the noise levels in the weight, the pool's for both
+    halves (``"pool"``: ``V_a V_b / (V_a + V_b)^2``) or each half's own residual estimate
+    (``"none"``: of the fit without covariance, ``"diag"``: with its exact ``tau``):
+    ``s_p V_a V_b / ((V_a + V_b) (s_a V_a + s_b V_b))``."""
+    fits, G, V = _halves(R, Z, kw, None if noise in ("pool", "none") else "diag")
+    G_var = np.where(terms["ill_posed"][..., None, None], np.nan, terms["G_var"])
+    d2 = np.abs(G[0] - G[1]) ** 2
+    with np.errstate(invalid="ignore", divide="ignore"):
+        if noise == "pool":
+            w = V[0] * V[1] / (V[0] + V[1]) ** 2
+        else:
+            s = [f.noise_variance[..., :, None] for f in fits]
+            s_p = terms["noise_variance"][..., :, None]
+            w = s_p * V[0] * V[1] / ((V[0] + V[1]) * (s[0] * V[0] + s[1] * V[1]))
+    return _mean_ratio(w * d2, G_var)
+
+
+def _ratio_own(R, Z, terms, kw):
+    """``|G_a - G_b|^2 / (var_a + var_b)``: the halves' own reported variances (their local
+    models with ``covariance="diag"``); no ratio where the pool is ill-posed."""
+    fits, G, _ = _halves(R, Z, kw, "diag")
+    den = fits[0].G_cov + fits[1].G_cov
+    den = np.where(terms["ill_posed"][..., None, None], np.nan, den)
+    return _mean_ratio(np.abs(G[0] - G[1]) ** 2, den)
+
+
+#: The calibrations compared by ``--band-forms`` (each from the same pooled fits):
+#: name -> ``(R, Z, terms, kw) -> ratio`` (``terms``: the pooled fit's
+#: :func:`lcmr_xr.kernels.identification._fit_terms`; ``kw``: those of ``split_half_spread``).
+CALIBRATIONS = {
+    "gram (pool noise)": lambda R, Z, t, kw: _ratio_gram(R, Z, t, kw, "pool"),
+    "gram (halves' noise)": lambda R, Z, t, kw: _ratio_gram(R, Z, t, kw, "none"),
+    "gram (halves' tau)": lambda R, Z, t, kw: _ratio_gram(R, Z, t, kw, "diag"),
+    "own (diag halves)": _ratio_own,
+}
+
+
+#: Calibrations of ``P``'s own band from the split halves, on top of production's (measured
+#: by ``--band-forms``, not used by ``identify``): each half's ``P`` (its ``G`` through the
+#: indirect step and the recovery), ``|P_a - P_b|^2 / 4`` (equal halves of one design) over
+#: the calibrated first-order variance of the pooled ``P`` per fast bin and entry, not at
+#: undetermined bins, over +-6 fast bins by the mean or by the median / ln 2 (a robust
+#: mean of ``Exp(1)`` terms), never below 1, multiplies every form's variance.
+P_CALIBRATIONS = {"P halves (mean)": "mean", "P halves (median)": "median"}
+
+
+def _p_factor(G_halves, kw, v, und, how, smoothing=6):
+    """The factor of :data:`P_CALIBRATIONS` per fast bin and entry of one candidate."""
+    nr, f_, k = kw["factor"] * kw["nu"], kw["factor"], kw["n_fast"] // 2 + 1
+    with np.errstate(all="ignore"):
+        P = [frf_from_first_block_row(indirect_first_row(g, nr).first_row, f_)[..., :k, :, :]
+             for g in G_halves]
+        r = 0.25 * np.abs(P[0] - P[1]) ** 2 / v
+    r = np.where(und | ~np.isfinite(r), np.nan, r)
+    pad = np.full((smoothing,) + r.shape[1:], np.nan)
+    windows = np.lib.stride_tricks.sliding_window_view(np.concatenate([pad, r, pad]),
+                                                       2 * smoothing + 1, axis=0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN windows: factor 1
+        local = (np.nanmean(windows, axis=-1) if how == "mean"
+                 else np.nanmedian(windows, axis=-1) / np.log(2.0))
+    return np.maximum(np.where(np.isfinite(local), local, 1.0), 1.0)
+
+
 @contextlib.contextmanager
-def _captured_candidates():
+def _captured_candidates(calibrations=None):
     """Record every candidate window's fit as ``identify`` finishes it (the production
     path: the kernels' ``_finish``, with its inputs and outputs, and the local model's
     ``G_cov`` that its terms were reduced from), so that the pieces of the band can be
     recombined without fitting again.  The local models are fitted in one block of bins
     meanwhile (``BLOCK_BYTES``); ``G_cov`` is completed over the circle as production
     completes its terms (bins above ``M/2`` the conjugates of those below, for real
-    signals)."""
+    signals).  ``calibrations`` (name -> function, :data:`CALIBRATIONS`): each candidate's
+    ratio by each of them too (``fit["ratios"]``)."""
     from lcmr_xr.kernels import identification as kid
     from lcmr_xr.kernels.closed_loop import mirror_source
 
-    calls, blocks = [], []
-    original, terms, nbytes = kid._finish, kid.slow_bin_terms, kid.BLOCK_BYTES
+    calls, blocks, ratios = [], [], []
+    original, terms, nbytes, spread = kid._finish, kid.slow_bin_terms, kid.BLOCK_BYTES, kid._spread_ratio
 
     def reducing(G, G_cov, **kw):
         blocks.append(G_cov)
         return terms(G, G_cov, **kw)
+
+    def spreading(R, Z, t, **kw):
+        ratios.append({name: fn(R, Z, t, kw) for name, fn in (calibrations or {}).items()})
+        return spread(R, Z, t, **kw)
 
     def recording(fit, **kw):
         out = original(fit, **kw)
@@ -288,20 +395,26 @@ def _captured_candidates():
             C = np.take(C, src, axis=-3)
             C[..., m // 2 + 1:, :, :] = np.conj(C[..., m // 2 + 1:, :, :])
         # (a copy of the dict: the window choice empties the candidates' as it gathers)
-        calls.append(({**fit, "G_cov": C[..., :m, :, :]}, kw, dict(out)))
+        extra = {"ratios": ratios.pop()} if ratios else {}
+        calls.append(({**fit, "G_cov": C[..., :m, :, :], **extra}, kw, dict(out)))
         return out
 
     kid._finish, kid.slow_bin_terms, kid.BLOCK_BYTES = recording, reducing, 1 << 62
+    kid._spread_ratio = spreading
     try:
         yield calls
     finally:
         kid._finish, kid.slow_bin_terms, kid.BLOCK_BYTES = original, terms, nbytes
+        kid._spread_ratio = spread
 
 
-def _band_pieces(fit, kw, out):
+def _band_pieces(fit, kw, out, ratio=None):
     """Per fast bin of one candidate: ``v``, ``v2``, ``q``, ``rho_v`` (broadcast to ``P``),
-    the small-sample factor, and the calibration and undetermined flag it used."""
-    cal = spread_calibration(fit["spread_ratio"])
+    the small-sample factor, and the calibration and undetermined flag it used.
+    ``ratio``: another split-half ratio than production's (the pieces are then those
+    ``identify`` would compute with it: the undetermined flag recomputed)."""
+    production = ratio is None
+    cal = spread_calibration(fit["spread_ratio"] if production else ratio)
     G, C = fit["G"], fit["G_cov"] * cal[..., None, None]
     n_fast, f_, nu, ny = kw["n_fast"], kw["factor"], kw["nu"], kw["ny"]
     nr = f_ * nu
@@ -317,119 +430,162 @@ def _band_pieces(fit, kw, out):
                                factor=f_, bins=bins)
     t2 = time.process_time() - start
     dof = np.broadcast_to(small_sample_factor(kw["dof"]), (m,))[slow, None, None]
-    und = out["P_undetermined"][:, None, None]
-    # the pieces are production's: the bound form gives identify's P_var (and v its P_var_linear)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        check = np.where(und, np.inf,
-                         dof ** 2 * BAND_FORMS["bound c_S"](v, v2, K95 * rho[slow, None, None],
-                                                            rho_v[slow, None, None]))
-    ok = np.isfinite(out["P_var"])
-    np.testing.assert_allclose(check[ok], out["P_var"][ok], rtol=1e-9)
-    np.testing.assert_allclose(v, out["P_var_linear"], rtol=1e-12)
+    und_slow = nonlinearity_factor(rho, rho_v)[1] & ~fit["s_singular"]
+    und = und_slow[slow][:, None, None]
+    if production:
+        # the pieces are production's: the bound form gives identify's P_var (and v its
+        # P_var_linear), the flag is identify's
+        np.testing.assert_array_equal(und[:, 0, 0], out["P_undetermined"])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            check = np.where(und, np.inf,
+                             dof ** 2 * BAND_FORMS["bound c_S"](v, v2, K95 * rho[slow, None, None],
+                                                                rho_v[slow, None, None]))
+        ok = np.isfinite(out["P_var"])
+        np.testing.assert_allclose(check[ok], out["P_var"][ok], rtol=1e-9)
+        np.testing.assert_allclose(v, out["P_var_linear"], rtol=1e-9)
     return dict(v=v, v2=v2, q=K95 * rho[slow, None, None], rho_v=rho_v[slow, None, None],
                 dof=dof, und=und, P=out["P"], cal=cal, t2=t2)
 
 
-def pooled_band_forms(groups: int, first_group: int = 0, n_exp: int = 8, denominator="iv"):
-    """Coverage per band of the pooled 95 % discs for every form of :data:`BAND_FORMS`.
+def pooled_band_forms(groups: int, first_group: int = 0, n_exp: int = 8, denominator="iv",
+                      calibrations=None):
+    """Coverage per band of the pooled 95 % discs for every form of :data:`BAND_FORMS`
+    and every split-half calibration of ``calibrations`` (names of :data:`CALIBRATIONS`;
+    default: production's alone, named ``"production"``).
 
     One pooled ``identify`` (``window="auto"``) per group of ``n_exp`` experiments (the
     groups of :func:`disturbances_pooled`); its candidate windows' fits are recorded and
     each form's band is rebuilt per candidate (``c_dof^2 form``, ``inf`` where
-    undetermined, the flag unchanged), the window is chosen per slow bin by
+    undetermined), the window is chosen per slow bin by
     :func:`lcmr_xr.kernels.adaptive.select_windows` on that form's band (as ``identify``
     would choose it) and the chosen window's model-error term added.  Checks that the bound
-    form reproduces ``identify``'s ``P_std`` (so every form is what ``identify`` would
-    return with it).  Returns form -> (group, band, input) coverage, and the flagged
-    fraction (group, band), the median ``c_S`` and ``E|e2|^2 / var_lin`` of the chosen
-    windows (band, input) and the CPU seconds of ``second_order_variance`` per candidate.
+    form with production's calibration reproduces ``identify``'s ``P_std`` and flag (so
+    every form is what ``identify`` would return with it).  Returns (calibration, form) ->
+    (group, band, input) coverage, and per calibration the flagged fraction (group, band)
+    and the median factor (group, band); for production's: the median ``c_S`` and
+    ``E|e2|^2 / var_lin`` of the chosen windows (band, input) and the CPU seconds of
+    ``second_order_variance`` per candidate.
     """
     from lcmr_xr.demo import BANDS_HZ
 
-    cover = {name: np.zeros((groups, len(BANDS_HZ), 2)) for name in BAND_FORMS}
-    flagged = np.zeros((groups, len(BANDS_HZ)))
+    names = ["production"] + list(calibrations or [])
+    cover = {(c, name): np.zeros((groups, len(BANDS_HZ), 2)) for c in names for name in BAND_FORMS}
+    flagged = {c: np.zeros((groups, len(BANDS_HZ))) for c in names}
+    factor = {c: np.zeros((groups, len(BANDS_HZ))) for c in names}
     c_s, ratio2, zlin, t2 = [[] for _ in BANDS_HZ], [[] for _ in BANDS_HZ], [[] for _ in BANDS_HZ], []
     for gi, g in enumerate(range(first_group, first_group + groups)):
         exps = [hdd.simulate(N, case=CASE, seed=500 + n_exp * g + e) for e in range(n_exp)]
-        with _captured_candidates() as calls:
+        capture = {c: CALIBRATIONS[c] for c in names[1:] if c in CALIBRATIONS}
+        if any(c in P_CALIBRATIONS for c in names):
+            capture["_halves_G"] = lambda R, Z, t, kw: _halves(R, Z, kw, None)[1]
+        with _captured_candidates(capture) as calls:
             pooled = lcmr_xr.identify(xr.concat(exps, "experiment"), combine="experiment",
                                       errors="ignore", denominator=denominator)
         windows = pooled.attrs.get(cv.CANDIDATE_WINDOWS)
-        pieces = [_band_pieces(*c) for c in calls]
-        t2 += [p["t2"] for p in pieces]
         f = pooled.frequency.values
-        truth = np.full(pieces[0]["P"].shape, np.nan, dtype=complex)
+        sf = pooled.slow_frequency.values
+        truth = np.full(calls[0][2]["P"].shape, np.nan, dtype=complex)
         truth[1:] = hdd.true_frf(f[1:], case=CASE).values
         m = pooled.sizes["slow_frequency"]
         k = np.arange(f.size)
-        P = np.stack([p["P"] for p in pieces])
-        v = np.stack([p["v"] for p in pieces])
-        und = np.stack([p["und"] for p in pieces])
-        for name, form in BAND_FORMS.items():
-            with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-                var = np.stack([np.where(p["und"], np.inf,
-                                         p["dof"] ** 2 * form(p["v"], p["v2"], p["q"], p["rho_v"]))
-                                for p in pieces])
-            choice, bias2 = select_windows(P, var, v, m)
-            pick = choice[k % m][None, :, None, None]
-            chosen = lambda a: np.take_along_axis(a, np.broadcast_to(pick, (1,) + a.shape[1:]),
-                                                  axis=0)[0]
-            undetermined = chosen(und) | und[-1]
-            var_c = np.where(undetermined, np.inf, chosen(var) + chosen(bias2))
-            P_c = chosen(P)
-            if name == "bound c_S":  # identify's own result
-                np.testing.assert_allclose(np.sqrt(var_c), pooled.P_std.values, rtol=1e-9)
-                np.testing.assert_array_equal(P_c, pooled.P.values)
-                q = np.stack([np.broadcast_to(p["q"], p["v"].shape) for p in pieces])
-                rv = np.stack([np.broadcast_to(p["rho_v"], p["v"].shape) for p in pieces])
-                v2 = np.stack([p["v2"] for p in pieces])
-                dof = np.stack([np.broadcast_to(p["dof"], p["v"].shape) for p in pieces])
-                with np.errstate(divide="ignore", invalid="ignore"):
-                    cs = chosen(1 + K95 * rv / (1 - q))
-                    r2 = chosen(v2 / v)
-                    # the error over the calibrated first-order variance (ln 2 = 0.69 if right)
-                    z = np.abs(P_c - truth) ** 2 / (chosen(dof) ** 2 * chosen(v))
-            hit = (np.abs(P_c - truth) ** 2 <= K95 ** 2 * var_c) | undetermined
-            for b, (lo, hi) in enumerate(BANDS_HZ):
-                sel = (f > lo) & (f < hi) & (f > 0) & (f < f.max())
-                cover[name][gi, b] = hit[sel, 0].mean(axis=0)
-                if name == "bound c_S":
-                    flagged[gi, b] = undetermined[sel, 0, 0].mean()
-                    keep = sel & ~undetermined[:, 0, 0]
-                    c_s[b].append(cs[keep, 0])
-                    ratio2[b].append(r2[keep, 0])
-                    zlin[b].append(z[keep, 0])
+        for cal_name in names:
+            if cal_name in P_CALIBRATIONS:  # production's pieces, the factor on P on top
+                pieces = [{**p, "pf": _p_factor(fit["ratios"]["_halves_G"], kw, p["v"], p["und"],
+                                                P_CALIBRATIONS[cal_name])}
+                          for p, (fit, kw, out) in zip(base, calls)]
+            else:
+                pieces = [_band_pieces(fit, kw, out, None if cal_name == "production"
+                                       else fit["ratios"][cal_name]) for fit, kw, out in calls]
+            if cal_name == "production":
+                t2 += [p["t2"] for p in pieces]
+                base = pieces
+            P = np.stack([p["P"] for p in pieces])
+            v = np.stack([p["v"] for p in pieces])
+            und = np.stack([p["und"] for p in pieces])
+            for name, form in BAND_FORMS.items():
+                with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+                    var = np.stack([np.where(p["und"], np.inf,
+                                             p["dof"] ** 2 * p.get("pf", 1.0)
+                                             * form(p["v"], p["v2"], p["q"], p["rho_v"]))
+                                    for p in pieces])
+                choice, bias2 = select_windows(P, var, v, m)
+                pick = choice[k % m][None, :, None, None]
+                chosen = lambda a: np.take_along_axis(a, np.broadcast_to(pick, (1,) + a.shape[1:]),
+                                                      axis=0)[0]
+                undetermined = chosen(und) | und[-1]
+                var_c = np.where(undetermined, np.inf, chosen(var) + chosen(bias2))
+                P_c = chosen(P)
+                first = cal_name == "production" and name == "bound c_S"
+                if first:  # identify's own result
+                    np.testing.assert_allclose(np.sqrt(var_c), pooled.P_std.values, rtol=1e-9)
+                    np.testing.assert_array_equal(P_c, pooled.P.values)
+                    q = np.stack([np.broadcast_to(p["q"], p["v"].shape) for p in pieces])
+                    rv = np.stack([np.broadcast_to(p["rho_v"], p["v"].shape) for p in pieces])
+                    v2 = np.stack([p["v2"] for p in pieces])
+                    dof = np.stack([np.broadcast_to(p["dof"], p["v"].shape) for p in pieces])
+                    with np.errstate(divide="ignore", invalid="ignore"):
+                        cs = chosen(1 + K95 * rv / (1 - q))
+                        r2 = chosen(v2 / v)
+                        # the error over the calibrated first-order variance (ln 2 = 0.69 if right)
+                        z = np.abs(P_c - truth) ** 2 / (chosen(dof) ** 2 * chosen(v))
+                hit = (np.abs(P_c - truth) ** 2 <= K95 ** 2 * var_c) | undetermined
+                for b, (lo, hi) in enumerate(BANDS_HZ):
+                    sel = (f > lo) & (f < hi) & (f > 0) & (f < f.max())
+                    cover[cal_name, name][gi, b] = hit[sel, 0].mean(axis=0)
+                    if name == "bound c_S":
+                        flagged[cal_name][gi, b] = undetermined[sel, 0, 0].mean()
+                        # median factor of the widest candidate over the band's slow bins
+                        # (fast bins, both inputs, for the factors on P)
+                        ssel = (sf > lo) & (sf < hi)
+                        factor[cal_name][gi, b] = (np.median(pieces[-1]["pf"][sel])
+                                                   if "pf" in pieces[-1] else
+                                                   np.median(pieces[-1]["cal"][ssel]))
+                    if first:
+                        keep = sel & ~undetermined[:, 0, 0]
+                        c_s[b].append(cs[keep, 0])
+                        ratio2[b].append(r2[keep, 0])
+                        zlin[b].append(z[keep, 0])
         print(f"  band forms: group {g} done ({len(calls)} candidates"
               f"{'' if windows is None else f' {windows}'})", file=sys.stderr, flush=True)
+
     def med(parts_per_band):
-        # a band whose bins are all flagged (0-500 Hz) has nothing to take a median of: NaN
-        # (np.median of an empty slice would warn "Mean of empty slice")
+        # over the finite values (a bin whose S is singular has a NaN P and is no
+        # undetermined bin); a band whose bins are all flagged (0-500 Hz) has nothing to
+        # take a median of: NaN (np.median of an empty slice would warn "Mean of empty slice")
         out = []
         for parts in parts_per_band:
             x = np.concatenate(parts) if parts else np.empty((0, 2))
-            out.append(np.median(x, axis=0) if len(x) else np.full(x.shape[1:], np.nan))
+            out.append([np.median(c[np.isfinite(c)]) if np.isfinite(c).any() else np.nan
+                        for c in x.T])
         return np.array(out)
 
-    return BANDS_HZ, cover, flagged, med(c_s), med(ratio2), med(zlin), np.array(t2)
+    return (BANDS_HZ, cover, flagged, factor, med(c_s), med(ratio2), med(zlin),
+            np.array(t2))
 
 
-def report_band_forms(bands, cover, flagged, c_s, ratio2, zlin, t2, *, first_group, denominator):
-    groups = flagged.shape[0]
+def report_band_forms(bands, cover, flagged, factor, c_s, ratio2, zlin, t2, *, first_group,
+                      denominator):
+    groups = next(iter(flagged.values())).shape[0]
     print(f"\n5b. benchmark disturbances, 8 experiments pooled, window 'auto', denominator "
           f"{denominator!r}, groups {first_group}-{first_group + groups - 1}: coverage of the "
-          f"pooled 95 % discs VCM/PZT per form of the S^-1 factor (window chosen per form)")
-    print(f"   {'form':<17}" + "".join(f"{f'{lo:g}-{hi:g} Hz':>17}" for lo, hi in bands))
-    for name, c in cover.items():
+          f"pooled 95 % discs VCM/PZT per split-half calibration and form of the S^-1 factor "
+          f"(window chosen per form)")
+    print(f"   {'calibration / form':<40}" + "".join(f"{f'{lo:g}-{hi:g} Hz':>17}" for lo, hi in bands))
+    for (cal, name), c in cover.items():
         mean = c.mean(axis=0)
-        print(f"   {name:<17}" + "".join(f"{f'{mean[b, 0]:.3f}/{mean[b, 1]:.3f}':>17}"
-                                         for b in range(len(bands))))
-    print(f"   {'flagged':<17}" + "".join(f"{flagged[:, b].mean():>17.3f}" for b in range(len(bands))))
-    print(f"   {'median c_S':<17}" + "".join(f"{f'{c_s[b, 0]:.3g}/{c_s[b, 1]:.3g}':>17}"
-                                            for b in range(len(bands))))
-    print(f"   {'med. var2/var':<17}" + "".join(f"{f'{ratio2[b, 0]:.2g}/{ratio2[b, 1]:.2g}':>17}"
-                                               for b in range(len(bands))))
-    print(f"   {'med. err2/var':<17}" + "".join(f"{f'{zlin[b, 0]:.2f}/{zlin[b, 1]:.2f}':>17}"
-                                               for b in range(len(bands))))
+        print(f"   {f'{cal}: {name}':<40}" + "".join(f"{f'{mean[b, 0]:.3f}/{mean[b, 1]:.3f}':>17}"
+                                                 for b in range(len(bands))))
+    for cal in flagged:
+        print(f"   {f'{cal}: flagged':<40}" + "".join(f"{flagged[cal][:, b].mean():>17.3f}"
+                                                     for b in range(len(bands))))
+        print(f"   {f'{cal}: median factor':<40}" + "".join(
+            f"{np.median(factor[cal][:, b]):>17.2f}" for b in range(len(bands))))
+    print(f"   {'production: median c_S':<40}" + "".join(f"{f'{c_s[b, 0]:.3g}/{c_s[b, 1]:.3g}':>17}"
+                                                     for b in range(len(bands))))
+    print(f"   {'production: med. var2/var':<40}" + "".join(
+        f"{f'{ratio2[b, 0]:.2g}/{ratio2[b, 1]:.2g}':>17}" for b in range(len(bands))))
+    print(f"   {'production: med. err2/var':<40}" + "".join(
+        f"{f'{zlin[b, 0]:.2f}/{zlin[b, 1]:.2f}':>17}" for b in range(len(bands))))
     print(f"   second_order_variance: {1e3 * np.median(t2):.0f} ms CPU per candidate "
           f"(median of {t2.size})")
 
@@ -459,22 +615,61 @@ def window0_exactness_f3():
     return rel.max(), int(ok.sum()), ok.size
 
 
-def pooling_cost(n_exp: int = 64, repeat: int = 3):
+def pooling_cost(n_exp: int = 64, repeat: int = 3, calibrations=(), loop: bool = True,
+                 window=WINDOW):
+    """Seconds (best of ``repeat``, the variants run in turn each round so that a change
+    of load hits them alike): ``n_exp`` experiments pooled, with production's split-half
+    calibration and with each of ``calibrations`` (names of :data:`CALIBRATIONS`, swapped
+    in for production's ratio) and without any (``"no calibration"``), against
+    identifying them one by one in one call and (``loop``) in a loop of calls."""
+    from lcmr_xr.kernels import identification as kid
+
     exps = xr.concat([hdd.simulate(N, case=CASE, seed=700 + e) for e in range(n_exp)],
                      "experiment")
-    def best(fn):
-        times = []
-        for _ in range(repeat):
+    kw = dict(window=window, degrees=DEGREES, errors="ignore")
+
+    @contextlib.contextmanager
+    def variant(name):
+        spread, limit = kid._spread_ratio, kid.MIN_SPLIT_EXPERIMENTS
+        if name == "no calibration":
+            kid.MIN_SPLIT_EXPERIMENTS = n_exp + 1
+        elif name != "pooled":
+            fn = CALIBRATIONS[name]
+            kid._spread_ratio = lambda R, Z, t, **k: fn(R, Z, t, k)
+        try:
+            yield
+        finally:
+            kid._spread_ratio, kid.MIN_SPLIT_EXPERIMENTS = spread, limit
+
+    def pooled(name):
+        with variant(name):
+            return lcmr_xr.identify(exps, combine="experiment", **kw)
+
+    runs = {"pooled": lambda: pooled("pooled")}
+    runs.update({name: (lambda name=name: pooled(name))
+                 for name in ("no calibration", *calibrations)})
+    runs["one by one, one call"] = lambda: lcmr_xr.identify(exps, **kw)
+    if loop:
+        runs["one by one, loop"] = lambda: [lcmr_xr.identify(exps.isel(experiment=e), **kw)
+                                            for e in range(n_exp)]
+    lcmr_xr.identify(exps.isel(experiment=slice(0, 4)), combine="experiment", **kw)  # warm up
+    times = {name: [] for name in runs}
+    for _ in range(repeat):
+        for name, fn in runs.items():
             start = time.perf_counter()
             fn()
-            times.append(time.perf_counter() - start)
-        return min(times)
-    kw = dict(window=WINDOW, degrees=DEGREES, errors="ignore")
-    lcmr_xr.identify(exps.isel(experiment=slice(0, 2)), combine="experiment", **kw)  # warm up
-    t_pool = best(lambda: lcmr_xr.identify(exps, combine="experiment", **kw))
-    t_batch = best(lambda: lcmr_xr.identify(exps, **kw))
-    t_loop = best(lambda: [lcmr_xr.identify(exps.isel(experiment=e), **kw) for e in range(n_exp)])
-    return n_exp, t_pool, t_batch, t_loop
+            times[name].append(time.perf_counter() - start)
+    return {name: min(t) for name, t in times.items()}
+
+
+def report_cost(times, n_exp=64, window=WINDOW, repeat=3):
+    one = times["one by one, one call"]
+    print(f"\n7. cost, {n_exp} experiments of N = {N}, window {window!r}, degrees {DEGREES} "
+          f"(best of {repeat}, variants in turn; shared machine), goal: pooled / one by one <= 1.5")
+    for name, t in times.items():
+        loop = times.get("one by one, loop")
+        print(f"   {name:<28} {t:8.2f} s   / one call {t / one:5.2f}"
+              + ("" if loop is None else f"   / loop {t / loop:5.2f}"))
 
 
 def main(argv=None):
@@ -496,12 +691,33 @@ def main(argv=None):
     parser.add_argument("--band-forms", action="store_true",
                         help="with --only-disturbances: the pooled coverage per form of the "
                              "S^-1 factor from one pooled fit per group (not the error table)")
+    parser.add_argument("--calibrations", nargs="*", default=[],
+                        choices=list(CALIBRATIONS) + list(P_CALIBRATIONS),
+                        help="with --band-forms: also these split-half calibrations "
+                             "(each from the same pooled fits)")
+    parser.add_argument("--only-cost", action="store_true",
+                        help="run goal 7 alone (with --calibrations timed too)")
+    parser.add_argument("--cost-window", default=str(WINDOW),
+                        help="window of goal 7 with --only-cost (an int or 'auto')")
+    parser.add_argument("--repeat", type=int, default=3, help="best of how many, goal 7")
+    parser.add_argument("--no-loop", action="store_true",
+                        help="goal 7 without the loop of one call per experiment")
     args = parser.parse_args(argv)
+    if args.only_cost:
+        if set(args.calibrations) & set(P_CALIBRATIONS):
+            parser.error("--only-cost times the calibrations of the pooled covariance "
+                         f"({', '.join(CALIBRATIONS)}), not {', '.join(P_CALIBRATIONS)}")
+        window = args.cost_window if args.cost_window == "auto" else int(args.cost_window)
+        report_cost(pooling_cost(repeat=args.repeat, calibrations=args.calibrations,
+                                 loop=not args.no_loop, window=window),
+                    window=window, repeat=args.repeat)
+        return
     if args.only_disturbances:
         if args.band_forms:
             for d in args.denominator:
                 report_band_forms(*pooled_band_forms(args.groups, args.first_group,
-                                                     denominator=d),
+                                                     denominator=d,
+                                                     calibrations=args.calibrations),
                                   first_group=args.first_group, denominator=d)
             return
         report_disturbances(*disturbances_pooled(args.groups, first_group=args.first_group,
@@ -535,11 +751,7 @@ def main(argv=None):
     worst, n_ok, n_all = window0_exactness_f3()
     print(f"\n6. window 0 at F = 3 (SISO loop, E = 4 noiseless periodic experiments): largest "
           f"relative error {worst:.1e} over {n_ok} of {n_all} fast bins determined (goal 1e-9)")
-    n_exp, t_pool, t_batch, t_loop = pooling_cost()
-    print(f"\n7. cost, {n_exp} experiments of N = {N}, window {WINDOW}, degrees {DEGREES} (best of "
-          f"3; shared machine): pooled {t_pool:.2f} s; one by one in one call {t_batch:.2f} s "
-          f"(ratio {t_pool / t_batch:.2f}); one by one in a loop {t_loop:.2f} s (ratio "
-          f"{t_pool / t_loop:.2f}); goal ratio <= 1.5")
+    report_cost(pooling_cost())
 
 
 if __name__ == "__main__":

@@ -70,11 +70,17 @@ def test_accuracy_band_forms_reproduce_identify():
 
 def test_pooling_band_forms_reproduce_identify():
     """The pooled band-form tool (benchmarks/pooling.py --band-forms) rebuilds the pooled
-    band from its pieces: it checks inside that its bound form is identify's own P_std (to
-    1e-9) and P; the forms then differ where they should."""
+    band from its pieces: it checks inside that its bound form with production's
+    calibration is identify's own P_std (to 1e-9), P and flag; the forms then differ where
+    they should, and the other calibrations (of G_cov, and the factor on P) give factors
+    of at least 1 and coverages."""
     module = _load("pooling")
-    bands, cover, flagged, c_s, ratio2, zlin, t2 = module.pooled_band_forms(groups=1, n_exp=4)
-    bound, none = cover["bound c_S"][0], cover["no c_S"][0]
+    bands, cover, flagged, factor, c_s, ratio2, zlin, t2 = module.pooled_band_forms(
+        groups=1, n_exp=4, calibrations=["own (diag halves)", "P halves (median)"])
+    bound, none = cover["production", "bound c_S"][0], cover["production", "no c_S"][0]
     assert np.all((0 <= bound) & (bound <= 1)) and np.all(none <= bound + 1e-12)
     assert none.sum() < bound.sum()  # c_S > 1 wherever S^-1 is uncertain
-    assert np.all((flagged >= 0) & (flagged <= 1)) and t2.size >= 1
+    assert all(np.all((f >= 0) & (f <= 1)) for f in flagged.values()) and t2.size >= 1
+    for name in ("own (diag halves)", "P halves (median)"):
+        c = cover[name, "bound c_S"][0]
+        assert np.all((0 <= c) & (c <= 1)) and np.all(factor[name] >= 1)

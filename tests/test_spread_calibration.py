@@ -303,3 +303,38 @@ def test_near_collinear_unflagged_half_is_weighted_by_its_gram():
     assert not even.ill_posed.any()
     frf = identify(ds, window=20, combine="experiment", denominator="ls")
     assert np.median(frf[cv.SPREAD_CALIBRATION].values) < 1.5
+
+
+@pytest.mark.parametrize("scale, n_exp", [(1.0, 4), (0.3, 5)])
+def test_spread_ratio_equals_its_formula_from_separate_fits(scale, n_exp):
+    """The ratio ``identify`` computes for a pooled fit (least squares, window 12, the
+    even-numbered experiments' excitation scaled by ``scale``) against the formula built
+    here from separate pieces: the pool's and the two halves' local models fitted directly
+    (``local_model``), each half's windowed excitation Gram inverted bin by bin, and per
+    slow bin the mean over the entries of ``V_a V_b / (V_a + V_b)^2 |G_a - G_b|^2 / var``
+    (``var`` the pool's reported variance of that entry).  The factor ``identify`` returns
+    is that ratio averaged over +-6 slow bins and floored at 1."""
+    n, factor, w = 240, 2, 12
+    ds = _unequal(5, scale, n_exp=n_exp, n=n)
+    R, Z = kid.experiment_spectra(ds.r.values, ds.u.values, ds.y.values, factor=factor)
+    m, nr = R.shape[-2], R.shape[-1]
+    pool = local_model(R, Z, half_width=w, covariance="full", experiment_axis=-3)
+    var = np.real(np.diagonal(pool.G_cov, axis1=-2, axis2=-1)).reshape(pool.G.shape)
+    G, V = [], []
+    for idx in (np.arange(0, n_exp, 2), np.arange(1, n_exp, 2)):
+        G.append(local_model(R[idx], Z[idx], half_width=w, covariance=None,
+                             experiment_axis=-3).G)
+        v = np.empty((m, nr))
+        for k in range(m):  # the half's Gram over its experiments and the window, inverted
+            rows = R[idx][:, np.arange(k - w, k + w + 1) % m].reshape(-1, nr)
+            v[k] = np.real(np.diag(np.linalg.inv(rows.T @ rows.conj())))
+        V.append(v[:, None, :])
+    weight = V[0] * V[1] / (V[0] + V[1]) ** 2
+    oracle = np.mean(weight * np.abs(G[0] - G[1]) ** 2 / var, axis=(-2, -1))
+    fit = kid._fit_blocks(R, Z, half_width=w, degrees=(3, 3, 3), covariance=True,
+                          noise_covariance=None, experiment_axis=-3, closed_loop="indirect")
+    np.testing.assert_allclose(fit["spread_ratio"], oracle, rtol=1e-8)
+    smoothed = np.array([np.mean(oracle[np.arange(k - 6, k + 7) % m]) for k in range(m)])
+    frf = identify(ds, window=w, combine="experiment", denominator="ls")
+    np.testing.assert_allclose(frf[cv.SPREAD_CALIBRATION].values, np.maximum(smoothed, 1.0),
+                               rtol=1e-8)

@@ -65,6 +65,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from .pages import empty_pages
 
 __all__ = ["CONDITION_LIMIT", "LocalModelFit", "fits_half", "hermitian", "local_model",
            "parameters_per_row"]
@@ -846,18 +847,19 @@ _NOT_FITTED = {"G": complex(np.nan, np.nan), "T": complex(np.nan, np.nan),
 def _allocate(n_batch, m, nz, nr, covariance, n_exp=1):
     """Outputs, not prefilled: every fitted bin writes its whole row (a failed one NaN),
     the mirror or :func:`_fill_not_fitted` the others (prefilling hundreds of MB at
-    M = 2^19 cost about a tenth of the fit)."""
+    M = 2^19 cost about a tenth of the fit).  On pages numpy has not advised for huge
+    pages (:mod:`.pages`: their first write stalled on memory compaction)."""
     size = n_batch * m
     ng = nz * nr
     return {
-        "G": np.empty((size, nz, nr), complex),
-        "T": np.empty((size, n_exp, nz), complex),
-        "noise_covariance": np.empty((size, nz, nz), complex),
-        "condition": np.empty(size),
-        "ill_posed": np.empty(size, dtype=bool),
-        "dropped": np.empty(size, dtype=np.int64),
-        "G_cov": np.empty((size if covariance == "full" else 0, ng, ng), complex),
-        "G_var": np.empty((size if covariance == "diag" else 0, nz, nr)),
+        "G": empty_pages((size, nz, nr), complex),
+        "T": empty_pages((size, n_exp, nz), complex),
+        "noise_covariance": empty_pages((size, nz, nz), complex),
+        "condition": empty_pages(size),
+        "ill_posed": empty_pages(size, dtype=bool),
+        "dropped": empty_pages(size, dtype=np.int64),
+        "G_cov": empty_pages((size if covariance == "full" else 0, ng, ng), complex),
+        "G_var": empty_pages((size if covariance == "diag" else 0, nz, nr)),
     }
 
 
