@@ -88,6 +88,10 @@ class _Package(types.ModuleType):
                 "be replaced; patch lcmr_xr.experiment.experiment (the subpackage's "
                 "attribute) instead")
 
+    def __reduce__(self):
+        # by reference, as pickle and cloudpickle (dask) treat plain modules
+        return importlib.import_module, (self.__name__,)
+
 
 sys.modules[__name__].__class__ = _Package
 

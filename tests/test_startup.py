@@ -1,6 +1,7 @@
 """What a new process imports: ``import lcmr_xr`` and the kernels stay light (issue 12,
 warm start), and the lazily imported names and the ``.lcmr`` accessor still work."""
 
+import pickle
 import pkgutil
 import subprocess
 import sys
@@ -74,3 +75,17 @@ def test_lazy_names_and_experiment_stays_the_function():
         lcmr_xr.nonexistent  # noqa: B018
     with pytest.raises(AttributeError, match="patch lcmr_xr.experiment.experiment"):
         lcmr_xr.experiment = len
+
+
+def test_package_pickles_by_reference():
+    """The package object pickles by reference (dask's cloudpickle meets it among the
+    globals of the functions it ships to workers), as a plain module does."""
+    import cloudpickle
+
+    assert pickle.loads(pickle.dumps(lcmr_xr)) is lcmr_xr
+    assert cloudpickle.loads(cloudpickle.dumps(lcmr_xr)) is lcmr_xr
+
+    def uses_the_package():
+        return lcmr_xr.__name__
+
+    assert cloudpickle.loads(cloudpickle.dumps(uses_the_package))() == "lcmr_xr"
