@@ -35,6 +35,14 @@ HDD experiments, N = 3600 (173 kB of data each), window 30, degrees 3-3-3, with 
    slow bins (the default) and in one block over all bins (the covariance of every bin
    at once, as before the blocks), and the time of both alternating in one process.
 
+``--directory-appends`` runs only this: for the directory archives of ``--sizes`` (the
+cached ones of ``--files-cache``), the open from the header index, ``append_to_archive`` of
+one experiment six times in a fresh process (median of the last five; the first also pays
+first-call costs: xarray's first ``to_netcdf`` imports ``distributed``, ~0.5-0.9 s), the
+open with a journal as full as it gets before a compaction and the compaction a write
+then runs; the directory is put back as it was afterwards.  The script runs against an
+older checkout too (``PYTHONPATH`` of that checkout), which measures "before".
+
 ``--rate N`` runs only this: ``sweep_to_disk`` on a 2-worker ``local_cluster`` over an
 archive of ``N`` experiments (every variable, then ``P``, ``P_std``, ``P_flag``), with the
 rate of its task phase, the time of the assembly and the CPU per experiment of the workers
@@ -76,6 +84,14 @@ MB); consolidated 10 000 0.14 s +8.1 MB; consolidate_archive of 10 000 files 60 
 CPU); append 21 ms; sweep graph 10 005 x 3 1.2 s.  An earlier run at load 1.7-3.5:
 0.09 s, 0.19 s, 1.34 s from the index; 0.90 s, 11.1 s, 53.7 s from the headers;
 consolidate 78 s (47 s CPU).
+
+Measured in session 9 (``--directory-appends``, this session's library against the one
+before it, five runs alternating, load 3.6-5.9): append one experiment into 100 / 1 600 /
+10 000 files, median 39-78 / 43-81 / 37-71 ms (before: 66-130 / 149-263 / 710-1 475 ms;
+every append decoded every index entry, checked every file's shape and rewrote the
+index); the compaction of 128 / 128 / 625 journal files 0.14-0.32 / 0.30-0.58 / 1.9-2.6 s
+(0.25-0.3 s at 10 000 with an empty journal, in process); open of 10 000 files from the
+index 0.8-2.3 s before and after, 1.6-2.6 s with 625 journal files.
 
 Measured in session 7 (load 2.5-5; the lead has the --rate command for a quiet machine):
 tasks writing their parts' values with netCDF4, unlabelled (old: the labelled block saved
@@ -204,7 +220,9 @@ def _ensure_index(path: Path, n: int) -> None:
     from lcmr_xr.scaleout import dirindex, index_archive
 
     known = dirindex.read_index(path, warn=False)
-    if known is not None and len(known[0]) == n:
+    if isinstance(known, tuple):  # (entries, time), as the library read it before session 9
+        known = known[0]
+    if known is not None and len(known) == n:
         return
     t0 = time.perf_counter()
     index_archive(path)
@@ -236,6 +254,111 @@ def time_open(path: Path, index: bool = True) -> dict:
     out = subprocess.run([sys.executable, "-c", _OPEN, str(path), "index" if index else "headers"],
                          capture_output=True, text=True, env=_env(), check=True)
     return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+_APPEND = """
+import json, sys, time, warnings
+import numpy as np
+import dask.array, h5netcdf, h5py, netCDF4, xarray  # imports are not the append
+from lcmr_xr import hdd
+from lcmr_xr.scaleout import append_to_archive
+base = hdd.simulate(n_samples=int(sys.argv[2]), seed=1)
+times = []
+for i in range(int(sys.argv[3])):
+    exp = base.assign_coords(experiment=f"zz-append-{i:04d}").assign_attrs(seed=-1 - i)
+    t0 = time.perf_counter()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        append_to_archive(exp, sys.argv[1])
+    times.append(time.perf_counter() - t0)
+print(json.dumps({"times": times}))
+"""
+
+
+_COMPACT = """
+import json, sys, time
+from pathlib import Path
+import h5netcdf, h5py, netCDF4  # imports are not the compaction (an append has them)
+from lcmr_xr.scaleout import archive
+t0 = time.perf_counter()
+archive._compact(Path(sys.argv[1]), blocking=True)
+print(json.dumps({"seconds": time.perf_counter() - t0}))
+"""
+
+
+def _full_journal(directory: Path) -> int:
+    """Fill the journal of ``directory`` with as many files as it holds before a write
+    compacts it (each a current entry of one file, as appends leave them); their number."""
+    from lcmr_xr.scaleout import dirindex
+
+    index = dirindex.read_index(directory, warn=False)
+    count = max(dirindex.JOURNAL_FILES, index.base_rows // 16)
+    for name in sorted(index)[:count]:
+        stamp, text, _, order = index[name][0]
+        dirindex.append_journal(directory, [(name, stamp, text, -1 if order is None else order)])
+    return count
+
+
+def time_directory_append(directory: Path, appends: int = 6) -> dict:
+    """``append_to_archive`` of ``appends`` experiments, one at a time, into an archive
+    directory (a fresh process; the first append also pays the first-call costs), then
+    (with a library that keeps a journal) the open with a journal as full as it gets and
+    the compaction that a write then runs; afterwards the directory is put back as it
+    was: the new files removed, the index files restored (copies taken before, written
+    back after, so that their entries still match)."""
+    from lcmr_xr.scaleout import dirindex
+
+    prefix = dirindex.INDEX_NAME.rsplit(".", 1)[0]
+    saved = directory.parent / (directory.name + ".index-backup")
+    shutil.rmtree(saved, ignore_errors=True)
+    saved.mkdir()
+    for p in directory.iterdir():
+        if p.name.startswith(prefix):
+            (shutil.copytree if p.is_dir() else shutil.copy2)(p, saved / p.name)
+    out = {}
+    try:
+        run = subprocess.run([sys.executable, "-c", _APPEND, str(directory), str(N), str(appends)],
+                             capture_output=True, text=True, env=_env(), check=True)
+        times = json.loads(run.stdout.strip().splitlines()[-1])["times"]
+        out.update(first=times[0], median=float(np.median(times[1:])), min=min(times[1:]),
+                   max=max(times[1:]))
+        if hasattr(dirindex, "JOURNAL_NAME"):  # a library with the journal
+            out["journal"] = _full_journal(directory)
+            time.sleep(0.01)
+            out["open_journal"] = time_open(directory, index=True)["seconds"]
+            run = subprocess.run([sys.executable, "-c", _COMPACT, str(directory)],
+                                 capture_output=True, text=True, env=_env(), check=True)
+            out["compact"] = json.loads(run.stdout.strip().splitlines()[-1])["seconds"]
+    finally:
+        for p in directory.glob("zz-append-*.nc"):
+            p.unlink()
+        for p in directory.iterdir():
+            if p.name.startswith(prefix):
+                shutil.rmtree(p) if p.is_dir() else p.unlink()
+        time.sleep(0.05)  # the restored index is written a clock tick after the files
+        for p in saved.iterdir():  # copies (new times): the entries match, none is "racy"
+            (shutil.copytree if p.is_dir() else shutil.copyfile)(p, directory / p.name)
+        shutil.rmtree(saved, ignore_errors=True)
+    return out
+
+
+def directory_appends(sizes, files_cache: Path, appends: int = 6) -> None:
+    """Open time (from the index) and append time into directory archives of ``sizes`` files."""
+    print(f"directory archives (N = {N}, warm page cache; load {os.getloadavg()[0]:.1f}): open from "
+          "the header index, append_to_archive of one experiment (fresh process, the first "
+          "append apart; goal < 100 ms), open again afterwards")
+    for n in sorted(sizes):
+        directory = cached_directory(files_cache, n)
+        before = time_open(directory, index=True)
+        a = time_directory_append(directory, appends)
+        after = time_open(directory, index=True)
+        row = (f"  {n:>6} files: open {before['seconds']:.2f} s | append median {a['median'] * 1e3:.0f} ms "
+               f"(min {a['min'] * 1e3:.0f}, max {a['max'] * 1e3:.0f}, first {a['first'] * 1e3:.0f}) | "
+               f"open afterwards {after['seconds']:.2f} s")
+        if "journal" in a:
+            row += (f" | with {a['journal']} journal files: open {a['open_journal']:.2f} s, the "
+                    f"compaction a write then runs {a['compact']:.2f} s")
+        print(row + f"  [load {os.getloadavg()[0]:.1f}]", flush=True)
 
 
 def time_consolidate(directory: Path, path: Path) -> dict:
@@ -910,6 +1033,9 @@ def main(argv=None):
                     help="where the directory archives are built once (nice 19) and kept for "
                          "later runs (default: TMP/lcmr-scale-out-files; 10 000 files: 1.8 GB)")
     ap.add_argument("--build-files", nargs=2, metavar=("DIR", "N"), help=argparse.SUPPRESS)
+    ap.add_argument("--directory-appends", action="store_true",
+                    help="only the directory archives of --sizes (up to --files-max): open from the "
+                         "index, append one experiment at a time, open again")
     ap.add_argument("--identify", type=int, default=64, help="experiments per throughput run")
     ap.add_argument("--per-task", type=int, default=8, help="experiments per sweep task")
     ap.add_argument("--skip-throughput", action="store_true", help="skip parts 4 to 6")
@@ -954,6 +1080,9 @@ def main(argv=None):
     if args.rate:
         rate_run(args.tmp, args.rate, args.per_task if "--per-task" in (argv or sys.argv) else None,
                  args.rate_rounds)
+        return
+    if args.directory_appends:
+        directory_appends([n for n in args.sizes if n <= args.files_max], args.files_cache)
         return
     if args.big_only:
         big_run(args.tmp, args.memory_limit, args.big_factor, args.per_task, args.big_covariance,

@@ -463,6 +463,9 @@ def test_an_experiment_sampled_0_05_percent_slower_is_refused(tmp_path, layout):
     save_archive(sampled(1e-5, "a"), path, layout=layout)
     with pytest.raises(ValueError, match=r"another shape.*Th=1e-05 s.*|another shape.*Th=1\.0005e-05 s"):
         append_to_archive(sampled(1.0005e-5, "b"), path)
-    if layout == "consolidated":  # (a directory's open compares the time coordinates exactly)
-        append_to_archive(sampled(1e-5 * (1 + 1e-12), "c"), path)  # rounding: the same
+    if layout == "consolidated":  # rounding: the same (the archive keeps one time coordinate)
+        append_to_archive(sampled(1e-5 * (1 + 1e-12), "c"), path)
+    else:  # a directory's open compares the time coordinates bit for bit: so does its append
+        with pytest.raises(ValueError, match=r"time coordinate differs .* 1e-12 relative.*bit for bit"):
+            append_to_archive(sampled(1e-5 * (1 + 1e-12), "c"), path)
     assert open_archive(path).sizes["experiment"] == (2 if layout == "consolidated" else 1)

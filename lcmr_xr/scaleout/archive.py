@@ -16,8 +16,10 @@ files
     (:mod:`lcmr_xr.scaleout.dirindex`), from which opening takes the header facts of every
     file that has not changed since; the other files' headers are read (a few ms each
     with h5py, see :mod:`lcmr_xr.scaleout.directory`: 10 000 files without an index take
-    most of a minute).  :func:`index_archive` (``lcmr-xr archive index DIR``) writes the
-    index of a directory written otherwise; ``lcmr-xr archive consolidate DIR -o
+    most of a minute, and such an open says so).  :func:`index_archive` (``lcmr-xr
+    archive index DIR``) writes the index of a directory written otherwise.  Appending
+    costs the same whatever the directory holds (one file checked, one journal file of
+    the index added).  ``lcmr-xr archive consolidate DIR -o
     ARCHIVE.nc`` (or :func:`consolidate_archive`) turns one into a consolidated file.
 
 Experiments of different lengths are refused (not grouped): their FRFs live on different
@@ -147,9 +149,14 @@ def archive_files(directory) -> list[Path]:
     known = dirindex.read_index(directory) if paths and dirindex.ENABLED else None
     keyed, load = [], dirindex.loader()
     for path in paths:
-        summary = _from_index(known, path, load)[2]
-        index = (summary["attrs"].get(ORDER_ATTR) if summary is not None
-                 else dirx.order_index(path, directory))
+        st, text, order = _entry(known, path)
+        if text is not None and order is None:  # a base written before the orders were kept
+            try:
+                order = load(text)["attrs"].get(ORDER_ATTR, -1)
+            except (ValueError, TypeError, KeyError, AttributeError):
+                text = None
+        index = (dirx.order_index(path, directory) if text is None
+                 else None if order is None or int(order) < 0 else int(order))
         keyed.append((0 if index is not None else 1, int(index) if index is not None else 0, path.name, path))
     return [k[-1] for k in sorted(keyed)]
 
@@ -158,6 +165,11 @@ def _nc_files(directory) -> list[Path]:
     """The ``*.nc`` files of an archive directory in name order, without the hidden
     temporaries of interrupted atomic writes; refuse a path that is no directory."""
     directory = Path(directory)
+    return [directory / name for name in _nc_names(directory)]
+
+
+def _nc_names(directory: Path) -> list[str]:
+    """The names of :func:`_nc_files` (strings)."""
     if directory.is_file():
         raise NotADirectoryError(
             f"archive {directory} is a file, not a directory; an archive is a directory of "
@@ -168,43 +180,63 @@ def _nc_files(directory) -> list[Path]:
         raise FileNotFoundError(f"archive directory {directory} does not exist; check the path "
                                 "or write one with lcmr_xr.scaleout.save_archive.")
     # names sorted as strings (as sorted paths of one directory), without pathlib's glob
-    return [directory / name for name in sorted(os.listdir(directory))
-            if name.endswith(SUFFIX) and not name.startswith(".")]
+    return sorted(name for name in os.listdir(directory)
+                  if name.endswith(SUFFIX) and not name.startswith("."))
 
 
-def _from_index(known, path: Path, load) -> tuple:
-    """``(stat, text, summary)`` of ``path`` from the directory's index ``known``
-    (``load``: a :func:`lcmr_xr.scaleout.dirindex.loader`); ``text`` and ``summary`` are
-    None where its entry is missing, out of date or damaged, ``stat`` where it vanished."""
+def _entry(known, path: Path) -> tuple:
+    """``(stat, text, order)`` of ``path`` from the directory's index ``known``; ``text``
+    and ``order`` are None where its entry is missing or out of date, ``stat`` where the
+    file vanished."""
     try:
         st = os.stat(path)
     except OSError:
         return None, None, None
-    text = dirindex.trusted(known, path.name, st)
-    if text is None:
-        return st, None, None
-    try:
-        return st, text, load(text)
-    except (ValueError, TypeError, KeyError):  # a damaged entry: read the header instead
-        return st, None, None
+    found = dirindex.trusted(known, path.name, st)
+    return (st, None, None) if found is None else (st, *found)
 
 
-def _summaries(directory: Path, paths: list[Path], with_text: bool = False):
-    """``(path, stat, summary, text)`` of each file: from the directory's index where its
-    entry matches the file (:mod:`lcmr_xr.scaleout.dirindex`), else from its header.
+#: An open that reads the headers of more files than this (no index, or files added or
+#: copied by other tools) warns once, with the remedy (index_archive) and the time it saves.
+UNINDEXED_WARN = 300
+#: Seconds an open takes per file read from its header, and per file taken from the index
+#: (measured with benchmarks/scale_out.py, warm page cache; for the warning's estimate).
+HEADER_SECONDS, INDEXED_SECONDS = 5e-3, 6e-5
 
-    ``summary`` is :func:`_summary` of the file's header; ``text`` (only ``with_text``)
-    is the summary as stored in the index (None: it cannot be stored), ``stat`` the
-    file's, taken before its header was read (None: it vanished).
+
+def _summaries(directory: Path, paths: list[Path]):
+    """``(path, stat, summary)`` of each file: from the directory's index where its entry
+    matches the file (:mod:`lcmr_xr.scaleout.dirindex`), else from its header.
+
+    ``summary`` is :func:`_summary` of the file's header, ``stat`` the file's, taken
+    before its header was read (None: it vanished).  More than :data:`UNINDEXED_WARN`
+    files without a current entry warn once, before their headers are read.
     """
-    known = dirindex.read_index(directory, warn=not with_text) if paths and dirindex.ENABLED else None
+    known = dirindex.read_index(directory) if paths and dirindex.ENABLED else None
+    found = [(path, *_entry(known, path)) for path in paths]
+    unindexed = sum(text is None for _, _, text, _ in found)
+    if dirindex.ENABLED and unindexed > UNINDEXED_WARN:
+        why = ("it has no header index" if known is None
+               else "they have no current entry in its header index (added or copied by other "
+                    "tools, or written by an older version)")
+        warnings.warn(
+            f"{unindexed} of the {len(paths)} files of archive {directory} are opened from their "
+            f"headers because {why}: about {unindexed * HEADER_SECONDS:.0f} s now, and at every "
+            f"open. Write the index once with `lcmr-xr archive index {directory}` (or "
+            "lcmr_xr.scaleout.index_archive(directory); it reads those headers once, needs write "
+            "access to the directory); the open then takes about "
+            f"{max(len(paths) * INDEXED_SECONDS, 0.1):.1f} s.", RuntimeWarning, stacklevel=4)
     load = dirindex.loader()
-    for path in paths:
-        st, text, summary = _from_index(known, path, load)  # st None: gone (read_header says so)
-        if summary is None:
+    for path, st, text, _ in found:
+        summary = None
+        if text is not None:
+            try:
+                summary = load(text)
+            except (ValueError, TypeError, KeyError):  # a damaged entry: read the header instead
+                summary = None
+        if summary is None:  # st None: gone (read_header says so)
             summary = _summary(dirx.read_header(path, directory))
-            text = dirindex.summary_text(summary) if with_text and st is not None else None
-        yield path, st, summary, text
+        yield path, st, summary
 
 
 def _summary(header: dict) -> dict:
@@ -337,16 +369,21 @@ def save_archive(experiments, path, *, overwrite: bool = False, layout: str | No
     by ``_``.  Each file is written atomically with :func:`lcmr_xr.io.save`.  The position
     of each experiment is recorded in the file attribute ``lcmr_archive_index`` so
     :func:`open_archive` returns them in the order given (new files are appended after
-    those already in the directory).  The directory's header index
-    (``.lcmr_archive_index.nc``, :mod:`lcmr_xr.scaleout.dirindex`) is then rewritten
-    atomically to list every file, so that :func:`open_archive` reads no file's header;
-    the files already there are checked from it too (their headers are read only where
-    it is missing or out of date).  Two processes writing at once may each leave out the
-    other's new files from the index: those are read from their headers at open (correct,
-    slower) until the next write.
+    those already in the directory).  The new files' entries are added to the directory's
+    header index (:mod:`lcmr_xr.scaleout.dirindex`: one journal file, folded into the base
+    ``.lcmr_archive_index.nc`` by a compaction now and then), so that
+    :func:`open_archive` reads no file's header.  Two processes writing at once keep each
+    other's entries (they may give their experiments the same order index; those are
+    then ordered by file name).  A directory without an index (of this version) gets one first, as
+    :func:`index_archive` writes it (every header read once).
 
-    All experiments of an archive must have the same shape; a mismatch with the
-    experiments already there is refused before anything is written.
+    All experiments of an archive must agree as its open requires: the same shape and
+    metadata names, and the same variables, channel labels and time coordinates bit for
+    bit in the files (a time coordinate that differs by rounding is refused, with the
+    remedy).  The directory is checked against ONE of its files (the first its index
+    lists; its open refuses the directory unless every file agrees with it) and the
+    files replaced, so a write costs the same whatever the directory holds; a mismatch
+    is refused before anything is moved into place.
 
     Examples
     --------
@@ -356,7 +393,8 @@ def save_archive(experiments, path, *, overwrite: bool = False, layout: str | No
     ...                 sampling_period=0.5)
     >>> with tempfile.TemporaryDirectory() as d:
     ...     [p.name for p in save_archive(ds, os.path.join(d, "arc.nc"))]
-    ...     [p.name for p in save_archive(ds, d)]  # an existing directory: one file each
+    ...     os.mkdir(os.path.join(d, "runs"))
+    ...     [p.name for p in save_archive(ds, os.path.join(d, "runs"))]  # a directory: one file each
     ['arc.nc']
     ['0.nc', '1.nc']
     """
@@ -445,6 +483,14 @@ def append_to_archive(experiment, path) -> Path:
     archive's count is raised last, so an interrupted append leaves the archive as it was
     (the partial row is ignored and overwritten by the next append).  Cost: one open of
     the file and the new experiment's data, not a pass over the archive.
+
+    Directory: the experiment's file is written atomically (checked against one file of
+    the directory before it is moved into place, see :func:`save_archive`), then its
+    index entry as one journal file; an interrupted append leaves the directory without
+    the experiment, or with it and (without its entry) read from its header at open.
+    Cost: the same whatever the directory holds (measured 37-71 ms into 10 000 files,
+    load 4-6), plus, once per 128 appends or a sixteenth of the directory, a compaction
+    of the index (10 000 files: 1.8-2.6 s, once per 625 appends).
 
     Examples
     --------
@@ -549,8 +595,18 @@ def consolidate_archive(directory, path, *, overwrite: bool = False, progress=No
 
 
 def _save_files(items, first, directory: Path, overwrite: bool) -> list[Path]:
-    from lcmr_xr.io import save
+    """Write experiment files into an archive directory (see :func:`save_archive`).
 
+    The cost does not grow with the directory (no listing, no pass over the entries):
+    the new experiments are checked against ONE file of it (the first that the index's
+    base lists, else the first by name, not one being replaced; its header read: the
+    directory's open refuses the archive unless every file agrees with it), the files
+    replaced are checked themselves, and the next order index comes from the index
+    (:mod:`lcmr_xr.scaleout.dirindex`: the base's order column and the journal's file
+    names), whose journal gets one file for the new ones.
+    Without an index (or with one of an older version) the index is built first, as
+    :func:`index_archive` does (reading the headers of the files it does not list).
+    """
     names = [_file_stem(label) + SUFFIX for label, _ in items]
     dupes = sorted({n for n in names if names.count(n) > 1})
     if dupes:
@@ -560,14 +616,25 @@ def _save_files(items, first, directory: Path, overwrite: bool) -> list[Path]:
             "ds.assign_coords(experiment=[f'run{i}' for i in range(n)])."
         )
     directory.mkdir(parents=True, exist_ok=True)
-    scanned = [(path, st, summary["shape"] if summary["experiment"] else None,
-                summary["attrs"].get(ORDER_ATTR), text)
-               for path, st, summary, text in _summaries(directory, _nc_files(directory), with_text=True)]
-    existing = {path: (shape, order) for path, _, shape, order, _ in scanned}
-    targets = {directory / n for n in names}
-    conflicts = [f"{p.name} ({_describe(s) if s else 'not an lcmr-xr-1 experiment'})"
-                 for p, (s, _) in existing.items()
-                 if (s is None or not _same_shape(s, first)) and (p not in targets or not overwrite)]
+    journal = dirindex.journal_files(directory)
+    facts = dirindex.base_facts(directory)
+    if not (facts.base and facts.ordered) and _nc_names(directory):
+        _compact(directory, blocking=True)  # no index (of this version): build it now, once
+        journal, facts = dirindex.journal_files(directory), dirindex.base_facts(directory)
+    targets = set(names)
+    # one file of the archive, not replaced: the base's first (no listing of the directory)
+    if facts.first is not None and facts.first not in targets and (directory / facts.first).is_file():
+        reference = directory / facts.first
+    else:
+        reference = next((directory / n for n in _nc_names(directory) if n not in targets), None)
+    checked = ([reference] if reference else []) + (
+        [] if overwrite else [directory / n for n in names if (directory / n).is_file()])
+    conflicts, headers = [], {}
+    for path in checked:
+        headers[path] = header = dirx.read_header(path, directory)
+        shape = _header_shape(header) if _is_experiment(header) else None
+        if shape is None or not _same_shape(shape, first):
+            conflicts.append(f"{path.name} ({_describe(shape) if shape else 'not an lcmr-xr-1 experiment'})")
     if conflicts:
         raise ValueError(
             f"{directory} already holds experiments of another shape than the new ones "
@@ -575,9 +642,21 @@ def _save_files(items, first, directory: Path, overwrite: bool) -> list[Path]:
             "An archive holds experiments of one shape: use a new directory, remove those "
             "files, or pass overwrite=True to replace files of the same name."
         )
-    kept = [idx for p, (_, idx) in existing.items() if p not in targets and idx is not None]
-    start = int(max(kept)) + 1 if kept else 0
-    written = []
+    ref = None if reference is None else (reference, headers[reference])
+    metas = [con.metadata_of(label, ds) for label, ds in items]
+    if ref is not None:
+        scalars, attrs = ref[1]["scalars"], ref[1]["attrs"]
+        expected = [(scalars.get(cv.EXPERIMENT, reference.stem), con.checked_metadata(
+            reference.stem, {n: v for n, v in scalars.items() if n != cv.EXPERIMENT}, attrs))]
+    else:
+        expected = []
+    try:
+        con.check_metadata(expected + [(label, m) for (label, _), m in zip(items, metas)])
+    except ValueError as err:
+        raise ValueError(f"archive {directory}: {err}") from err
+    orders = [o for o in (facts.top, dirindex.journal_max_order(journal)) if o is not None]
+    start = max(orders) + 1 if orders else 0
+    written, rows = [], []
     for i, ((label, ds), name) in enumerate(zip(items, names)):
         out = ds.copy(deep=False)
         if cv.EXPERIMENT not in out.coords:
@@ -585,27 +664,122 @@ def _save_files(items, first, directory: Path, overwrite: bool) -> list[Path]:
         if not out[cv.EXPERIMENT].attrs:
             out[cv.EXPERIMENT].attrs.update(cv.label_attrs("experiment"))
         out.attrs = {**out.attrs, ORDER_ATTR: start + i}
-        written.append(save(out, directory / name))
-    rows = [(path.name, dirindex.stamp(st), text) for path, st, _, _, text in scanned
-            if st is not None and path not in targets]
-    _write_index(directory, rows, written)
+        path, header = _write_checked(out, directory / name, ref, label)
+        written.append(path)
+        try:
+            st = os.stat(path)
+        except OSError:  # replaced or removed by someone else already: no entry
+            continue
+        rows.append((name, dirindex.stamp(st), dirindex.summary_text(_summary(header)), start + i))
+        if ref is None:  # the next ones must agree with the first one written
+            ref = (path, header)
+    _index_new_files(directory, rows, facts, len(journal))
     return written
 
 
-def _write_index(directory: Path, rows: list, new: list[Path]) -> None:
-    """Write the directory's index from ``rows`` of files it knows and the ``new`` files
-    (their headers read back); a failure only warns (the index is a shortcut)."""
+def _write_checked(ds: xr.Dataset, path: Path, ref, label) -> tuple[Path, dict]:
+    """Write ``ds`` to ``path`` atomically as :func:`lcmr_xr.io.save` does, unless the
+    header of what was written (read back before it is moved into place) fails the test
+    the directory's open applies against ``ref`` (``(path, header)`` of a file of the
+    archive; see :func:`_check_structure`).  Returns the path and the header."""
+    from lcmr_xr.io._atomic import atomic_write
+    from lcmr_xr.io._guards import check_not_own_source
+    from lcmr_xr.io.netcdf import _ENGINE, _flatten_attrs, _map_attrs
+
+    check_not_own_source(ds, path)
+    flat = _map_attrs(ds, _flatten_attrs)
+    got = []
+
+    def write(tmp):
+        flat.to_netcdf(tmp, engine=_ENGINE, auto_complex=True)
+        header = dirx.read_header(Path(tmp), path.parent)
+        if ref is not None:
+            _check_structure(header, ref, label, path.parent)
+        got.append(header)
+
+    return atomic_write(path, write), got[0]
+
+
+def _check_structure(header: dict, ref, label, directory: Path) -> None:
+    """Refuse an experiment whose file differs from the archive's file ``ref`` where the
+    directory's open requires them equal (the ``structure`` of :func:`_summary`): the
+    variables' names, shapes and types, the time coordinates bit for bit, the channel
+    labels.  The message says what differs and what to do."""
+    if _summary(header)["structure"] == _summary(ref[1])["structure"]:
+        return
+    name = ref[0].name
+    for coord in (cv.TIME, cv.SLOW_TIME):
+        new, old = header[coord], ref[1][coord]
+        if dirindex.bytes_digest(np.asarray(new)) == dirindex.bytes_digest(np.asarray(old)):
+            continue
+        if new is not None and old is not None and new.shape == old.shape and new.dtype.kind == "f":
+            with np.errstate(divide="ignore", invalid="ignore"):
+                rel = float(np.nanmax(np.abs(new - old) / np.maximum(np.abs(old), np.finfo(float).tiny)))
+            what = (f"its {coord} coordinate differs from that of {name} by up to {rel:.2g} "
+                    "relative (rounding)")
+        else:
+            what = f"its {coord} coordinate differs from that of {name} in type or length"
+        raise ValueError(
+            f"experiment {label!r}: {what}; the files of an archive directory must have the same "
+            f"time coordinates bit for bit (the directory's open refuses them otherwise). Give it "
+            f"the archive's coordinates, e.g. ref = lcmr_xr.open_experiment('{ref[0]}'); "
+            f"exp.assign_coords(time=ref.time.variable, slow_time=ref.slow_time.variable), or use a consolidated "
+            "archive, which keeps one time coordinate "
+            "for all experiments and accepts sample times equal to 1e-9 relative."
+        )
+    raise ValueError(
+        f"experiment {label!r} differs from {name} of archive {directory} in its variables "
+        "(names, shapes, types) or channel labels; an archive holds experiments of one "
+        "structure. Save it to another archive (compare them with lcmr_xr.open_dataset)."
+    )
+
+
+def _index_new_files(directory: Path, rows: list, known, journal: int) -> None:
+    """Add the new files' entries to the directory's index: one journal file, and a
+    compaction when one is due; a failure only warns (the index is a shortcut)."""
     try:
-        for path in new:
-            st = os.stat(path)  # before the read: a later change makes the entry stale
-            rows.append((path.name, dirindex.stamp(st),
-                         dirindex.summary_text(_summary(dirx.read_header(path, directory)))))
-        dirindex.write_index(directory, rows)
+        dirindex.append_journal(directory, rows)
+        if dirindex.compaction_due(known, journal + 1, len(rows)):
+            _compact(directory, blocking=False)
     except (OSError, ValueError) as err:
         warnings.warn(f"the archive index of {directory} was not written ({err}); the archive "
-                      "is complete but opens from every file's header (slower) until "
+                      "is complete but opens from the headers of the new files (slower) until "
                       "lcmr_xr.scaleout.index_archive(directory) writes it.", RuntimeWarning,
-                      stacklevel=4)
+                      stacklevel=5)
+
+
+def _compact(directory: Path, blocking: bool, verify: bool = False) -> Path | None:
+    """Write the base of the directory's index from its current entries (base and
+    journal) that match their files and the headers of the other files, then remove the
+    journal files it folded in.  ``verify``: decode every entry kept (a damaged one
+    makes its header read).  Returns None when another process holds the compaction
+    lock and ``blocking`` is False (that process compacts)."""
+    with dirindex.compaction_lock(directory, blocking) as locked:
+        if not locked:
+            return None
+        journal = dirindex.journal_files(directory)
+        known = dirindex.read_index(directory, warn=False, journal=journal)
+        load = dirindex.loader()
+        rows, root = [], os.fspath(directory)
+        for name in _nc_names(directory):  # strings: a Path per file costs more than its stat
+            try:
+                st = os.stat(os.path.join(root, name))
+            except OSError:  # gone
+                continue
+            text, order = dirindex.trusted(known, name, st) or (None, None)
+            if text is not None and (verify or order is None):
+                try:
+                    summary = load(text)
+                    order = summary["attrs"].get(ORDER_ATTR, -1) if order is None else order
+                except (ValueError, TypeError, KeyError, AttributeError):
+                    text = None
+            if text is None:
+                summary = _summary(dirx.read_header(directory / name, directory))
+                text, order = dirindex.summary_text(summary), summary["attrs"].get(ORDER_ATTR, -1)
+            rows.append((name, dirindex.stamp(st), text, int(order)))
+        out = dirindex.write_index(directory, rows)
+        dirindex.remove_journal(directory, journal)
+        return out
 
 
 def index_archive(directory) -> Path:
@@ -635,8 +809,10 @@ def index_archive(directory) -> Path:
 
     Notes
     -----
-    Entries of the current index that still match their files (name, size, times,
-    inode) are kept; every other file's header is read (about 4.6 ms a file).
+    Entries of the current index (its base and its journal) that still match their files
+    (name, size, times, inode) are kept; every other file's header is read (about 4.6 ms
+    a file).  The journal files it read are folded into the new base and removed.  Waits
+    for a compaction that another process is running.
 
     Examples
     --------
@@ -650,10 +826,8 @@ def index_archive(directory) -> Path:
     '.lcmr_archive_index.nc'
     """
     directory = Path(directory)
-    rows = [(path.name, dirindex.stamp(st), text)
-            for path, st, _, text in _summaries(directory, _nc_files(directory), with_text=True)
-            if st is not None]
-    return dirindex.write_index(directory, rows)
+    _nc_files(directory)  # refuse a path that is no directory
+    return _compact(directory, blocking=True, verify=True)
 
 
 def _length_message(lengths: dict, where: str) -> str:
@@ -723,7 +897,9 @@ def open_archive(path, chunks=None) -> xr.Dataset:
     :func:`save_archive`, :func:`append_to_archive`, :func:`index_archive`), else from
     one pass over the file's header with h5py (:mod:`lcmr_xr.scaleout.directory`; no
     file is kept open); an unreadable index or one of another version is ignored with a
-    warning.  Opening never writes (a read-only directory opens).  The tasks read their
+    warning, and more than :data:`UNINDEXED_WARN` files read from their headers warn once
+    with the remedy (:func:`index_archive`).  Opening never writes (a read-only directory
+    opens).  The tasks read their
     files' values directly, and a file that changed after the open is refused by its
     task with a :class:`lcmr_xr.scaleout.directory.StructureError` naming it.  Measured
     (N = 3600, fresh process, warm page cache, load 1.2-2.4): from the index, 100 /
@@ -808,7 +984,7 @@ def _open_directory(directory: Path, chunks) -> xr.Dataset:
     files, foreign = [], []
     merged = dirx.DropConflicts()
     signatures: dict = {}  # variable attributes / structure -> (id, first file with them)
-    for path, st, summary, _ in _summaries(directory, paths):
+    for path, st, summary in _summaries(directory, paths):
         attrs = summary["attrs"]
         index = attrs.get(ORDER_ATTR)
         row = {"path": path, "key": (0 if index is not None else 1,

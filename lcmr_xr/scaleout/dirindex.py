@@ -1,34 +1,51 @@
-"""The header index of a directory archive: what opening needs of each file, in one file.
+"""The header index of a directory archive: what opening needs of each file, in one place.
 
 Opening a directory archive reads every file's header (:mod:`lcmr_xr.scaleout.directory`,
 about 4.6 ms a file, HDF5's own cost).  The library's writers of a directory archive
 (:func:`lcmr_xr.scaleout.save_archive` with ``layout="files"``,
 :func:`lcmr_xr.scaleout.append_to_archive` into a directory,
-:func:`lcmr_xr.scaleout.index_archive`) therefore also write :data:`INDEX_NAME`, a small
-NetCDF-4 file in the directory holding, per experiment file, its name, size,
-modification and change times (ns) and inode, and a *summary*: the facts of its header
-that the open uses (file attributes, scalar coordinates, shape, digests of its structure
-and of its variables' attributes), as JSON with tags for the Python and numpy types that
-plain JSON would lose.
+:func:`lcmr_xr.scaleout.index_archive`) therefore also keep an index of, per experiment
+file, its name, size, modification and change times (ns) and inode, its archive order,
+and a *summary*: the facts of its header that the open uses (file attributes, scalar
+coordinates, shape, digests of its structure and of its variables' attributes), as JSON
+with tags for the Python and numpy types that plain JSON would lose.
 
-Opening lists and stats the files; a file whose name, size, times and inode match its
-entry takes its summary from the index, any other file (added by another tool, rewritten,
-or every file when there is no index) has its header read.  An entry is also not trusted
-when the file was modified in the same clock tick as the index was written (git's "racy"
-rule: the index cannot tell that write from a later one).  An index that cannot be read,
-or of another version, is ignored with a warning.  Opening never writes.
+The index has two parts:
 
-Two processes that write into one directory at once both replace the index atomically;
-the one that writes last may not list the other's new files, which then are read from
-their headers at open (correct, only slower) until the next write or
-:func:`lcmr_xr.scaleout.index_archive` lists them again.
+base (:data:`INDEX_NAME`)
+    A small NetCDF-4 file listing the files, replaced atomically by a *compaction*
+    (:func:`lcmr_xr.scaleout.index_archive`, and a writer when the journal has grown).
+journal (:data:`JOURNAL_NAME`)
+    A hidden directory of small JSON files, one per write (an append adds one file of one
+    entry, written atomically), so that a write costs the same whatever the archive
+    holds.  A compaction folds the journal files it read into a new base and then
+    removes them; one holding more than :func:`compaction_due` allows triggers one.
+
+Opening lists and stats the files; a file whose name, size, times and inode match an
+entry (of the journal or of the base) takes its summary from it, any other file (added by
+another tool, rewritten, or every file when there is no index) has its header read.  An
+entry is also not trusted when the file was modified in the same clock tick as the entry
+was written (git's "racy" rule, the time of the base or of the journal file; the writers
+wait out that tick).  The journal is read before the base, so that a compaction running
+meanwhile costs at most header reads, never a wrong summary.  An index that cannot be
+read, or of another version, and a journal file that cannot be read are ignored with a
+warning.  Opening never writes.
+
+Concurrent writers: each write adds its own journal file, so two processes appending at
+once keep each other's entries.  A compaction holds an exclusive ``flock`` on the journal
+directory (a writer that finds it held leaves the compaction to the holder); where locks
+are not available (some network file systems) two compactions at once may drop entries of
+files that then are read from their headers at open (correct, only slower) until the next
+compaction.
 """
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import os
+import time
 import warnings
 from pathlib import Path
 
@@ -42,6 +59,15 @@ __all__ = ["Unindexable"]
 
 #: Name of the index file in an archive directory (hidden; not a ``*.nc`` experiment).
 INDEX_NAME = cv.ARCHIVE_INDEX_FILE
+#: Name of the journal directory next to it (hidden; its files are ``*.json``).
+JOURNAL_NAME = cv.ARCHIVE_INDEX_JOURNAL
+#: Key and version of a journal file (a file of another version is ignored with a warning).
+JOURNAL_KEY, JOURNAL_VERSION = "lcmr_archive_index_journal", 1
+#: A compaction is due when the journal holds this many files, or a sixteenth of the base's
+#: entries if that is more (an open reads every journal file; a compaction rewrites the base).
+JOURNAL_FILES = 128
+#: A write of this many files or more compacts at once (the base takes them in one go).
+BULK_ROWS = 64
 #: File attribute marking an index, and its version (an index of another version is ignored).
 INDEX_ATTR = cv.ARCHIVE_INDEX_VERSION_ATTR
 #: Raise it whenever what a summary holds or how it is computed changes (digests included):
@@ -199,10 +225,55 @@ def summary_text(summary: dict) -> str | None:
     return text if same(decode(json.loads(text)), summary) else None
 
 
-def read_index(directory: Path, warn: bool = True) -> tuple[dict, int] | None:
-    """``({name: (stamp, summary text)}, index mtime_ns)`` of a directory's index, or None
-    (no index; an unreadable one or one of another version also warns if ``warn``: a
-    writer, which replaces it, does not)."""
+class Index(dict):
+    """``{file name: [entry, ...]}`` of a directory's index, newest entry first.
+
+    An entry is ``(stamp, summary text, written, order)``: ``written`` is the modification
+    time (ns) of the base or journal file that holds it (the "racy" rule), ``order`` the
+    file's archive order (None: unknown, in a base written before the order was kept;
+    -1: the file has none).  ``base`` is whether a base of this version was read,
+    ``base_rows`` its number of entries and ``ordered`` whether it keeps the orders.
+    """
+
+    base = False
+    base_rows = 0
+    ordered = False
+
+
+def read_index(directory: Path, warn: bool = True, journal: list[str] | None = None) -> Index | None:
+    """The index of a directory: its journal files, then its base; None without either.
+
+    An unreadable base, one of another version, and an unreadable journal file also warn
+    if ``warn`` (a writer, which replaces them, does not).  ``journal``: the journal
+    files to read (default: every one listed now).
+    """
+    directory = Path(directory)
+    index = Index()
+    found = False
+    for name in (journal_files(directory) if journal is None else journal):
+        rows = _read_journal(directory / JOURNAL_NAME / name, warn)
+        if rows is None:
+            continue
+        found = True
+        for row in rows:
+            index.setdefault(row[0], []).append(row[1:])
+    for entries in index.values():  # the newest journal file first
+        entries.sort(key=lambda e: e[1], reverse=True)
+    base = _read_base(directory, warn)
+    if base is not None:
+        found = True
+        index.base, index.base_rows, index.ordered = True, len(base), base.ordered
+        for name, entry in base:
+            index.setdefault(name, []).append(entry)
+    return index if found else None
+
+
+class _Rows(list):
+    ordered = False
+
+
+def _read_base(directory: Path, warn: bool) -> _Rows | None:
+    """``[(name, (stamp, text, written, order))]`` of the base, or None (none, or ignored)."""
     path = Path(directory) / INDEX_NAME
     try:
         st = os.stat(path)
@@ -220,40 +291,91 @@ def read_index(directory: Path, warn: bool = True) -> tuple[dict, int] | None:
             names = f["name"].asstr()[()]
             texts = f["summary"].asstr()[()]
             columns = [f[c][()].tolist() for c in _COLUMNS]
+            orders = f["order"][()].tolist() if "order" in f else None  # kept since session 9
     except (OSError, KeyError, ValueError, TypeError) as err:
         _ignored(path, f"unreadable: {err}", warn)
         return None
-    if not all(len(c) == len(names) for c in [texts, *columns]):
+    if not all(len(c) == len(names) for c in [texts, *columns, *([orders] if orders else [])]):
         _ignored(path, "columns of different lengths", warn)
         return None
-    entries = {str(name): (tuple(int(c[i]) for c in columns), text)
-               for i, (name, text) in enumerate(zip(names.tolist(), texts.tolist()))}
-    return entries, st.st_mtime_ns
+    written = st.st_mtime_ns
+    rows = _Rows((name, (stamp, text, written, order)) for name, stamp, text, order in zip(
+        names.tolist(), zip(*columns), texts.tolist(), orders or [None] * len(names)))
+    rows.ordered = orders is not None
+    return rows
+
+
+class BaseFacts:
+    """What a writer needs of the base (see :func:`base_facts`)."""
+
+    def __init__(self, base=False, ordered=False, base_rows=0, top=None, first=None):
+        self.base, self.ordered, self.base_rows, self.top = base, ordered, base_rows, top
+        self.first = first
+
+
+def base_facts(directory: Path) -> BaseFacts:
+    """Whether the directory has a base of this version (``base``), whether it keeps the
+    orders (``ordered``), its number of entries (``base_rows``) and the largest order it
+    lists (``top``, None: none), the name of its first entry (``first``: the first file
+    by name when it was written): its attributes, its ``order`` column and one name, not
+    the entries (which a writer does not need)."""
+    path = Path(directory) / INDEX_NAME
+    if not path.exists():
+        return BaseFacts()
+    import h5py
+
+    try:
+        with h5py.File(path, "r") as f:
+            version = f.attrs.get(INDEX_ATTR)
+            if version is None or np.asarray(version).item() != VERSION:
+                return BaseFacts()
+            rows = f["name"].shape[0]
+            if "order" not in f:
+                return BaseFacts(True, False, rows)
+            orders = f["order"][()]
+            first = f["name"].asstr()[0] if rows else None
+    except (OSError, KeyError, ValueError, TypeError):
+        return BaseFacts()
+    top = int(orders.max()) if orders.size and orders.max() >= 0 else None
+    return BaseFacts(True, True, rows, top, first)
 
 
 def _ignored(path: Path, why: str, warn: bool) -> None:
     if warn:
         warnings.warn(f"archive index {path} ignored ({why}); the files' headers are read "
                       "instead (slower). Rebuild it with lcmr_xr.scaleout.index_archive(directory) "
-                      "or `lcmr-xr archive index DIR`.", RuntimeWarning, stacklevel=5)
+                      "or `lcmr-xr archive index DIR`.", RuntimeWarning, stacklevel=6)
 
 
-def trusted(entries_mtime, name: str, st: os.stat_result):
-    """The stored summary text of file ``name`` if its entry matches ``st``, else None."""
-    if entries_mtime is None:
+def trusted(index: Index | None, name: str, st: os.stat_result):
+    """``(summary text, order)`` of the newest entry of file ``name`` that matches ``st``
+    (name, size, times, inode; not "racy"), else None."""
+    if index is None:
         return None
-    entries, index_mtime = entries_mtime
-    entry = entries.get(name)
-    if entry is None:
-        return None
-    stored, text = entry
-    if stored != stamp(st) or max(stored[1], stored[2]) >= index_mtime:  # changed, or racy
-        return None
-    return text
+    now = stamp(st)
+    for stored, text, written, order in index.get(name, ()):
+        if stored == now and max(stored[1], stored[2]) < written:
+            return text, order
+    return None
 
 
-def write_index(directory: Path, rows: list[tuple[str, tuple, str]]) -> Path:
-    """Write the index of ``directory`` atomically from ``[(name, stamp, summary text)]``."""
+# ------------------------------------------------------------------ writing
+def _written_after(tmp: str, rows) -> None:
+    """Make the modification time of the index file ``tmp`` newer than every stamp of
+    ``rows`` (a file system with coarse times may put both in one tick: wait it out,
+    at most 50 ms; an entry that is still "racy" is only not trusted)."""
+    newest = max((max(r[1][1], r[1][2]) for r in rows), default=None)
+    if newest is None:
+        return
+    deadline = time.monotonic() + 0.05
+    while os.stat(tmp).st_mtime_ns <= newest and time.monotonic() < deadline:
+        time.sleep(0.001)
+        os.utime(tmp)
+
+
+def write_index(directory: Path, rows: list[tuple[str, tuple, str, int]]) -> Path:
+    """Write the base of the index of ``directory`` atomically from
+    ``[(name, stamp, summary text, order)]`` (order -1: the file has none)."""
     import h5netcdf
     import h5py
 
@@ -276,5 +398,123 @@ def write_index(directory: Path, rows: list[tuple[str, tuple, str]]) -> Path:
                 var = f.create_variable(column, ("file",), dtype=np.int64)
                 if rows:
                     var[:] = np.array([r[1][i] for r in rows], dtype=np.int64)
+            var = f.create_variable("order", ("file",), dtype=np.int64)
+            var.attrs["long_name"] = "the file's lcmr_archive_index attribute (-1: none)"
+            if rows:
+                var[:] = np.array([r[3] for r in rows], dtype=np.int64)
+        _written_after(tmp, rows)
 
     return atomic_write(Path(directory) / INDEX_NAME, write)
+
+
+def journal_files(directory: Path) -> list[str]:
+    """Names of the journal files of ``directory`` (not the temporaries of their writes)."""
+    try:
+        names = os.listdir(Path(directory) / JOURNAL_NAME)
+    except OSError:
+        return []
+    return sorted(n for n in names if n.endswith(".json") and not n.startswith("."))
+
+
+def journal_max_order(names: list[str]) -> int | None:
+    """The largest order among the journal files ``names`` (each name begins with its own)."""
+    orders = []
+    for name in names:
+        head = name.split("-", 1)[0]
+        if head.isdigit():
+            orders.append(int(head))
+    return max(orders) if orders else None
+
+
+def append_journal(directory: Path, rows: list[tuple[str, tuple, str, int]]) -> Path | None:
+    """Add one journal file (atomically) holding the entries ``[(name, stamp, summary text,
+    order)]``; its name begins with the largest order (so that a writer finds the next
+    order from the names alone)."""
+    from lcmr_xr.io._atomic import atomic_write
+
+    rows = [r for r in rows if r[2] is not None]
+    if not rows:
+        return None
+    journal = Path(directory) / JOURNAL_NAME
+    journal.mkdir(exist_ok=True)
+    top = max(max(r[3] for r in rows), 0)
+    name = f"{top:012d}-{os.getpid()}-{os.urandom(6).hex()}.json"
+    data = {JOURNAL_KEY: JOURNAL_VERSION,
+            "rows": [[r[0], list(r[1]), int(r[3]), r[2]] for r in rows]}
+
+    def write(tmp):
+        with open(tmp, "w", encoding="utf-8") as fh:
+            json.dump(data, fh, separators=(",", ":"))
+        _written_after(tmp, rows)
+
+    return atomic_write(journal / name, write)
+
+
+def _read_journal(path: Path, warn: bool):
+    """``[(name, stamp, text, written, order)]`` of one journal file, or None (gone: a
+    compaction folded it into the base; unreadable: warns if ``warn``)."""
+    try:
+        with open(path, "rb") as fh:
+            written = os.fstat(fh.fileno()).st_mtime_ns
+            data = json.loads(fh.read())
+    except FileNotFoundError:
+        return None
+    except (OSError, ValueError) as err:
+        _ignored(path, f"unreadable: {err}", warn)
+        return None
+    try:
+        if data.get(JOURNAL_KEY) != JOURNAL_VERSION:
+            _ignored(path, f"version {data.get(JOURNAL_KEY)!r}, this library reads version "
+                           f"{JOURNAL_VERSION}", warn)
+            return None
+        return [(str(name), tuple(int(v) for v in st), str(text), written, int(order))
+                for name, st, order, text in data["rows"]]
+    except (AttributeError, KeyError, ValueError, TypeError) as err:
+        _ignored(path, f"malformed: {err!r}", warn)
+        return None
+
+
+def remove_journal(directory: Path, names: list[str]) -> None:
+    """Remove the journal files ``names`` (after a compaction folded them into the base)."""
+    journal = Path(directory) / JOURNAL_NAME
+    for name in names:
+        try:
+            os.unlink(journal / name)
+        except FileNotFoundError:
+            pass
+
+
+def compaction_due(index: Index | BaseFacts | None, journal: int, new_rows: int) -> bool:
+    """Whether a write that added ``new_rows`` entries, with ``journal`` journal files now,
+    compacts: no base of this version, a base without the orders, a bulk write, or a
+    journal grown past :data:`JOURNAL_FILES` (or a sixteenth of the base's entries)."""
+    if index is None or not index.base or not index.ordered:
+        return True
+    return new_rows >= BULK_ROWS or journal > max(JOURNAL_FILES, index.base_rows // 16)
+
+
+@contextlib.contextmanager
+def compaction_lock(directory: Path, blocking: bool):
+    """Hold the directory's compaction lock (an exclusive ``flock`` on its journal
+    directory); yields False when ``blocking`` is False and another process holds it.
+    Where locks are not available, yields True without one (see the module notes)."""
+    journal = Path(directory) / JOURNAL_NAME
+    try:
+        journal.mkdir(exist_ok=True)
+        fd = os.open(journal, os.O_RDONLY)
+    except OSError:
+        yield True
+        return
+    try:
+        try:
+            import fcntl
+
+            fcntl.flock(fd, fcntl.LOCK_EX | (0 if blocking else fcntl.LOCK_NB))
+        except BlockingIOError:
+            yield False
+            return
+        except (ImportError, OSError):  # no locks here: proceed without
+            pass
+        yield True
+    finally:
+        os.close(fd)  # releases the lock

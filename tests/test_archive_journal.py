@@ -1,0 +1,327 @@
+"""Appending into a directory archive costs the same whatever the directory holds: the new
+experiment is checked against one file, its index entry goes to a journal file, and the
+base of the index is rewritten only by a compaction.  The open is unchanged (identical to
+concatenating the files, with or without the index), crashes and concurrent appenders
+cost at most header reads."""
+
+from __future__ import annotations
+
+import multiprocessing as mp
+import os
+import time
+import warnings
+
+import h5netcdf
+import h5py
+import numpy as np
+import pytest
+
+from lcmr_xr.io import open_experiment, save
+from lcmr_xr.scaleout import append_to_archive, index_archive, open_archive, save_archive
+from lcmr_xr.scaleout import archive as arc
+from lcmr_xr.scaleout import dirindex
+from lcmr_xr.scaleout import directory as dirx
+from test_archive_directory import _assert_same_as_oracle, _labelled
+
+INDEX, JOURNAL = dirindex.INDEX_NAME, dirindex.JOURNAL_NAME
+
+
+def _calls(monkeypatch, module, name):
+    """The calls of ``module.name`` from now on (their first arguments)."""
+    seen = []
+    real = getattr(module, name)
+
+    def spy(*args, **kwargs):
+        seen.append(args[0] if args else None)
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(module, name, spy)
+    return seen
+
+
+def _files(d):
+    return [p for p in d.glob("*.nc") if not p.name.startswith(".")]
+
+
+def _archive(d, n):
+    save_archive([_labelled(i) for i in range(n)], d, layout="files")
+    time.sleep(0.01)
+
+
+def test_an_append_reads_one_header_and_does_not_rewrite_the_index(tmp_path, monkeypatch):
+    for n in (2, 12):
+        d = tmp_path / f"d{n}"
+        _archive(d, n)
+        base = (d / INDEX).stat()
+        headers = _calls(monkeypatch, dirx, "read_header")
+        writes = _calls(monkeypatch, dirindex, "write_index")
+        loads = _calls(monkeypatch, dirindex, "loader")
+        append_to_archive(_labelled(100), d)
+        # one file of the archive (the first by name) and the new one, before it is moved in
+        assert [p.name[:8] for p in headers] == ["run0.nc", ".run100."], headers
+        assert writes == [] and loads == []
+        assert (d / INDEX).stat().st_mtime_ns == base.st_mtime_ns
+        assert len(dirindex.journal_files(d)) == 1
+        monkeypatch.undo()
+        headers = _calls(monkeypatch, dirx, "read_header")
+        got = _assert_same_as_oracle(d)
+        assert headers == []  # every file from the index (base and journal)
+        assert got.experiment.values.tolist()[-1] == "run100"
+        monkeypatch.undo()
+
+
+def test_the_journal_is_compacted_and_keeps_the_order(tmp_path, monkeypatch):
+    d = tmp_path / "d"
+    _archive(d, 2)
+    monkeypatch.setattr(dirindex, "JOURNAL_FILES", 3)
+    for i in (9, 3, 7):  # labels out of name order: the archive keeps the order of the appends
+        append_to_archive(_labelled(i), d)
+    assert len(dirindex.journal_files(d)) == 3
+    writes = _calls(monkeypatch, dirindex, "write_index")
+    append_to_archive(_labelled(5), d)  # the fourth journal file: compacted
+    assert len(writes) == 1 and dirindex.journal_files(d) == []
+    index = dirindex.read_index(d)
+    assert index.ordered and index.base_rows == 6
+    assert {n: e[0][3] for n, e in index.items()} == {"run0.nc": 0, "run1.nc": 1, "run9.nc": 2,
+                                                      "run3.nc": 3, "run7.nc": 4, "run5.nc": 5}
+    time.sleep(0.01)
+    headers = _calls(monkeypatch, dirx, "read_header")
+    got = _assert_same_as_oracle(d)
+    assert got.experiment.values.tolist() == ["run0", "run1", "run9", "run3", "run7", "run5"]
+    assert headers == []
+    assert [p.name for p in arc.archive_files(d)] == [f"run{i}.nc" for i in (0, 1, 9, 3, 7, 5)]
+
+
+def test_a_bulk_save_compacts_at_once(tmp_path, monkeypatch):
+    d = tmp_path / "d"
+    _archive(d, 1)
+    monkeypatch.setattr(dirindex, "BULK_ROWS", 3)
+    save_archive([_labelled(i) for i in range(1, 4)], d, layout="files")
+    assert dirindex.journal_files(d) == [] and dirindex.read_index(d).base_rows == 4
+
+
+def _old_index(d):
+    """The base as the library wrote it before it kept the orders (version 3, no ``order``)."""
+    rows = [(name, entries[-1][0], entries[-1][1]) for name, entries in dirindex.read_index(d).items()]
+    (d / INDEX).unlink()
+    for name in dirindex.journal_files(d):
+        (d / JOURNAL / name).unlink()
+    text = h5py.string_dtype("utf-8")
+    with h5netcdf.File(d / INDEX, "w") as f:
+        f.attrs[dirindex.INDEX_ATTR] = np.int64(3)
+        f.dimensions = {"file": len(rows)}
+        for name, values in (("name", [r[0] for r in rows]), ("summary", [r[2] for r in rows])):
+            f.create_variable(name, ("file",), dtype=text)[:] = np.array(values, dtype=object)
+        for i, column in enumerate(("size", "mtime_ns", "ctime_ns", "inode")):
+            f.create_variable(column, ("file",), dtype=np.int64)[:] = [r[1][i] for r in rows]
+
+
+def test_an_index_of_the_previous_version_is_read_and_upgraded(tmp_path, monkeypatch):
+    d = tmp_path / "d"
+    _archive(d, 3)
+    for i in (8, 4):
+        append_to_archive(_labelled(i), d)
+    _old_index(d)
+    time.sleep(0.01)
+    index = dirindex.read_index(d)
+    assert index.base and not index.ordered
+    headers = _calls(monkeypatch, dirx, "read_header")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # read as it is: no warning
+        _assert_same_as_oracle(d)
+        assert [p.name for p in arc.archive_files(d)] == [f"run{i}.nc" for i in (0, 1, 2, 8, 4)]
+    assert headers == []
+    # the first write rewrites it with the orders (from its entries: no header read)
+    append_to_archive(_labelled(6), d)
+    assert [p.name[:8] for p in headers] == ["run0.nc", ".run6.nc"]  # the check, the new file
+    index = dirindex.read_index(d)
+    assert index.ordered and index["run6.nc"][0][3] == 5 and index["run4.nc"][-1][3] == 4
+    time.sleep(0.01)
+    headers.clear()
+    got = _assert_same_as_oracle(d)
+    assert got.experiment.values.tolist() == ["run0", "run1", "run2", "run8", "run4", "run6"]
+    assert headers == []
+
+
+def test_a_crash_mid_append_leaves_an_archive_that_opens(tmp_path, monkeypatch):
+    class Killed(BaseException):
+        """The process dies here (nothing after runs)."""
+
+    def die(*args, **kwargs):
+        raise Killed
+
+    d = tmp_path / "d"
+    _archive(d, 2)
+    want = open_archive(d).compute()
+    # while the experiment's file is written: nothing of it appears
+    monkeypatch.setattr(arc, "_check_structure", die)
+    with pytest.raises(Killed):
+        append_to_archive(_labelled(2), d)
+    monkeypatch.undo()
+    assert sorted(p.name for p in _files(d)) == ["run0.nc", "run1.nc"]
+    assert open_archive(d).identical(want)
+    # after the file, before its journal entry: the file is read from its header
+    monkeypatch.setattr(dirindex, "append_journal", die)
+    with pytest.raises(Killed):
+        append_to_archive(_labelled(2), d)
+    monkeypatch.undo()
+    headers = _calls(monkeypatch, dirx, "read_header")
+    assert _assert_same_as_oracle(d).experiment.values.tolist() == ["run0", "run1", "run2"]
+    assert [p.name for p in headers] == ["run2.nc"]
+    monkeypatch.undo()
+    # a compaction that wrote the base but did not remove the journal files it folded in
+    monkeypatch.setattr(dirindex, "JOURNAL_FILES", 0)
+    monkeypatch.setattr(dirindex, "remove_journal", die)
+    with pytest.raises(Killed):
+        append_to_archive(_labelled(3), d)
+    monkeypatch.undo()
+    assert len(dirindex.journal_files(d)) == 1
+    time.sleep(0.01)
+    headers = _calls(monkeypatch, dirx, "read_header")
+    got = _assert_same_as_oracle(d)
+    assert got.experiment.values.tolist() == ["run0", "run1", "run2", "run3"] and headers == []
+    monkeypatch.undo()
+    index_archive(d)  # folds the left-over journal file in
+    assert dirindex.journal_files(d) == [] and sorted(dirindex.read_index(d)) == [
+        "run0.nc", "run1.nc", "run2.nc", "run3.nc"]
+
+
+def test_a_corrupt_journal_file_is_ignored_with_a_warning(tmp_path, monkeypatch):
+    d = tmp_path / "d"
+    _archive(d, 2)
+    append_to_archive(_labelled(2), d)
+    append_to_archive(_labelled(3), d)
+    first = dirindex.journal_files(d)[0]
+    (d / JOURNAL / first).write_text('{"lcmr_archive_index_journal": 1, "rows": [["run2.nc"')
+    headers = _calls(monkeypatch, dirx, "read_header")
+    with pytest.warns(RuntimeWarning, match=r"archive index .*\.json ignored \(unreadable.*index_archive"):
+        got = _assert_same_as_oracle(d)
+    assert got.experiment.values.tolist() == ["run0", "run1", "run2", "run3"]
+    assert "run2.nc" in [p.name for p in headers] and "run3.nc" not in [p.name for p in headers]
+    monkeypatch.undo()
+    index_archive(d)
+    assert dirindex.journal_files(d) == []
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        _assert_same_as_oracle(d)
+
+
+def test_a_lost_base_update_costs_only_header_reads(tmp_path, monkeypatch):
+    d = tmp_path / "d"
+    _archive(d, 2)
+    older = (d / INDEX).read_bytes()
+    monkeypatch.setattr(dirindex, "JOURNAL_FILES", 0)  # compacts: the base lists run2
+    append_to_archive(_labelled(2), d)
+    monkeypatch.undo()
+    assert dirindex.journal_files(d) == []
+    (d / INDEX).write_bytes(older)  # another writer's base (without locks) replaced this one's
+    time.sleep(0.01)
+    headers = _calls(monkeypatch, dirx, "read_header")
+    got = _assert_same_as_oracle(d)
+    assert got.experiment.values.tolist() == ["run0", "run1", "run2"]
+    assert [p.name for p in headers] == ["run2.nc"]
+
+
+def _append_many(directory, start, journal_files):
+    dirindex.JOURNAL_FILES = journal_files
+    for i in range(start, start + 6):
+        append_to_archive(_labelled(i), directory)
+
+
+@pytest.mark.parametrize("journal_files", [128, 1])  # 1: (nearly) every append compacts
+def test_two_processes_appending_at_once_keep_each_others_entries(tmp_path, monkeypatch, journal_files):
+    d = tmp_path / "d"
+    _archive(d, 1)
+    ctx = mp.get_context("spawn")
+    procs = [ctx.Process(target=_append_many, args=(d, start, journal_files)) for start in (10, 20)]
+    for p in procs:
+        p.start()
+    for p in procs:
+        p.join(timeout=300)
+    assert [p.exitcode for p in procs] == [0, 0]
+    time.sleep(0.01)
+    headers = _calls(monkeypatch, dirx, "read_header")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # nothing ignored
+        got = _assert_same_as_oracle(d)
+    assert sorted(got.experiment.values.tolist()) == sorted(
+        [f"run{i}" for i in [0, *range(10, 16), *range(20, 26)]])
+    assert headers == []  # no entry lost
+    assert sorted(dirindex.read_index(d)) == sorted(p.name for p in _files(d))
+
+
+def test_an_append_applies_the_structure_test_of_the_open(tmp_path):
+    # The sample times of a directory's files must agree bit for bit (its open compares the
+    # time coordinates' bytes): an experiment sampled 1e-12 relative slower was appended
+    # (the append compared to 1e-9 relative) and the open then refused the directory.
+    from lcmr_xr.experiment import experiment
+
+    def sampled(th, label):
+        return experiment(np.ones((8, 1)), np.ones((8, 1)), np.ones((4, 1)), factor=2,
+                          sampling_period=th).assign_coords(experiment=label)
+
+    d = tmp_path / "arc"
+    save_archive(sampled(1e-5, "a"), d, layout="files")
+    rounded = sampled(1e-5 * (1 + 1e-12), "b")
+    assert not np.array_equal(rounded.time.values, open_archive(d).time.values)
+    with pytest.raises(ValueError, match=r"experiment 'b': its time coordinate differs from that of "
+                                         r"a\.nc by up to 1e-12 relative \(rounding\).*bit for bit"
+                                         r".*assign_coords\(time=ref\.time\.variable, slow_time=ref\.slow_time\.variable\)"):
+        append_to_archive(rounded, d)
+    assert sorted(p.name for p in d.iterdir() if not p.name.startswith(".")) == ["a.nc"]
+    assert open_archive(d).sizes["experiment"] == 1
+    # the remedy of the message
+    ref = open_experiment(d / "a.nc")
+    append_to_archive(rounded.assign_coords(time=ref.time.variable, slow_time=ref.slow_time.variable), d)
+    assert open_archive(d).experiment.values.tolist() == ["a", "b"]
+    # other variables: refused as the open refuses them
+    with pytest.raises(ValueError, match=r"experiment 'c' differs from a\.nc .* in its variables"):
+        append_to_archive(sampled(1e-5, "c").assign(extra=lambda ds: ds.r * 2), d)
+    # and two new experiments of one save are held to the same test
+    with pytest.raises(ValueError, match=r"experiment 'e': its time coordinate"):
+        save_archive([sampled(1e-5, "d"), sampled(1e-5 * (1 + 1e-12), "e")], tmp_path / "new",
+                     layout="files")
+
+
+def test_an_append_applies_the_metadata_test_of_the_open(tmp_path):
+    d = tmp_path / "d"
+    _archive(d, 2)
+    odd = _labelled(2)
+    odd.attrs = {k: v for k, v in odd.attrs.items() if k != "case"}
+    with pytest.raises(ValueError, match=r"experiment 'run2' has the metadata \['seed'\]"):
+        append_to_archive(odd, d)
+    assert sorted(p.name for p in _files(d)) == ["run0.nc", "run1.nc"]
+
+
+def test_an_open_of_many_files_without_entries_warns_once_with_the_remedy(tmp_path, monkeypatch):
+    d = tmp_path / "d"
+    _archive(d, 4)
+    monkeypatch.setattr(arc, "UNINDEXED_WARN", 2)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        open_archive(d)  # indexed: no warning
+    (d / INDEX).unlink()
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        _assert_same_as_oracle(d)
+    caught = [w for w in caught if issubclass(w.category, RuntimeWarning)]
+    assert len(caught) == 1, [str(w.message) for w in caught]
+    message = str(caught[0].message)
+    assert f"4 of the 4 files of archive {d}" in message and "it has no header index" in message
+    assert f"lcmr-xr archive index {d}" in message and "index_archive(directory)" in message
+    assert "about 0 s now" in message and "then takes about 0.1 s" in message
+    monkeypatch.setattr(dirindex, "ENABLED", False)  # deliberately without the index: no warning
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        open_archive(d)
+    monkeypatch.setattr(dirindex, "ENABLED", True)
+    index_archive(d)
+    time.sleep(0.01)
+    save(_labelled(5), d / "by_hand.nc")  # two files: below the threshold
+    save(_labelled(6), d / "by_hand2.nc")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        open_archive(d)
+    save(_labelled(7), d / "by_hand3.nc")
+    with pytest.warns(RuntimeWarning, match=r"3 of the 7 files .* no current entry in its header index"):
+        open_archive(d)
