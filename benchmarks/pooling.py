@@ -396,19 +396,20 @@ def _captured_candidates(calibrations=None):
 
     def recording(fit, **kw):
         out = original(fit, **kw)
-        (C,) = blocks  # one block per candidate
+        # one block per candidate (the last: before it, window="auto" may have refitted
+        # the bins a narrower candidate won, without finishing them)
+        C = blocks[-1]
         blocks.clear()
         m = fit["G"].shape[-3]
         src = mirror_source(fit["G"])
         if src is not None:  # mirrored: bin k > M/2 is the conjugate of bin M - k
             C = np.take(C, src, axis=-3)
             C[..., m // 2 + 1:, :, :] = np.conj(C[..., m // 2 + 1:, :, :])
-        # (a copy of the dict: the window choice empties the candidates' as it gathers)
+        # (copies: the window choice empties the candidates' dicts and writes the chosen
+        # values into the widest candidate's arrays)
         extra = {"ratios": ratios.pop()} if ratios else {}
-        # copies of the fit and its outputs: window="auto" gathers the chosen bins into the
-        # widest candidate's arrays in place once every candidate is finished (its ``G``
-        # is the fit's own array)
-        copy = lambda d: {k: np.copy(v) if isinstance(v, np.ndarray) else v for k, v in d.items()}
+        copy = lambda d: {k: v.copy() if isinstance(v, np.ndarray) else v  # noqa: E731
+                          for k, v in d.items()}
         calls.append(({**copy(fit), "G_cov": C[..., :m, :, :], **extra}, kw, copy(out)))
         return out
 

@@ -802,7 +802,9 @@ def record_memory(path, window, block_bytes: int | None = None) -> dict:
 
     ``block_bytes``: the eager path's ``lcmr_xr.kernels.identification.BLOCK_BYTES`` (None:
     the default; a huge value fits every bin in one block, holding the covariance of all
-    bins at once as before the blocks).
+    bins at once as before the blocks).  ``traced_mb`` (``tracemalloc``) does not see the
+    buffers of :mod:`lcmr_xr.kernels.pages` (anonymous mmaps of 4 MB and more, e.g. a
+    block's ``G_cov``); ``hwm_mb`` (resident growth) sees everything.
     """
     import gc
     import tracemalloc
