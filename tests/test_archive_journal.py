@@ -325,3 +325,23 @@ def test_an_open_of_many_files_without_entries_warns_once_with_the_remedy(tmp_pa
     save(_labelled(7), d / "by_hand3.nc")
     with pytest.warns(RuntimeWarning, match=r"3 of the 7 files .* no current entry in its header index"):
         open_archive(d)
+
+
+# ------------------------------------------------------------------ review (session 9)
+def test_an_append_before_files_without_an_order_keeps_the_archive_openable(tmp_path):
+    # Files written by another tool carry no order: a new file goes before them, so the
+    # open's metadata test (kinds held to the first file's) must not depend on which file
+    # is first.  A float seed in the old files and an integer one in the new file: the
+    # append (which compares with one old file) accepted it, the open then refused.
+    from test_scaleout import _experiment
+
+    d = tmp_path / "d"
+    d.mkdir()
+    for i in range(2):
+        save(_experiment(i).assign_coords(experiment=f"run{i}").assign_attrs(seed=i + 0.5, case=2),
+             d / f"run{i}.nc")
+    index_archive(d)
+    append_to_archive(_experiment(5).assign_coords(experiment="run5").assign_attrs(seed=5, case=2), d)
+    got = _assert_same_as_oracle(d)
+    assert got.experiment.values.tolist() == ["run5", "run0", "run1"]
+    assert got.seed.values.tolist() == [5.0, 0.5, 1.5]

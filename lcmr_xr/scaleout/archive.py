@@ -1030,7 +1030,7 @@ def _open_directory(directory: Path, chunks) -> xr.Dataset:
             )
     metas = [(row["label"], row["meta"]) for row in files]
     try:
-        con.check_metadata(metas)
+        con.check_metadata(metas, _metadata_kinds(metas))
     except ValueError as err:
         raise ValueError(f"archive {directory}: {err}") from err
 
@@ -1076,6 +1076,16 @@ def _open_directory(directory: Path, chunks) -> xr.Dataset:
         return validate_experiment(combined, check_values=False)
     except ValueError as err:
         raise ValueError(f"archive {directory}: {err}") from err
+
+
+def _metadata_kinds(metas: list) -> dict:
+    """The metadata kinds a directory's files are held to: the first file's, an integer
+    made float where any file has a float (the coordinate is then float), so that the
+    verdict does not depend on which file comes first: an append, which checks ONE file,
+    puts its file before the files without an order (written by other tools)."""
+    want = con.check_metadata(metas[:1])
+    floats = {name for _, meta in metas for name, value in meta.items() if isinstance(value, float)}
+    return {name: "f" if kind == "i" and name in floats else kind for name, kind in want.items()}
 
 
 def _files_per_chunk(chunks, n_files: int) -> int:
