@@ -345,3 +345,18 @@ def test_an_append_before_files_without_an_order_keeps_the_archive_openable(tmp_
     got = _assert_same_as_oracle(d)
     assert got.experiment.values.tolist() == ["run5", "run0", "run1"]
     assert got.seed.values.tolist() == [5.0, 0.5, 1.5]
+
+
+@pytest.mark.parametrize("attr", ["units", "long_name"])
+def test_an_append_refuses_units_the_open_would_drop(tmp_path, attr):
+    # The open combines the variables' attributes with drop_conflicts; r, u, y without
+    # units or long_name are no experiment: the open refused the whole directory.
+    d = tmp_path / "d"
+    _archive(d, 2)
+    odd = _labelled(2)
+    odd["r"].attrs[attr] = "something else"
+    with pytest.raises(ValueError, match=rf"experiment 'run2': its variable 'r' has {attr} "
+                                         r"'something else' where run0\.nc has .*drop.*set it"):
+        append_to_archive(odd, d)
+    assert sorted(p.name for p in _files(d)) == ["run0.nc", "run1.nc"]
+    _assert_same_as_oracle(d)

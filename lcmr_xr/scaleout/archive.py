@@ -378,9 +378,10 @@ def save_archive(experiments, path, *, overwrite: bool = False, layout: str | No
     :func:`index_archive` writes it (every header read once).
 
     All experiments of an archive must agree as its open requires: the same shape and
-    metadata names, and the same variables, channel labels and time coordinates bit for
+    metadata names, the same variables, channel labels and time coordinates bit for
     bit in the files (a time coordinate that differs by rounding is refused, with the
-    remedy).  The directory is checked against ONE of its files (the first its index
+    remedy), and the same units and long_name of ``r``, ``u``, ``y`` (the open drops
+    conflicting ones, and signals without them are no experiment).  The directory is checked against ONE of its files (the first its index
     lists; its open refuses the directory unless every file agrees with it) and the
     files replaced, so a write costs the same whatever the directory holds; a mismatch
     is refused before anything is moved into place.
@@ -695,6 +696,7 @@ def _write_checked(ds: xr.Dataset, path: Path, ref, label) -> tuple[Path, dict]:
         header = dirx.read_header(Path(tmp), path.parent)
         if ref is not None:
             _check_structure(header, ref, label, path.parent)
+            _check_units(header, ref, label)
         got.append(header)
 
     return atomic_write(path, write), got[0]
@@ -732,6 +734,23 @@ def _check_structure(header: dict, ref, label, directory: Path) -> None:
         "(names, shapes, types) or channel labels; an archive holds experiments of one "
         "structure. Save it to another archive (compare them with lcmr_xr.open_dataset)."
     )
+
+
+def _check_units(header: dict, ref, label) -> None:
+    """Refuse an experiment whose ``r``, ``u`` or ``y`` has other units or long_name than in
+    the archive's file ``ref``: the directory's open combines the variables' attributes
+    with ``drop_conflicts``, and signals without them are no experiment (it refuses the
+    directory)."""
+    for name in ("r", "u", "y"):
+        new, old = header["var_attrs"].get(name, {}), ref[1]["var_attrs"].get(name, {})
+        for attr in ("units", "long_name"):
+            if attr in new and attr in old and not dirx._equivalent(new[attr], old[attr]):
+                raise ValueError(
+                    f"experiment {label!r}: its variable {name!r} has {attr} {new[attr]!r} where "
+                    f"{ref[0].name} has {old[attr]!r}; the directory's open would drop the "
+                    f"conflicting {attr} and refuse the archive. Convert the experiment or set it "
+                    f"(exp[{name!r}].attrs[{attr!r}] = {old[attr]!r}), or save it to another archive."
+                )
 
 
 def _index_new_files(directory: Path, rows: list, known, journal: int) -> None:
