@@ -360,3 +360,17 @@ def test_an_append_refuses_units_the_open_would_drop(tmp_path, attr):
         append_to_archive(odd, d)
     assert sorted(p.name for p in _files(d)) == ["run0.nc", "run1.nc"]
     _assert_same_as_oracle(d)
+
+
+def test_an_append_never_reads_a_file_outside_the_directory_that_the_index_names(tmp_path, monkeypatch):
+    d = tmp_path / "d"
+    _archive(d, 2)
+    save(_labelled(9), tmp_path / "outside.nc")
+    rows = [(n, e[-1][0], e[-1][1], e[-1][3]) for n, e in dirindex.read_index(d).items()]
+    for bad in ("../outside.nc", str(tmp_path / "outside.nc")):
+        dirindex.write_index(d, [(bad, *rows[0][1:])] + rows)  # its first entry names it
+        headers = _calls(monkeypatch, dirx, "read_header")
+        append_to_archive(_labelled(len(_files(d))), d)
+        assert [p.parent for p in headers] == [d, d], headers  # a file of d, the new one
+        monkeypatch.undo()
+    _assert_same_as_oracle(d)

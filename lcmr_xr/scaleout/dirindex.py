@@ -336,8 +336,17 @@ def base_facts(directory: Path) -> BaseFacts:
             first = f["name"].asstr()[0] if rows else None
     except (OSError, KeyError, ValueError, TypeError):
         return BaseFacts()
+    if first is not None and not plain_name(first):  # never a file outside the directory
+        first = None
     top = int(orders.max()) if orders.size and orders.max() >= 0 else None
     return BaseFacts(True, True, rows, top, first)
+
+
+def plain_name(name: str) -> bool:
+    """Whether ``name`` can be an experiment file of the directory: a visible ``*.nc`` name
+    without a directory part (an index never makes a writer open ``../x.nc`` or ``/x.nc``)."""
+    return (name.endswith(".nc") and not name.startswith(".") and "/" not in name
+            and os.sep not in name and (os.altsep is None or os.altsep not in name))
 
 
 def _ignored(path: Path, why: str, warn: bool) -> None:
