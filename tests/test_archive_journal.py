@@ -6,6 +6,7 @@ cost at most header reads."""
 
 from __future__ import annotations
 
+import json
 import multiprocessing as mp
 import os
 import time
@@ -374,3 +375,31 @@ def test_an_append_never_reads_a_file_outside_the_directory_that_the_index_names
         assert [p.parent for p in headers] == [d, d], headers  # a file of d, the new one
         monkeypatch.undo()
     _assert_same_as_oracle(d)
+
+
+def test_journal_entries_of_another_summary_version_are_not_trusted(tmp_path, monkeypatch):
+    # A summary's content is versioned by dirindex.VERSION (the base's attribute); journal
+    # files carried only their own format number, so a library with other summaries took
+    # them as its own.
+    d = tmp_path / "d"
+    _archive(d, 2)
+    append_to_archive(_labelled(2), d)
+    time.sleep(0.01)
+    assert "run2.nc" in dirindex.read_index(d)
+    # a journal file that does not say (written before they did) holds version 3
+    path = d / JOURNAL / dirindex.journal_files(d)[0]
+    data = json.loads(path.read_text())
+    assert data.pop(dirindex.INDEX_ATTR) == dirindex.VERSION == 3
+    path.write_text(json.dumps(data))
+    assert dirindex.trusted(dirindex.read_index(d), "run2.nc", (d / "run2.nc").stat()) is not None
+    monkeypatch.setattr(dirindex, "VERSION", dirindex.VERSION + 1)
+    with pytest.warns(RuntimeWarning, match=r"\.json ignored \(summaries of version 3, this library "
+                                            r"reads version 4\).*index_archive"):
+        assert dirindex.read_index(d) is None
+    # and it writes and reads its own
+    index_archive(d)
+    append_to_archive(_labelled(3), d)
+    time.sleep(0.01)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert sorted(dirindex.read_index(d)) == ["run0.nc", "run1.nc", "run2.nc", "run3.nc"]
