@@ -403,3 +403,24 @@ def test_journal_entries_of_another_summary_version_are_not_trusted(tmp_path, mo
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         assert sorted(dirindex.read_index(d)) == ["run0.nc", "run1.nc", "run2.nc", "run3.nc"]
+
+
+def test_an_append_whose_file_another_writer_replaced_writes_no_entry_for_it(tmp_path, monkeypatch):
+    # Another process re-measures the same experiment between this write's rename and its
+    # stat: the entry then held this write's summary under the other file's stamp.
+    d = tmp_path / "d"
+    _archive(d, 2)
+    real = arc._write_checked
+
+    def raced(ds, path, ref, label):
+        out = real(ds, path, ref, label)
+        save(_labelled(2).assign_attrs(seed=99), d / "other.tmp")
+        os.replace(d / "other.tmp", path)
+        return out
+
+    monkeypatch.setattr(arc, "_write_checked", raced)
+    append_to_archive(_labelled(2), d)
+    monkeypatch.undo()
+    time.sleep(0.01)
+    got = _assert_same_as_oracle(d)
+    assert got.seed.values.tolist() == [0, 1, 99]

@@ -665,24 +665,28 @@ def _save_files(items, first, directory: Path, overwrite: bool) -> list[Path]:
         if not out[cv.EXPERIMENT].attrs:
             out[cv.EXPERIMENT].attrs.update(cv.label_attrs("experiment"))
         out.attrs = {**out.attrs, ORDER_ATTR: start + i}
-        path, header = _write_checked(out, directory / name, ref, label)
+        path, header, ident = _write_checked(out, directory / name, ref, label)
         written.append(path)
-        try:
-            st = os.stat(path)
-        except OSError:  # replaced or removed by someone else already: no entry
-            continue
-        rows.append((name, dirindex.stamp(st), dirindex.summary_text(_summary(header)), start + i))
         if ref is None:  # the next ones must agree with the first one written
             ref = (path, header)
+        try:
+            st = os.stat(path)
+        except OSError:  # removed by someone else already: no entry
+            continue
+        if (st.st_dev, st.st_ino) != ident:  # replaced by someone else already: no entry
+            continue
+        rows.append((name, dirindex.stamp(st), dirindex.summary_text(_summary(header)), start + i))
     _index_new_files(directory, rows, facts, len(journal))
     return written
 
 
-def _write_checked(ds: xr.Dataset, path: Path, ref, label) -> tuple[Path, dict]:
+def _write_checked(ds: xr.Dataset, path: Path, ref, label) -> tuple[Path, dict, tuple]:
     """Write ``ds`` to ``path`` atomically as :func:`lcmr_xr.io.save` does, unless the
     header of what was written (read back before it is moved into place) fails the test
     the directory's open applies against ``ref`` (``(path, header)`` of a file of the
-    archive; see :func:`_check_structure`).  Returns the path and the header."""
+    archive; see :func:`_check_structure`).  Returns the path, the header and the
+    file's ``(st_dev, st_ino)`` (which the rename keeps: the entry is the header's only if
+    the file at ``path`` still has them)."""
     from lcmr_xr.io._atomic import atomic_write
     from lcmr_xr.io._guards import check_not_own_source
     from lcmr_xr.io.netcdf import _ENGINE, _flatten_attrs, _map_attrs
@@ -697,9 +701,10 @@ def _write_checked(ds: xr.Dataset, path: Path, ref, label) -> tuple[Path, dict]:
         if ref is not None:
             _check_structure(header, ref, label, path.parent)
             _check_units(header, ref, label)
-        got.append(header)
+        st = os.stat(tmp)
+        got.extend([header, (st.st_dev, st.st_ino)])
 
-    return atomic_write(path, write), got[0]
+    return atomic_write(path, write), *got
 
 
 def _check_structure(header: dict, ref, label, directory: Path) -> None:
