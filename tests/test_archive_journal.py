@@ -424,3 +424,19 @@ def test_an_append_whose_file_another_writer_replaced_writes_no_entry_for_it(tmp
     time.sleep(0.01)
     got = _assert_same_as_oracle(d)
     assert got.seed.values.tolist() == [0, 1, 99]
+
+
+def test_an_append_into_a_directory_never_replaces_an_experiment(tmp_path):
+    # append_to_archive adds experiments ("its label is taken" raises, as for a consolidated
+    # archive); into a directory it replaced the file of the same name without a word.
+    d = tmp_path / "d"
+    _archive(d, 2)
+    before = (d / "run1.nc").read_bytes()
+    for label in ("run1", "run1."):  # the same file name
+        with pytest.raises(ValueError, match=rf"experiment '{label}' is already in .*d \(run1\.nc\); "
+                                             r"give it a new label.*save_archive\(experiment, "):
+            append_to_archive(_labelled(1).assign_coords(experiment=label), d)
+    assert (d / "run1.nc").read_bytes() == before
+    assert _assert_same_as_oracle(d).experiment.values.tolist() == ["run0", "run1"]
+    save_archive(_labelled(1).assign_attrs(seed=11), d, layout="files")  # the remedy: replaced
+    assert open_archive(d).seed.values.tolist() == [0, 11]

@@ -485,7 +485,8 @@ def append_to_archive(experiment, path) -> Path:
     (the partial row is ignored and overwritten by the next append).  Cost: one open of
     the file and the new experiment's data, not a pass over the archive.
 
-    Directory: the experiment's file is written atomically (checked against one file of
+    Directory: an experiment whose file exists is refused (:func:`save_archive` replaces
+    it); the experiment's file is written atomically (checked against one file of
     the directory before it is moved into place, see :func:`save_archive`), then its
     index entry as one journal file; an interrupted append leaves the directory without
     the experiment, or with it and (without its entry) read from its header at open.
@@ -508,7 +509,8 @@ def append_to_archive(experiment, path) -> Path:
     """
     path = Path(path)
     if path.is_dir():
-        return save_archive(experiment, path, layout="files")[-1]
+        items, first = _validated(experiment)
+        return _save_files(items, first, path, overwrite=False, add_only=True)[-1]
     if not path.exists():
         return save_archive(experiment, path, layout="consolidated")[0]
     if isinstance(experiment, xr.Dataset) and cv.EXPERIMENT not in experiment.coords:
@@ -595,7 +597,7 @@ def consolidate_archive(directory, path, *, overwrite: bool = False, progress=No
     return atomic_write(path, write)
 
 
-def _save_files(items, first, directory: Path, overwrite: bool) -> list[Path]:
+def _save_files(items, first, directory: Path, overwrite: bool, add_only: bool = False) -> list[Path]:
     """Write experiment files into an archive directory (see :func:`save_archive`).
 
     The cost does not grow with the directory (no listing, no pass over the entries):
@@ -616,6 +618,16 @@ def _save_files(items, first, directory: Path, overwrite: bool) -> list[Path]:
             "characters); give the experiments unique labels, e.g. "
             "ds.assign_coords(experiment=[f'run{i}' for i in range(n)])."
         )
+    if add_only:  # append_to_archive: never a file of the archive replaced
+        taken = [(label, n) for (label, _), n in zip(items, names) if (directory / n).exists()]
+        if taken:
+            label, name = taken[0]
+            raise ValueError(
+                f"experiment {label!r} is already in {directory} ({name}); give it a new label "
+                "(its file name comes from it), or replace that experiment (a re-measurement "
+                f"of the same shape) with save_archive(experiment, {str(directory)!r}, "
+                "layout='files')."
+            )
     directory.mkdir(parents=True, exist_ok=True)
     journal = dirindex.journal_files(directory)
     facts = dirindex.base_facts(directory)
