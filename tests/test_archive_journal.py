@@ -440,3 +440,23 @@ def test_an_append_into_a_directory_never_replaces_an_experiment(tmp_path):
     assert _assert_same_as_oracle(d).experiment.values.tolist() == ["run0", "run1"]
     save_archive(_labelled(1).assign_attrs(seed=11), d, layout="files")  # the remedy: replaced
     assert open_archive(d).seed.values.tolist() == [0, 11]
+
+
+@pytest.mark.parametrize("damage", [('"attrs"', '"attrz"'), ('{"d":[["attrs"', '{"l":[["attrs"'),
+                                    ('["shape",{"d":', '["shape",{"l":')])
+def test_a_damaged_summary_in_a_current_entry_is_read_from_the_header(tmp_path, monkeypatch, damage):
+    # A summary that is valid JSON but not what the open uses (a damaged byte in a key or
+    # a tag) failed the open with a KeyError / TypeError from deep inside.
+    d = tmp_path / "d"
+    _archive(d, 2)
+    append_to_archive(_labelled(2), d)
+    path = d / JOURNAL / dirindex.journal_files(d)[0]
+    data = json.loads(path.read_text())
+    assert data["rows"][0][3].count(damage[0]) == 1
+    data["rows"][0][3] = data["rows"][0][3].replace(*damage)
+    path.write_text(json.dumps(data))
+    time.sleep(0.01)
+    headers = _calls(monkeypatch, dirx, "read_header")
+    got = _assert_same_as_oracle(d)
+    assert got.experiment.values.tolist() == ["run0", "run1", "run2"]
+    assert [p.name for p in headers] == ["run2.nc"]

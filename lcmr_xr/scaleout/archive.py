@@ -232,11 +232,31 @@ def _summaries(directory: Path, paths: list[Path]):
         if text is not None:
             try:
                 summary = load(text)
-            except (ValueError, TypeError, KeyError):  # a damaged entry: read the header instead
+            except (ValueError, TypeError, KeyError, RecursionError):  # damaged: read the header
+                summary = None
+            if not _usable(summary):  # valid JSON, but not a summary (a damaged byte)
                 summary = None
         if summary is None:  # st None: gone (read_header says so)
             summary = _summary(dirx.read_header(path, directory))
         yield path, st, summary
+
+
+_SHAPE_KEYS = {"N", "factor", "Th", "inputs", "outputs"}
+
+
+def _usable(summary) -> bool:
+    """Whether a stored summary holds what the open uses, of the types :func:`_summary`
+    gives (a damaged entry decodes to something else: its header is read instead)."""
+    if (type(summary) is not dict or type(summary.get("attrs")) is not dict
+            or type(summary.get("scalars")) is not dict
+            or not isinstance(summary.get("experiment"), (bool, np.bool_))):
+        return False
+    if not summary["experiment"]:
+        return True
+    shape = summary.get("shape")
+    return (type(shape) is dict and _SHAPE_KEYS <= shape.keys()
+            and type(shape["inputs"]) is list and type(shape["outputs"]) is list
+            and type(summary.get("structure")) is str and type(summary.get("var_attrs")) is str)
 
 
 def _summary(header: dict) -> dict:
