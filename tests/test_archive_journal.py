@@ -460,3 +460,15 @@ def test_a_damaged_summary_in_a_current_entry_is_read_from_the_header(tmp_path, 
     got = _assert_same_as_oracle(d)
     assert got.experiment.values.tolist() == ["run0", "run1", "run2"]
     assert [p.name for p in headers] == ["run2.nc"]
+
+
+def test_a_journal_file_nested_too_deep_is_ignored_with_a_warning(tmp_path):
+    # json's parser raises RecursionError (no ValueError) on deep nesting: the open failed.
+    d = tmp_path / "d"
+    _archive(d, 2)
+    append_to_archive(_labelled(2), d)
+    (d / JOURNAL / "000000000009-1-junk.json").write_text("[" * 200_000)
+    time.sleep(0.01)
+    with pytest.warns(RuntimeWarning, match=r"000000000009-1-junk\.json ignored \(unreadable.*index_archive"):
+        got = _assert_same_as_oracle(d)
+    assert got.experiment.values.tolist() == ["run0", "run1", "run2"]

@@ -471,7 +471,7 @@ def _read_journal(path: Path, warn: bool):
             data = json.loads(fh.read())
     except FileNotFoundError:
         return None
-    except (OSError, ValueError) as err:
+    except (OSError, ValueError, RecursionError) as err:  # RecursionError: nested too deep
         _ignored(path, f"unreadable: {err}", warn)
         return None
     try:
