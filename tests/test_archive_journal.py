@@ -472,3 +472,24 @@ def test_a_journal_file_nested_too_deep_is_ignored_with_a_warning(tmp_path):
     with pytest.warns(RuntimeWarning, match=r"000000000009-1-junk\.json ignored \(unreadable.*index_archive"):
         got = _assert_same_as_oracle(d)
     assert got.experiment.values.tolist() == ["run0", "run1", "run2"]
+
+
+def test_of_two_current_journal_entries_of_a_file_the_newest_is_taken(tmp_path, monkeypatch):
+    # "newest entry first" (dirindex.Index) sorted the journal's entries by summary text.
+    d = tmp_path / "d"
+    _archive(d, 2)
+    append_to_archive(_labelled(2), d)
+    newer = d / JOURNAL / dirindex.journal_files(d)[0]
+    data = json.loads(newer.read_text())
+    text = data["rows"][0][3]
+    assert text.count('["seed",2]') == 1
+    data["rows"][0][3] = text.replace('["seed",2]', '["seed",99]')  # sorts after the right one
+    older = d / JOURNAL / "000000000001-1-older.json"
+    older.write_text(json.dumps(data))
+    st = (d / "run2.nc").stat()
+    tick = max(st.st_mtime_ns, st.st_ctime_ns)
+    os.utime(older, ns=(tick + 1000, tick + 1000))
+    os.utime(newer, ns=(tick + 2000, tick + 2000))
+    headers = _calls(monkeypatch, dirx, "read_header")
+    got = _assert_same_as_oracle(d)
+    assert got.seed.values.tolist() == [0, 1, 2] and headers == []

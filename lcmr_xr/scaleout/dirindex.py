@@ -261,7 +261,7 @@ def read_index(directory: Path, warn: bool = True, journal: list[str] | None = N
         for row in rows:
             index.setdefault(row[0], []).append(row[1:])
     for entries in index.values():  # the newest journal file first
-        entries.sort(key=lambda e: e[1], reverse=True)
+        entries.sort(key=lambda e: e[2], reverse=True)  # (stamp, text, written, order)
     base = _read_base(directory, warn)
     if base is not None:
         found = True
