@@ -493,3 +493,24 @@ def test_of_two_current_journal_entries_of_a_file_the_newest_is_taken(tmp_path, 
     headers = _calls(monkeypatch, dirx, "read_header")
     got = _assert_same_as_oracle(d)
     assert got.seed.values.tolist() == [0, 1, 2] and headers == []
+
+
+def test_an_append_whose_file_another_process_edited_writes_no_entry_for_it(tmp_path, monkeypatch):
+    # The same, the file edited in place (same inode) between the rename and the stat.
+    d = tmp_path / "d"
+    _archive(d, 2)
+    real = arc._write_checked
+
+    def raced(ds, path, ref, label):
+        out = real(ds, path, ref, label)
+        time.sleep(0.01)  # a later clock tick
+        with h5py.File(path, "r+") as f:
+            f.attrs["seed"] = np.int64(99)
+        return out
+
+    monkeypatch.setattr(arc, "_write_checked", raced)
+    append_to_archive(_labelled(2), d)
+    monkeypatch.undo()
+    time.sleep(0.01)
+    got = _assert_same_as_oracle(d)
+    assert got.seed.values.tolist() == [0, 1, 99]

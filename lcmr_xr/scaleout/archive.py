@@ -705,8 +705,8 @@ def _save_files(items, first, directory: Path, overwrite: bool, add_only: bool =
             st = os.stat(path)
         except OSError:  # removed by someone else already: no entry
             continue
-        if (st.st_dev, st.st_ino) != ident:  # replaced by someone else already: no entry
-            continue
+        if (st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns) != ident:  # replaced or edited
+            continue  # by someone else already: no entry (read from its header)
         rows.append((name, dirindex.stamp(st), dirindex.summary_text(_summary(header)), start + i))
     _index_new_files(directory, rows, facts, len(journal))
     return written
@@ -717,8 +717,8 @@ def _write_checked(ds: xr.Dataset, path: Path, ref, label) -> tuple[Path, dict, 
     header of what was written (read back before it is moved into place) fails the test
     the directory's open applies against ``ref`` (``(path, header)`` of a file of the
     archive; see :func:`_check_structure`).  Returns the path, the header and the
-    file's ``(st_dev, st_ino)`` (which the rename keeps: the entry is the header's only if
-    the file at ``path`` still has them)."""
+    file's ``(st_dev, st_ino, st_size, st_mtime_ns)`` (which the rename keeps: the entry
+    is the header's only if the file at ``path`` still has them)."""
     from lcmr_xr.io._atomic import atomic_write
     from lcmr_xr.io._guards import check_not_own_source
     from lcmr_xr.io.netcdf import _ENGINE, _flatten_attrs, _map_attrs
@@ -734,7 +734,7 @@ def _write_checked(ds: xr.Dataset, path: Path, ref, label) -> tuple[Path, dict, 
             _check_structure(header, ref, label, path.parent)
             _check_units(header, ref, label)
         st = os.stat(tmp)
-        got.extend([header, (st.st_dev, st.st_ino)])
+        got.extend([header, (st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns)])
 
     return atomic_write(path, write), *got
 
