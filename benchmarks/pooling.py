@@ -387,16 +387,21 @@ def _captured_candidates(calibrations=None):
 
     def recording(fit, **kw):
         out = original(fit, **kw)
-        (C,) = blocks  # one block per candidate
+        # one block per candidate (the last: before it, window="auto" may have refitted
+        # the bins a narrower candidate won, without finishing them)
+        C = blocks[-1]
         blocks.clear()
         m = fit["G"].shape[-3]
         src = mirror_source(fit["G"])
         if src is not None:  # mirrored: bin k > M/2 is the conjugate of bin M - k
             C = np.take(C, src, axis=-3)
             C[..., m // 2 + 1:, :, :] = np.conj(C[..., m // 2 + 1:, :, :])
-        # (a copy of the dict: the window choice empties the candidates' as it gathers)
+        # (copies: the window choice empties the candidates' dicts and writes the chosen
+        # values into the widest candidate's arrays)
         extra = {"ratios": ratios.pop()} if ratios else {}
-        calls.append(({**fit, "G_cov": C[..., :m, :, :], **extra}, kw, dict(out)))
+        copy = lambda d: {k: v.copy() if isinstance(v, np.ndarray) else v  # noqa: E731
+                          for k, v in d.items()}
+        calls.append(({**copy(fit), "G_cov": C[..., :m, :, :], **extra}, kw, copy(out)))
         return out
 
     kid._finish, kid.slow_bin_terms, kid.BLOCK_BYTES = recording, reducing, 1 << 62

@@ -144,3 +144,127 @@ def test_local_model_bins_are_those_of_the_whole_fit(record):
     with pytest.raises(ValueError, match="finite"):
         local_model(R, bad, half_width=WINDOW, bins=(0, 16))
     local_model(R, bad, half_width=WINDOW, bins=(100, 200))
+
+
+def _old_auto(R, Z, windows, **kw):
+    """``window="auto"`` as it was before the refits: every candidate finished whole (one
+    block over all bins), then gathered bin by bin (``_choose_windows``, which
+    ``finish_packed_auto`` still runs on the frequency-chunked fits)."""
+    outs = [ki.identify_spectra(R, Z, half_width=w, **kw) for w in windows]
+    return ki._choose_windows(outs, np.asarray(windows), R.shape[-2])
+
+
+def _assert_identical(got: dict, want: dict):
+    assert sorted(got) == sorted(want)
+    for name in want:
+        a, b = np.asarray(got[name]), np.asarray(want[name])
+        assert a.dtype == b.dtype and a.shape == b.shape, name
+        np.testing.assert_array_equal(a, b, err_msg=name)  # bit for bit (NaN where NaN)
+
+
+@pytest.fixture(scope="module")
+def pooled_spectra():
+    exps = [hdd.simulate(n_samples=600, seed=s) for s in range(4)]
+    factor = int(exps[0].attrs["factor"])
+    spectra = [ki.experiment_spectra(e.r.values, e.u.values, e.y.values, factor=factor)
+               for e in exps]
+    shape = dict(n_fast=exps[0].sizes["time"], factor=factor, nu=exps[0].sizes["input"])
+    return np.stack([s[0] for s in spectra]), np.stack([s[1] for s in spectra]), shape
+
+
+def _auto_case(case, record, pooled_spectra):
+    """``(R, Z, windows, keywords)`` of one setting of ``window="auto"``."""
+    R, Z, shape = record
+    windows, kw = (12, 19, 30), dict(degrees=(3, 3, 3), **shape)
+    if case == "complex":  # every bin fitted, no mirror
+        R, Z = R * np.exp(0.3j), Z * np.exp(0.3j)
+    elif case == "lpm":
+        kw["degrees"] = (3, 3, 0)
+    elif case == "iv":
+        kw["denominator"] = "iv"
+    elif case == "direct":
+        exp = hdd.simulate(n_samples=1200, seed=3)
+        R, Z = ki.experiment_spectra(exp.r.values, exp.u.values, exp.y.values,
+                                     factor=shape["factor"], closed_loop="direct")
+        kw["closed_loop"] = "direct"
+    elif case in ("stacked", "pooled"):
+        R, Z, shape = pooled_spectra
+        kw.update(shape)
+        if case == "pooled":  # IV, split-half calibration, a known noise not mirrored
+            m, nz = Z.shape[-2:]
+            rng = np.random.default_rng(1)
+            A = rng.standard_normal((m, nz, nz)) + 1j * rng.standard_normal((m, nz, nz))
+            noise = (A @ A.conj().swapaxes(-1, -2)) * (np.abs(Z[0])[:, :, None]
+                                                       * np.abs(Z[0])[:, None, :] * 1e-4)
+            windows = (8, 13, 20)
+            kw.update(experiment_axis=-3, denominator="iv", noise_covariance=noise)
+    return R, Z, windows, kw
+
+
+@pytest.mark.parametrize("case", ["real", "complex", "lpm", "iv", "direct", "stacked", "pooled"])
+def test_auto_refits_are_the_candidates_first_fits_bit_for_bit(monkeypatch, record,
+                                                               pooled_spectra, case):
+    """``window="auto"`` keeps of the narrower candidates only what the choice reads and fits
+    the bins they win again (``_refit_chosen``, in 16-bin blocks here): every output is
+    that of finishing every candidate whole in one block and gathering, bit for bit;
+    likewise when the narrower candidates are held whole (short records) or only the
+    first is."""
+    R, Z, windows, kw = _auto_case(case, record, pooled_spectra)
+    monkeypatch.setattr(ki, "BLOCK_BYTES", 1 << 60)
+    want = _old_auto(R, Z, windows, **kw)
+    monkeypatch.setattr(ki, "HELD_BYTES", 1 << 60)
+    _assert_identical(ki.identify_spectra_auto(R, Z, windows=windows, **kw), want)
+    first = sum(v.nbytes for k, v in ki.identify_spectra(R, Z, half_width=windows[0], **kw).items()
+                if k not in ki._FAST)
+    fits, refits = [], []  # (refit?, half_width, bins) of every block fitted; refitted windows
+    real_fit, real_refit = ki._fit_terms, ki._refit_chosen
+
+    def fit(*args, **kwargs):
+        fits.append((bool(refits) and refits[-1] is not None, kwargs["half_width"],
+                     kwargs["bins"]))
+        return real_fit(*args, **kwargs)
+
+    def refit(*args, **kwargs):
+        refits.append(kwargs["half_width"])
+        real_refit(*args, **kwargs)
+        refits.append(None)
+
+    monkeypatch.setattr(ki, "_fit_terms", fit)
+    monkeypatch.setattr(ki, "_refit_chosen", refit)
+    monkeypatch.setattr(ki, "BLOCK_BYTES", 1)  # blocks of one restart interval
+    m = R.shape[-2]
+    for held, refitted in ((0, windows[:-1]), (first, windows[1:-1])):
+        fits.clear()
+        refits.clear()
+        monkeypatch.setattr(ki, "HELD_BYTES", held)
+        got = ki.identify_spectra_auto(R, Z, windows=windows, **kw)
+        _assert_identical(got, want)
+        assert [w for w in refits if w is not None] == list(refitted)
+        assert all(np.any(got["window"] == w) for w in windows)  # each candidate wins bins
+        for w in refitted:  # fewer bins than the first fit, in blocks on the restart grid
+            align = 1 << (w.bit_length() - 1)
+            again = [b for r, n, b in fits if r and n == w]
+            first_fit = [b for r, n, b in fits if not r and n == w]
+            records = got["window"][..., 0].size  # refitted record by record
+            assert 0 < sum(b - a for a, b in again) < records * sum(b - a for a, b in first_fit)
+            assert all(a % align == 0 and (b % align == 0 or b == m) for a, b in again)
+            # every bin the window won is in a refitted block (or its mirror M - k is)
+            bins = np.zeros(m, dtype=bool)
+            for a, b in again:
+                bins[a:b] = True
+            won = np.flatnonzero(np.any(got["window"] == w, axis=tuple(range(got["window"].ndim - 1))))
+            assert np.all(bins[won] | bins[(m - won) % m])
+
+
+def test_auto_refit_runs_on_the_restart_grid():
+    need = np.zeros(100, dtype=bool)
+    need[[3, 17, 18, 40, 99]] = True
+    # blocks 0..32, 32..64, 64..100 (the last ends at M), restart interval 8
+    assert ki._chosen_runs(need, [0, 32, 64, 100], 8) == [(0, 8), (16, 24), (40, 48), (96, 100)]
+    need[:] = False
+    assert ki._chosen_runs(need, [0, 32, 64, 100], 8) == []
+    need[30:34] = True  # runs do not cross a block's edge
+    assert ki._chosen_runs(need, [0, 32, 64, 100], 8) == [(24, 32), (32, 40)]
+    need[:] = False
+    need[[66, 80, 90, 97]] = True  # within a block, consecutive intervals make one run
+    assert ki._chosen_runs(need, [0, 32, 64, 100], 8) == [(64, 72), (80, 100)]

@@ -254,44 +254,57 @@ def _recover(terms, *, n_fast, factor, nu, ny, closed_loop, ill_posed, dof,
     derive from it: ``P1_cov`` scales with it, ``rho`` and ``rho_v`` with its square root.
     """
     f_ = int(factor)
-    P1, P1_cov, s_sing = terms["P1"], terms["P1_cov"], terms["s_singular"]
-    rho, rho_v = terms["rho"], terms["rho_v"]
+    P1, s_sing = terms["P1"], terms["s_singular"]
+    slow = _slow_recovery(terms, closed_loop=closed_loop, ill_posed=ill_posed, dof=dof,
+                          calibration=calibration)
+    P1_cov, undetermined = terms["P1_cov"], slow["undetermined"]
     if calibration is not None and P1_cov is not None:
         P1_cov = P1_cov * calibration[..., None, None]
-        root = np.sqrt(calibration)
-        rho, rho_v = rho * root, rho_v * root
-    lead_m = s_sing.shape
-    m = lead_m[-1]
+    m = s_sing.shape[-1]
     bins = np.arange(n_fast // 2 + 1)
     P = frf_from_first_block_row(P1, f_)[..., : n_fast // 2 + 1, :, :]
-    # per slow bin: the factor turning the first-order std into the calibrated one
-    slow_factor = np.ones(lead_m)
-    undetermined = np.zeros(lead_m, dtype=bool)
-    if dof is not None:
-        slow_factor = slow_factor * small_sample_factor(dof)
     if P1_cov is not None:
         P_var_lin = frf_variance_from_first_row(P1_cov, n_fast, f_, bins, ny, nu)
-        if closed_loop == "indirect":
-            nl, undetermined = nonlinearity_factor(rho, rho_v)
-            undetermined = undetermined & ~s_sing
-            slow_factor = slow_factor * nl
-        fast_factor = np.take(np.where(undetermined, 1.0, slow_factor), bins % m, axis=-1)
+        fast_factor = np.take(np.where(undetermined, 1.0, slow["factor"]), bins % m, axis=-1)
         P_var = P_var_lin * fast_factor[..., None, None] ** 2
         # unbounded where undetermined (also where the first-order variance is 0 or NaN)
         P_var = np.where(np.take(undetermined, bins % m, axis=-1)[..., None, None], np.inf, P_var)
     else:
         P_var_lin = P_var = np.full(P.shape, np.nan)
-    slow_bad = s_sing if ill_posed is None else (ill_posed | s_sing)
     return {
         "P": P,
         "P_var": P_var,
         "P_var_linear": P_var_lin,
-        "P_bad": np.take(slow_bad, bins % m, axis=-1),
+        "P_bad": np.take(slow["bad"], bins % m, axis=-1),
         "P_undetermined": np.take(undetermined, bins % m, axis=-1),
         "s_condition": terms["s_condition"],
         "s_singular": s_sing,
-        "s_weak_rel_std": rho,
+        "s_weak_rel_std": slow["rho"],
     }
+
+
+def _slow_recovery(terms, *, closed_loop, ill_posed, dof, calibration=None) -> dict:
+    """The per-slow-bin part of :func:`_recover`, bin by bin (so that the values at a
+    subset of the bins are those of all bins there): ``rho`` with the ``calibration``
+    applied, the ``factor`` turning the first-order standard deviation into the calibrated
+    one, ``undetermined`` and ``bad`` (ill-posed or ``S`` singular).  Of
+    ``terms["P1_cov"]`` only whether it is None is read."""
+    s_sing, covariance = terms["s_singular"], terms["P1_cov"] is not None
+    rho, rho_v = terms["rho"], terms["rho_v"]
+    if calibration is not None and covariance:
+        root = np.sqrt(calibration)
+        rho, rho_v = rho * root, rho_v * root
+    lead_m = s_sing.shape
+    slow_factor = np.ones(lead_m)
+    undetermined = np.zeros(lead_m, dtype=bool)
+    if dof is not None:
+        slow_factor = slow_factor * small_sample_factor(dof)
+    if covariance and closed_loop == "indirect":
+        nl, undetermined = nonlinearity_factor(rho, rho_v)
+        undetermined = undetermined & ~s_sing
+        slow_factor = slow_factor * nl
+    return {"rho": rho, "factor": slow_factor, "undetermined": undetermined,
+            "bad": s_sing if ill_posed is None else (ill_posed | s_sing)}
 
 
 def packed_width(nz: int, nr: int, covariance: bool, n_exp: int = 1,
@@ -406,6 +419,33 @@ def _spread_ratio(R, Z, terms, **kwargs):
 BLOCK_BYTES = 8 << 20
 
 
+def _block_plan(R, Z, *, half_width, degrees, covariance, noise_covariance, experiment_axis,
+                instruments) -> dict:
+    """How :func:`_fit_blocks` cuts the circle for ``half_width`` (``instruments``: those of
+    ``denominator="iv"``, None for least squares): ``known`` (the window mean of a known
+    noise covariance, or None), ``half`` (the blocks cover bins ``0..M/2`` and the others
+    are mirrored), ``last`` (bins fitted), ``align`` (the moment restart interval, on
+    which every block starts) and ``edges`` (of the blocks)."""
+    known = None
+    if covariance and noise_covariance is not None:
+        known = window_mean(np.asarray(noise_covariance), half_width, axis=-3, circular=True)
+    m, nr, nz = R.shape[-2], R.shape[-1], Z.shape[-1]
+    n_exp = _n_experiments(R, Z, experiment_axis)
+    lead = np.broadcast_shapes(R.shape[:-2], Z.shape[:-2])
+    records = int(np.prod(lead, dtype=int)) // (n_exp or 1)  # outputs per bin
+    half = fits_half(R, Z, half_width=half_width, instruments=instruments)
+    if half and known is not None:  # bin M - k rebuilt from its own known covariance unless mirrored
+        half = hermitian(np.reshape(np.asarray(noise_covariance), (-1, m, nz * nz)))
+    last = m // 2 + 1 if half else m  # bins fitted; the others mirrored
+    align = _restart_interval(int(half_width))
+    per_bin = 16 * records * ((nz * nr) ** 2 if covariance else nz * nr)
+    step = align * max(1, BLOCK_BYTES // (per_bin * align))
+    # the last block ends on the restart grid too (or at M): the few bins past M/2 it
+    # fits are dropped for the mirror
+    edges = list(range(0, last, step)) + [min(m, -(-last // align) * align)]
+    return {"known": known, "half": half, "last": last, "align": align, "edges": edges}
+
+
 def _fit_blocks(R, Z, *, half_width, degrees, covariance, noise_covariance, experiment_axis,
                 closed_loop, denominator="ls", instruments=None, halves_instruments=None
                 ) -> dict:
@@ -418,23 +458,12 @@ def _fit_blocks(R, Z, *, half_width, degrees, covariance, noise_covariance, expe
     if iv and instruments is None:
         instruments = denominator_instruments(R, Z, degrees=degrees,
                                               experiment_axis=experiment_axis)
-    known = None
-    if covariance and noise_covariance is not None:
-        known = window_mean(np.asarray(noise_covariance), half_width, axis=-3, circular=True)
-    m, nr, nz = R.shape[-2], R.shape[-1], Z.shape[-1]
+    plan = _block_plan(R, Z, half_width=half_width, degrees=degrees, covariance=covariance,
+                       noise_covariance=noise_covariance, experiment_axis=experiment_axis,
+                       instruments=instruments if iv else None)
+    known, half, last, edges = plan["known"], plan["half"], plan["last"], plan["edges"]
+    m = R.shape[-2]
     n_exp = _n_experiments(R, Z, experiment_axis)
-    lead = np.broadcast_shapes(R.shape[:-2], Z.shape[:-2])
-    records = int(np.prod(lead, dtype=int)) // (n_exp or 1)  # outputs per bin
-    half = fits_half(R, Z, half_width=half_width, instruments=instruments if iv else None)
-    if half and known is not None:  # bin M - k rebuilt from its own known covariance unless mirrored
-        half = hermitian(np.reshape(np.asarray(noise_covariance), (-1, m, nz * nz)))
-    last = m // 2 + 1 if half else m  # bins fitted; the others mirrored
-    align = _restart_interval(int(half_width))
-    per_bin = 16 * records * ((nz * nr) ** 2 if covariance else nz * nr)
-    step = align * max(1, BLOCK_BYTES // (per_bin * align))
-    # the last block ends on the restart grid too (or at M): the few bins past M/2 it
-    # fits are dropped for the mirror
-    edges = list(range(0, last, step)) + [min(m, -(-last // align) * align)]
     out = axes = None
     for a, b in zip(edges[:-1], edges[1:]):
         block = _fit_terms(R, Z, half_width=half_width, degrees=degrees, circular=True,
@@ -707,9 +736,18 @@ def identify_spectra_auto(R, Z, *, n_fast: int, factor: int, nu: int, windows,
 
     Every candidate half-width (ascending) is fitted with its covariance, its fast FRF and
     calibrated variance recovered, and :func:`lcmr_xr.kernels.adaptive.select_windows`
-    picks one per slow bin; every returned array is then gathered bin by bin from the
-    chosen window's (a fast bin ``k`` from the choice at slow bin ``k mod M``).  The
-    squared model-error estimate of the chosen window is added to ``P_var``.
+    picks one per slow bin; every returned array is then the chosen window's, bin by bin
+    (a fast bin ``k`` from the choice at slow bin ``k mod M``).  The squared model-error
+    estimate of the chosen window is added to ``P_var``.
+
+    Memory (issue 18): of the candidates fitted before the widest, only what the choice
+    reads is kept (``P``, ``P_var``, ``P_var_linear`` on the fast bins, and the pooled
+    fits' calibration per slow bin); the widest candidate's outputs are kept whole, and
+    the bins where a narrower window wins are fitted again, in blocks of bins on that
+    window's restart grid (:func:`_refit_chosen`), which gives the values of its first
+    fit bit for bit.  The result is that of finishing every candidate and gathering
+    (:func:`finish_packed_auto` does so), without holding every candidate's per-bin
+    outputs at once.
 
     Returns
     -------
@@ -721,26 +759,182 @@ def identify_spectra_auto(R, Z, *, n_fast: int, factor: int, nu: int, windows,
         ``denominator`` as :func:`identify_spectra`: one first fit's instruments serve
         every candidate.
     """
+    R, Z = np.asarray(R), np.asarray(Z)
     windows = sorted(int(w) for w in windows)
     instruments = denominator_instruments(R, Z, degrees=degrees, experiment_axis=experiment_axis) \
         if check_denominator(denominator, degrees) else None
-    nz, nr = Z.shape[-1], R.shape[-1]
+    nz, nr, m = Z.shape[-1], R.shape[-1], R.shape[-2]
     ny = nz - nr if closed_loop == "indirect" else nz
-    # Emulates a per-bin window: one fit per candidate, each finished before the next is
-    # fitted (one candidate's covariance in memory at a time).  A kernel taking half_width
-    # per bin replaces the gather by a single fit at the chosen windows.
     n_exp = _n_experiments(R, Z, experiment_axis)
     # the split halves' first fits (pooled experiments, IV) also serve every candidate
     halves = half_instruments(R, Z, degrees=degrees, experiment_axis=experiment_axis,
                               denominator=denominator) \
         if (n_exp or 0) >= MIN_SPLIT_EXPERIMENTS else None
-    outs = [_fit_and_finish(R, Z, half_width=w, degrees=degrees, covariance=True,
-                            noise_covariance=noise_covariance, experiment_axis=experiment_axis,
-                            n_fast=n_fast, factor=factor, nu=nu, ny=ny,
-                            closed_loop=closed_loop, n_exp=n_exp, denominator=denominator,
-                            instruments=instruments, halves_instruments=halves)
-            for w in windows]
-    return _choose_windows(outs, np.asarray(windows, dtype=int), R.shape[-2])
+    fit = dict(degrees=degrees, noise_covariance=noise_covariance,
+               experiment_axis=experiment_axis, closed_loop=closed_loop,
+               denominator=denominator, instruments=instruments)
+    fast = calibrations = None  # (J, ..., K, ny, nu) per fast name; per candidate or None
+    held, held_bytes = {}, 0  # narrower candidates kept whole (within HELD_BYTES)
+    for j, w in enumerate(windows):
+        out = _fit_and_finish(R, Z, half_width=w, covariance=True, n_fast=n_fast,
+                              factor=factor, nu=nu, ny=ny, n_exp=n_exp,
+                              halves_instruments=halves, **fit)
+        if fast is None:
+            fast = {k: np.empty((len(windows),) + out[k].shape, out[k].dtype) for k in _FAST}
+            calibrations = [None] * len(windows)
+        for k in _FAST:
+            fast[k][j] = out.pop(k)
+        calibrations[j] = out.get("spread_calibration")
+        size = sum(v.nbytes for v in out.values())
+        if j < len(windows) - 1 and held_bytes + size <= HELD_BYTES:
+            held[j], held_bytes = out, held_bytes + size
+        if j < len(windows) - 1:
+            out = None  # (not held while the next candidate is fitted)
+    choice, bias2 = select_windows(fast["P"], fast["P_var"], fast["P_var_linear"], m)
+    fast_choice = np.take(choice, np.arange(bias2.shape[-3]) % m, axis=-1)
+    idx = fast_choice[None, ..., None, None]
+    for k in _FAST:  # the chosen candidate's, fast bin by fast bin
+        fast[k] = np.take_along_axis(fast[k], idx, axis=0)[0]
+    # ``out`` is the widest candidate's; the bins another window won are gathered from it
+    # if it is held, else fitted again
+    widest_undetermined = out["P_undetermined"].copy()
+    for j, o in held.items():
+        for name, value in o.items():
+            at = choice if value.shape[choice.ndim - 1] == m else fast_choice
+            np.copyto(out[name], value, where=(at == j).reshape(at.shape + (1,) * (value.ndim - at.ndim)))
+    refit = [j for j in range(len(windows) - 1) if j not in held and np.any(choice == j)]
+    del held
+    flags = {k: np.zeros(choice.shape, dtype=bool) for k in ("P_bad", "P_undetermined")}
+    for j in refit:
+        _refit_chosen(out, flags, choice == j, R, Z, half_width=windows[j], n_exp=n_exp,
+                      dof=window_dof(windows[j], nr, degrees, n_exp or 1),
+                      calibration=calibrations[j], **fit)
+    for k, slow in flags.items():  # the fast bins of the slow bins refitted
+        np.copyto(out[k], np.take(slow, np.arange(n_fast // 2 + 1) % m, axis=-1),
+                  where=np.isin(fast_choice, refit))
+    out.update(fast)
+    return _finish_choice(out, choice, fast_choice, bias2, widest_undetermined,
+                          np.asarray(windows, dtype=int))
+
+
+#: ``window="auto"`` (:func:`identify_spectra_auto`) keeps the per-bin outputs of narrower
+#: candidates whole while they take at most this many bytes together (short records: no
+#: second fit); beyond, only what the window choice reads, and the bins a narrower window
+#: wins are fitted again.
+HELD_BYTES = 8 << 20
+
+#: The outputs of :func:`_finish` on the fast bins (what the window choice reads).
+_FAST = ("P", "P_var", "P_var_linear")
+
+
+def _refit_chosen(out, flags, chosen, R, Z, *, half_width, degrees, noise_covariance,
+                  experiment_axis, closed_loop, denominator, instruments, n_exp, dof,
+                  calibration) -> None:
+    """Write the per-slow-bin outputs of the candidate ``half_width`` into ``out`` (the
+    outputs of :func:`_finish` of another candidate, over all bins) where ``chosen``
+    (..., M), and its slow-bin ``P_bad`` and ``P_undetermined`` into ``flags``.
+
+    Record by record (each record's own choice), the local model is fitted again in the
+    blocks of :func:`_fit_blocks` that hold a chosen bin (or the bin a chosen bin
+    mirrors), each cut down to the runs of the restart interval that do: a block starting
+    and ending on that grid gives the values of the whole fit at its bins, bit for bit
+    (:func:`lcmr_xr.kernels.local_models.local_model`, ``bins=``), and the per-bin steps
+    after the fit (:func:`slow_bin_terms`, :func:`_slow_recovery`) are bin by bin.
+    Whether the bins past ``M/2`` are mirrors is decided for all records at once, as the
+    first fit did.  ``calibration``: the candidate's pooled spread calibration per slow
+    bin (from its first fit; it is smoothed over bins).
+    """
+    iv = check_denominator(denominator, degrees)
+    plan = _block_plan(R, Z, half_width=half_width, degrees=degrees, covariance=True,
+                       noise_covariance=noise_covariance, experiment_axis=experiment_axis,
+                       instruments=instruments if iv else None)
+    lead = chosen.shape[:-1]
+    R, Z = _broadcast_leading(R, Z)  # (..., [E,] M, channels), ``...`` = ``lead``
+    known = plan.pop("known")
+    if known is not None:
+        known = np.broadcast_to(known, lead + known.shape[-3:])
+    if instruments is not None:
+        instruments = np.broadcast_to(instruments, Z.shape)
+    for i in np.ndindex(lead):
+        _refit_record({k: v[i] for k, v in out.items()}, {k: v[i] for k, v in flags.items()},
+                      chosen[i], R[i], Z[i], half_width=half_width, degrees=degrees,
+                      experiment_axis=experiment_axis, closed_loop=closed_loop,
+                      denominator=denominator,
+                      instruments=None if instruments is None else instruments[i],
+                      known=None if known is None else known[i], n_exp=n_exp, dof=dof,
+                      calibration=None if calibration is None else calibration[i], **plan)
+
+
+def _refit_record(out, flags, chosen, R, Z, *, half_width, degrees, experiment_axis,
+                  closed_loop, denominator, instruments, known, n_exp, dof, calibration,
+                  half, last, align, edges) -> None:
+    """:func:`_refit_chosen` of one record (``chosen`` (M,); ``out``, ``flags`` its views)."""
+    m = R.shape[-2]
+    need = chosen[:last].copy()  # fitted bins whose own value is chosen ...
+    if half:  # ... or whose mirror's is: bin M - t for t = M/2+1..M-1
+        need[1:(m - 1) // 2 + 1] |= chosen[m // 2 + 1:][::-1]
+    names = ("G", "T", "noise_variance", "condition", "ill_posed", "s_condition",
+             "s_singular", "G_var", "rho", "rho_v", "P1_cov")
+    for a, b in _chosen_runs(need, edges, align):
+        terms = _fit_terms(R, Z, half_width=half_width, degrees=degrees, circular=True,
+                           covariance=True,
+                           known_covariance=None if known is None else known[..., a:b, :, :],
+                           experiment_axis=experiment_axis, closed_loop=closed_loop,
+                           denominator=denominator, instruments=instruments, bins=(a, b),
+                           spread=False)
+        # its own bins a..min(b, last)-1; with ``half`` also bins t = M/2+1..M-1 whose
+        # mirror M - t is in a..b-1 (their terms are the conjugates, as _fit_blocks has them)
+        t = np.arange(max(m // 2 + 1, m - b + 1), min(m - 1, m - a) + 1) if half else np.arange(0)
+        for bins_, src in ((np.arange(a, min(b, last)), None), (t, m - t)):
+            keep = chosen[bins_]
+            if not keep.any():
+                continue
+            bins_, src = bins_[keep], (None if src is None else src[keep])
+            at = {}
+            for name in names:
+                v = np.take(terms[name], (bins_ if src is None else src) - a,
+                            axis=_bin_axis(name, n_exp))
+                at[name] = np.conj(v) if src is not None and v.dtype.kind == "c" else v
+            cal = None if calibration is None else calibration[bins_]
+            slow = _slow_recovery(at, closed_loop=closed_loop, ill_posed=at["ill_posed"],
+                                  dof=dof, calibration=cal)
+            # the per-slow-bin outputs of _finish (and of _recover) at these bins
+            got = {name: at[name] for name in names[:7]}
+            got.update(s_weak_rel_std=slow["rho"], P_bad=slow["bad"],
+                       P_undetermined=slow["undetermined"],
+                       G_var=at["G_var"] if cal is None else at["G_var"] * cal[..., None, None])
+            if cal is not None:
+                got["spread_calibration"] = cal
+            for name, value in got.items():
+                dst, ax = (flags[name], -1) if name in flags else (out[name],
+                                                                   _slow_axis(name, n_exp))
+                np.moveaxis(dst, ax, 0)[bins_] = np.moveaxis(value, ax, 0)
+        del terms
+
+
+def _chosen_runs(need, edges, align):
+    """The ``(start, stop)`` of the runs of restart intervals (``align`` bins) within the
+    blocks ``edges`` that hold a bin where ``need``: start on the grid, stop on it or at
+    the block's end (on the grid or ``M``)."""
+    runs = []
+    for a, b in zip(edges[:-1], edges[1:]):
+        starts = np.arange(a, b, align)
+        hit = np.array([need[s:min(s + align, b)].any() for s in starts], dtype=bool)
+        first = len(runs)  # (runs do not cross blocks: a block's covariance at most)
+        for i in np.flatnonzero(hit):
+            s, e = int(starts[i]), min(int(starts[i]) + align, b)
+            if len(runs) > first and runs[-1][1] == s:
+                runs[-1] = (runs[-1][0], e)
+            else:
+                runs.append((s, e))
+    return runs
+
+
+def _slow_axis(name, n_exp) -> int:
+    """The slow-bin axis (negative) of a per-slow-bin output of :func:`_finish`."""
+    if name in ("s_weak_rel_std", "spread_calibration"):
+        return -1
+    return _bin_axis(name, n_exp)
 
 
 def finish_packed_auto(packed, *, windows, nz: int, nr: int, n_fast: int, factor: int, nu: int,
@@ -788,6 +982,13 @@ def _choose_windows(outs, windows, m) -> dict:
         return out
 
     out = {name: gather(name) for name in list(outs[0])}
+    return _finish_choice(out, choice, fast_choice, bias2, widest_undetermined, windows)
+
+
+def _finish_choice(out, choice, fast_choice, bias2, widest_undetermined, windows) -> dict:
+    """The chosen candidate's outputs ``out`` (gathered bin by bin) with the model error
+    ``bias2`` of :func:`lcmr_xr.kernels.adaptive.select_windows` added to ``P_var``,
+    ``P_bias`` and ``window``."""
     b2 = np.take_along_axis(
         bias2, fast_choice.reshape((1,) + fast_choice.shape + (1, 1)), axis=0)[0]
     # The widest candidate has the most data: where even it cannot determine the weakest

@@ -133,7 +133,9 @@ def cholesky_planes(mr, mi, q, piv, rb):
     r0i = rb[1]
     r1r = rb[2]
     r1i = rb[3]
-    j = 0
+    # (not the literal 0: numba would compile _pivot_row once more for the literal, which
+    # the first pass of type inference sees before the loop's increment)
+    j = np.int64(0)
     while j < q:
         p = mr[j, j]
         if not p > 0.0:
