@@ -6,8 +6,10 @@ cost at most header reads."""
 
 from __future__ import annotations
 
+import json
 import multiprocessing as mp
 import os
+import re
 import time
 import warnings
 
@@ -325,3 +327,195 @@ def test_an_open_of_many_files_without_entries_warns_once_with_the_remedy(tmp_pa
     save(_labelled(7), d / "by_hand3.nc")
     with pytest.warns(RuntimeWarning, match=r"3 of the 7 files .* no current entry in its header index"):
         open_archive(d)
+
+
+# ------------------------------------------------------------------ review (session 9)
+def test_an_append_before_files_without_an_order_keeps_the_archive_openable(tmp_path):
+    # Files written by another tool carry no order: a new file goes before them, so the
+    # open's metadata test (kinds held to the first file's) must not depend on which file
+    # is first.  A float seed in the old files and an integer one in the new file: the
+    # append (which compares with one old file) accepted it, the open then refused.
+    from test_scaleout import _experiment
+
+    d = tmp_path / "d"
+    d.mkdir()
+    for i in range(2):
+        save(_experiment(i).assign_coords(experiment=f"run{i}").assign_attrs(seed=i + 0.5, case=2),
+             d / f"run{i}.nc")
+    index_archive(d)
+    append_to_archive(_experiment(5).assign_coords(experiment="run5").assign_attrs(seed=5, case=2), d)
+    got = _assert_same_as_oracle(d)
+    assert got.experiment.values.tolist() == ["run5", "run0", "run1"]
+    assert got.seed.values.tolist() == [5.0, 0.5, 1.5]
+
+
+@pytest.mark.parametrize("attr", ["units", "long_name"])
+def test_an_append_refuses_units_the_open_would_drop(tmp_path, attr):
+    # The open combines the variables' attributes with drop_conflicts; r, u, y without
+    # units or long_name are no experiment: the open refused the whole directory.
+    d = tmp_path / "d"
+    _archive(d, 2)
+    odd = _labelled(2)
+    odd["r"].attrs[attr] = "something else"
+    with pytest.raises(ValueError, match=rf"experiment 'run2': its variable 'r' has {attr} "
+                                         r"'something else' where run0\.nc has .*drop.*set it"):
+        append_to_archive(odd, d)
+    assert sorted(p.name for p in _files(d)) == ["run0.nc", "run1.nc"]
+    _assert_same_as_oracle(d)
+
+
+def test_an_append_never_reads_a_file_outside_the_directory_that_the_index_names(tmp_path, monkeypatch):
+    d = tmp_path / "d"
+    _archive(d, 2)
+    save(_labelled(9), tmp_path / "outside.nc")
+    rows = [(n, e[-1][0], e[-1][1], e[-1][3]) for n, e in dirindex.read_index(d).items()]
+    for bad in ("../outside.nc", str(tmp_path / "outside.nc")):
+        dirindex.write_index(d, [(bad, *rows[0][1:])] + rows)  # its first entry names it
+        headers = _calls(monkeypatch, dirx, "read_header")
+        append_to_archive(_labelled(len(_files(d))), d)
+        assert [p.parent for p in headers] == [d, d], headers  # a file of d, the new one
+        monkeypatch.undo()
+    _assert_same_as_oracle(d)
+
+
+def test_journal_entries_of_another_summary_version_are_not_trusted(tmp_path, monkeypatch):
+    # A summary's content is versioned by dirindex.VERSION (the base's attribute); journal
+    # files carried only their own format number, so a library with other summaries took
+    # them as its own.
+    d = tmp_path / "d"
+    _archive(d, 2)
+    append_to_archive(_labelled(2), d)
+    time.sleep(0.01)
+    assert "run2.nc" in dirindex.read_index(d)
+    # a journal file that does not say (written before they did) holds version 3
+    path = d / JOURNAL / dirindex.journal_files(d)[0]
+    data = json.loads(path.read_text())
+    assert data.pop(dirindex.INDEX_ATTR) == dirindex.VERSION == 3
+    path.write_text(json.dumps(data))
+    assert dirindex.trusted(dirindex.read_index(d), "run2.nc", (d / "run2.nc").stat()) is not None
+    monkeypatch.setattr(dirindex, "VERSION", dirindex.VERSION + 1)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        assert dirindex.read_index(d) is None
+    messages = [str(w.message) for w in caught]  # the base's and the journal file's
+    assert len(messages) == 2 and "index.nc ignored (version 3, this library reads version 4)" in messages[1]
+    assert re.search(r"\.json ignored \(summaries of version 3, this library reads version 4\)"
+                     r".*index_archive", messages[0]), messages
+    # and it writes and reads its own
+    index_archive(d)
+    append_to_archive(_labelled(3), d)
+    time.sleep(0.01)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert sorted(dirindex.read_index(d)) == ["run0.nc", "run1.nc", "run2.nc", "run3.nc"]
+
+
+def test_an_append_whose_file_another_writer_replaced_writes_no_entry_for_it(tmp_path, monkeypatch):
+    # Another process re-measures the same experiment between this write's rename and its
+    # stat: the entry then held this write's summary under the other file's stamp.
+    d = tmp_path / "d"
+    _archive(d, 2)
+    real = arc._write_checked
+
+    def raced(ds, path, ref, label):
+        out = real(ds, path, ref, label)
+        save(_labelled(2).assign_attrs(seed=99), d / "other.tmp")
+        os.replace(d / "other.tmp", path)
+        return out
+
+    monkeypatch.setattr(arc, "_write_checked", raced)
+    append_to_archive(_labelled(2), d)
+    monkeypatch.undo()
+    time.sleep(0.01)
+    got = _assert_same_as_oracle(d)
+    assert got.seed.values.tolist() == [0, 1, 99]
+
+
+def test_an_append_into_a_directory_never_replaces_an_experiment(tmp_path):
+    # append_to_archive adds experiments ("its label is taken" raises, as for a consolidated
+    # archive); into a directory it replaced the file of the same name without a word.
+    d = tmp_path / "d"
+    _archive(d, 2)
+    before = (d / "run1.nc").read_bytes()
+    for label in ("run1", "run1."):  # the same file name
+        with pytest.raises(ValueError, match=rf"experiment '{label}' is already in .*d \(run1\.nc\); "
+                                             r"give it a new label.*save_archive\(experiment, "):
+            append_to_archive(_labelled(1).assign_coords(experiment=label), d)
+    assert (d / "run1.nc").read_bytes() == before
+    assert _assert_same_as_oracle(d).experiment.values.tolist() == ["run0", "run1"]
+    save_archive(_labelled(1).assign_attrs(seed=11), d, layout="files")  # the remedy: replaced
+    assert open_archive(d).seed.values.tolist() == [0, 11]
+
+
+@pytest.mark.parametrize("damage", [('"attrs"', '"attrz"'), ('{"d":[["attrs"', '{"l":[["attrs"'),
+                                    ('["shape",{"d":', '["shape",{"l":')])
+def test_a_damaged_summary_in_a_current_entry_is_read_from_the_header(tmp_path, monkeypatch, damage):
+    # A summary that is valid JSON but not what the open uses (a damaged byte in a key or
+    # a tag) failed the open with a KeyError / TypeError from deep inside.
+    d = tmp_path / "d"
+    _archive(d, 2)
+    append_to_archive(_labelled(2), d)
+    path = d / JOURNAL / dirindex.journal_files(d)[0]
+    data = json.loads(path.read_text())
+    assert data["rows"][0][3].count(damage[0]) == 1
+    data["rows"][0][3] = data["rows"][0][3].replace(*damage)
+    path.write_text(json.dumps(data))
+    time.sleep(0.01)
+    headers = _calls(monkeypatch, dirx, "read_header")
+    got = _assert_same_as_oracle(d)
+    assert got.experiment.values.tolist() == ["run0", "run1", "run2"]
+    assert [p.name for p in headers] == ["run2.nc"]
+
+
+def test_a_journal_file_nested_too_deep_is_ignored_with_a_warning(tmp_path):
+    # json's parser raises RecursionError (no ValueError) on deep nesting: the open failed.
+    d = tmp_path / "d"
+    _archive(d, 2)
+    append_to_archive(_labelled(2), d)
+    (d / JOURNAL / "000000000009-1-junk.json").write_text("[" * 200_000)
+    time.sleep(0.01)
+    with pytest.warns(RuntimeWarning, match=r"000000000009-1-junk\.json ignored \(unreadable.*index_archive"):
+        got = _assert_same_as_oracle(d)
+    assert got.experiment.values.tolist() == ["run0", "run1", "run2"]
+
+
+def test_of_two_current_journal_entries_of_a_file_the_newest_is_taken(tmp_path, monkeypatch):
+    # "newest entry first" (dirindex.Index) sorted the journal's entries by summary text.
+    d = tmp_path / "d"
+    _archive(d, 2)
+    append_to_archive(_labelled(2), d)
+    newer = d / JOURNAL / dirindex.journal_files(d)[0]
+    data = json.loads(newer.read_text())
+    text = data["rows"][0][3]
+    assert text.count('["seed",2]') == 1
+    data["rows"][0][3] = text.replace('["seed",2]', '["seed",99]')  # sorts after the right one
+    older = d / JOURNAL / "000000000001-1-older.json"
+    older.write_text(json.dumps(data))
+    st = (d / "run2.nc").stat()
+    tick = max(st.st_mtime_ns, st.st_ctime_ns)
+    os.utime(older, ns=(tick + 1000, tick + 1000))
+    os.utime(newer, ns=(tick + 2000, tick + 2000))
+    headers = _calls(monkeypatch, dirx, "read_header")
+    got = _assert_same_as_oracle(d)
+    assert got.seed.values.tolist() == [0, 1, 2] and headers == []
+
+
+def test_an_append_whose_file_another_process_edited_writes_no_entry_for_it(tmp_path, monkeypatch):
+    # The same, the file edited in place (same inode) between the rename and the stat.
+    d = tmp_path / "d"
+    _archive(d, 2)
+    real = arc._write_checked
+
+    def raced(ds, path, ref, label):
+        out = real(ds, path, ref, label)
+        time.sleep(0.01)  # a later clock tick
+        with h5py.File(path, "r+") as f:
+            f.attrs["seed"] = np.int64(99)
+        return out
+
+    monkeypatch.setattr(arc, "_write_checked", raced)
+    append_to_archive(_labelled(2), d)
+    monkeypatch.undo()
+    time.sleep(0.01)
+    got = _assert_same_as_oracle(d)
+    assert got.seed.values.tolist() == [0, 1, 99]

@@ -232,11 +232,31 @@ def _summaries(directory: Path, paths: list[Path]):
         if text is not None:
             try:
                 summary = load(text)
-            except (ValueError, TypeError, KeyError):  # a damaged entry: read the header instead
+            except (ValueError, TypeError, KeyError, RecursionError):  # damaged: read the header
+                summary = None
+            if not _usable(summary):  # valid JSON, but not a summary (a damaged byte)
                 summary = None
         if summary is None:  # st None: gone (read_header says so)
             summary = _summary(dirx.read_header(path, directory))
         yield path, st, summary
+
+
+_SHAPE_KEYS = {"N", "factor", "Th", "inputs", "outputs"}
+
+
+def _usable(summary) -> bool:
+    """Whether a stored summary holds what the open uses, of the types :func:`_summary`
+    gives (a damaged entry decodes to something else: its header is read instead)."""
+    if (type(summary) is not dict or type(summary.get("attrs")) is not dict
+            or type(summary.get("scalars")) is not dict
+            or not isinstance(summary.get("experiment"), (bool, np.bool_))):
+        return False
+    if not summary["experiment"]:
+        return True
+    shape = summary.get("shape")
+    return (type(shape) is dict and _SHAPE_KEYS <= shape.keys()
+            and type(shape["inputs"]) is list and type(shape["outputs"]) is list
+            and type(summary.get("structure")) is str and type(summary.get("var_attrs")) is str)
 
 
 def _summary(header: dict) -> dict:
@@ -378,9 +398,10 @@ def save_archive(experiments, path, *, overwrite: bool = False, layout: str | No
     :func:`index_archive` writes it (every header read once).
 
     All experiments of an archive must agree as its open requires: the same shape and
-    metadata names, and the same variables, channel labels and time coordinates bit for
+    metadata names, the same variables, channel labels and time coordinates bit for
     bit in the files (a time coordinate that differs by rounding is refused, with the
-    remedy).  The directory is checked against ONE of its files (the first its index
+    remedy), and the same units and long_name of ``r``, ``u``, ``y`` (the open drops
+    conflicting ones, and signals without them are no experiment).  The directory is checked against ONE of its files (the first its index
     lists; its open refuses the directory unless every file agrees with it) and the
     files replaced, so a write costs the same whatever the directory holds; a mismatch
     is refused before anything is moved into place.
@@ -484,7 +505,8 @@ def append_to_archive(experiment, path) -> Path:
     (the partial row is ignored and overwritten by the next append).  Cost: one open of
     the file and the new experiment's data, not a pass over the archive.
 
-    Directory: the experiment's file is written atomically (checked against one file of
+    Directory: an experiment whose file exists is refused (:func:`save_archive` replaces
+    it); the experiment's file is written atomically (checked against one file of
     the directory before it is moved into place, see :func:`save_archive`), then its
     index entry as one journal file; an interrupted append leaves the directory without
     the experiment, or with it and (without its entry) read from its header at open.
@@ -507,7 +529,8 @@ def append_to_archive(experiment, path) -> Path:
     """
     path = Path(path)
     if path.is_dir():
-        return save_archive(experiment, path, layout="files")[-1]
+        items, first = _validated(experiment)
+        return _save_files(items, first, path, overwrite=False, add_only=True)[-1]
     if not path.exists():
         return save_archive(experiment, path, layout="consolidated")[0]
     if isinstance(experiment, xr.Dataset) and cv.EXPERIMENT not in experiment.coords:
@@ -594,7 +617,7 @@ def consolidate_archive(directory, path, *, overwrite: bool = False, progress=No
     return atomic_write(path, write)
 
 
-def _save_files(items, first, directory: Path, overwrite: bool) -> list[Path]:
+def _save_files(items, first, directory: Path, overwrite: bool, add_only: bool = False) -> list[Path]:
     """Write experiment files into an archive directory (see :func:`save_archive`).
 
     The cost does not grow with the directory (no listing, no pass over the entries):
@@ -615,6 +638,16 @@ def _save_files(items, first, directory: Path, overwrite: bool) -> list[Path]:
             "characters); give the experiments unique labels, e.g. "
             "ds.assign_coords(experiment=[f'run{i}' for i in range(n)])."
         )
+    if add_only:  # append_to_archive: never a file of the archive replaced
+        taken = [(label, n) for (label, _), n in zip(items, names) if (directory / n).exists()]
+        if taken:
+            label, name = taken[0]
+            raise ValueError(
+                f"experiment {label!r} is already in {directory} ({name}); give it a new label "
+                "(its file name comes from it), or replace that experiment (a re-measurement "
+                f"of the same shape) with save_archive(experiment, {str(directory)!r}, "
+                "layout='files')."
+            )
     directory.mkdir(parents=True, exist_ok=True)
     journal = dirindex.journal_files(directory)
     facts = dirindex.base_facts(directory)
@@ -664,24 +697,28 @@ def _save_files(items, first, directory: Path, overwrite: bool) -> list[Path]:
         if not out[cv.EXPERIMENT].attrs:
             out[cv.EXPERIMENT].attrs.update(cv.label_attrs("experiment"))
         out.attrs = {**out.attrs, ORDER_ATTR: start + i}
-        path, header = _write_checked(out, directory / name, ref, label)
+        path, header, ident = _write_checked(out, directory / name, ref, label)
         written.append(path)
-        try:
-            st = os.stat(path)
-        except OSError:  # replaced or removed by someone else already: no entry
-            continue
-        rows.append((name, dirindex.stamp(st), dirindex.summary_text(_summary(header)), start + i))
         if ref is None:  # the next ones must agree with the first one written
             ref = (path, header)
+        try:
+            st = os.stat(path)
+        except OSError:  # removed by someone else already: no entry
+            continue
+        if (st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns) != ident:  # replaced or edited
+            continue  # by someone else already: no entry (read from its header)
+        rows.append((name, dirindex.stamp(st), dirindex.summary_text(_summary(header)), start + i))
     _index_new_files(directory, rows, facts, len(journal))
     return written
 
 
-def _write_checked(ds: xr.Dataset, path: Path, ref, label) -> tuple[Path, dict]:
+def _write_checked(ds: xr.Dataset, path: Path, ref, label) -> tuple[Path, dict, tuple]:
     """Write ``ds`` to ``path`` atomically as :func:`lcmr_xr.io.save` does, unless the
     header of what was written (read back before it is moved into place) fails the test
     the directory's open applies against ``ref`` (``(path, header)`` of a file of the
-    archive; see :func:`_check_structure`).  Returns the path and the header."""
+    archive; see :func:`_check_structure`).  Returns the path, the header and the
+    file's ``(st_dev, st_ino, st_size, st_mtime_ns)`` (which the rename keeps: the entry
+    is the header's only if the file at ``path`` still has them)."""
     from lcmr_xr.io._atomic import atomic_write
     from lcmr_xr.io._guards import check_not_own_source
     from lcmr_xr.io.netcdf import _ENGINE, _flatten_attrs, _map_attrs
@@ -695,9 +732,11 @@ def _write_checked(ds: xr.Dataset, path: Path, ref, label) -> tuple[Path, dict]:
         header = dirx.read_header(Path(tmp), path.parent)
         if ref is not None:
             _check_structure(header, ref, label, path.parent)
-        got.append(header)
+            _check_units(header, ref, label)
+        st = os.stat(tmp)
+        got.extend([header, (st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns)])
 
-    return atomic_write(path, write), got[0]
+    return atomic_write(path, write), *got
 
 
 def _check_structure(header: dict, ref, label, directory: Path) -> None:
@@ -732,6 +771,23 @@ def _check_structure(header: dict, ref, label, directory: Path) -> None:
         "(names, shapes, types) or channel labels; an archive holds experiments of one "
         "structure. Save it to another archive (compare them with lcmr_xr.open_dataset)."
     )
+
+
+def _check_units(header: dict, ref, label) -> None:
+    """Refuse an experiment whose ``r``, ``u`` or ``y`` has other units or long_name than in
+    the archive's file ``ref``: the directory's open combines the variables' attributes
+    with ``drop_conflicts``, and signals without them are no experiment (it refuses the
+    directory)."""
+    for name in ("r", "u", "y"):
+        new, old = header["var_attrs"].get(name, {}), ref[1]["var_attrs"].get(name, {})
+        for attr in ("units", "long_name"):
+            if attr in new and attr in old and not dirx._equivalent(new[attr], old[attr]):
+                raise ValueError(
+                    f"experiment {label!r}: its variable {name!r} has {attr} {new[attr]!r} where "
+                    f"{ref[0].name} has {old[attr]!r}; the directory's open would drop the "
+                    f"conflicting {attr} and refuse the archive. Convert the experiment or set it "
+                    f"(exp[{name!r}].attrs[{attr!r}] = {old[attr]!r}), or save it to another archive."
+                )
 
 
 def _index_new_files(directory: Path, rows: list, known, journal: int) -> None:
@@ -1030,7 +1086,7 @@ def _open_directory(directory: Path, chunks) -> xr.Dataset:
             )
     metas = [(row["label"], row["meta"]) for row in files]
     try:
-        con.check_metadata(metas)
+        con.check_metadata(metas, _metadata_kinds(metas))
     except ValueError as err:
         raise ValueError(f"archive {directory}: {err}") from err
 
@@ -1076,6 +1132,16 @@ def _open_directory(directory: Path, chunks) -> xr.Dataset:
         return validate_experiment(combined, check_values=False)
     except ValueError as err:
         raise ValueError(f"archive {directory}: {err}") from err
+
+
+def _metadata_kinds(metas: list) -> dict:
+    """The metadata kinds a directory's files are held to: the first file's, an integer
+    made float where any file has a float (the coordinate is then float), so that the
+    verdict does not depend on which file comes first: an append, which checks ONE file,
+    puts its file before the files without an order (written by other tools)."""
+    want = con.check_metadata(metas[:1])
+    floats = {name for _, meta in metas for name, value in meta.items() if isinstance(value, float)}
+    return {name: "f" if kind == "i" and name in floats else kind for name, kind in want.items()}
 
 
 def _files_per_chunk(chunks, n_files: int) -> int:

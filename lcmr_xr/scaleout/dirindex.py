@@ -28,8 +28,8 @@ entry is also not trusted when the file was modified in the same clock tick as t
 was written (git's "racy" rule, the time of the base or of the journal file; the writers
 wait out that tick).  The journal is read before the base, so that a compaction running
 meanwhile costs at most header reads, never a wrong summary.  An index that cannot be
-read, or of another version, and a journal file that cannot be read are ignored with a
-warning.  Opening never writes.
+read, or of another version, and a journal file that cannot be read or holds summaries of
+another version are ignored with a warning.  Opening never writes.
 
 Concurrent writers: each write adds its own journal file, so two processes appending at
 once keep each other's entries.  A compaction holds an exclusive ``flock`` on the journal
@@ -63,6 +63,9 @@ INDEX_NAME = cv.ARCHIVE_INDEX_FILE
 JOURNAL_NAME = cv.ARCHIVE_INDEX_JOURNAL
 #: Key and version of a journal file (a file of another version is ignored with a warning).
 JOURNAL_KEY, JOURNAL_VERSION = "lcmr_archive_index_journal", 1
+#: The summary version (:data:`VERSION`, key :data:`INDEX_ATTR`) of a journal file that
+#: does not say (written before journal files said it: session 9's first version).
+JOURNAL_UNVERSIONED = 3
 #: A compaction is due when the journal holds this many files, or a sixteenth of the base's
 #: entries if that is more (an open reads every journal file; a compaction rewrites the base).
 JOURNAL_FILES = 128
@@ -258,7 +261,7 @@ def read_index(directory: Path, warn: bool = True, journal: list[str] | None = N
         for row in rows:
             index.setdefault(row[0], []).append(row[1:])
     for entries in index.values():  # the newest journal file first
-        entries.sort(key=lambda e: e[1], reverse=True)
+        entries.sort(key=lambda e: e[2], reverse=True)  # (stamp, text, written, order)
     base = _read_base(directory, warn)
     if base is not None:
         found = True
@@ -336,8 +339,17 @@ def base_facts(directory: Path) -> BaseFacts:
             first = f["name"].asstr()[0] if rows else None
     except (OSError, KeyError, ValueError, TypeError):
         return BaseFacts()
+    if first is not None and not plain_name(first):  # never a file outside the directory
+        first = None
     top = int(orders.max()) if orders.size and orders.max() >= 0 else None
     return BaseFacts(True, True, rows, top, first)
+
+
+def plain_name(name: str) -> bool:
+    """Whether ``name`` can be an experiment file of the directory: a visible ``*.nc`` name
+    without a directory part (an index never makes a writer open ``../x.nc`` or ``/x.nc``)."""
+    return (name.endswith(".nc") and not name.startswith(".") and "/" not in name
+            and os.sep not in name and (os.altsep is None or os.altsep not in name))
 
 
 def _ignored(path: Path, why: str, warn: bool) -> None:
@@ -439,7 +451,7 @@ def append_journal(directory: Path, rows: list[tuple[str, tuple, str, int]]) -> 
     journal.mkdir(exist_ok=True)
     top = max(max(r[3] for r in rows), 0)
     name = f"{top:012d}-{os.getpid()}-{os.urandom(6).hex()}.json"
-    data = {JOURNAL_KEY: JOURNAL_VERSION,
+    data = {JOURNAL_KEY: JOURNAL_VERSION, INDEX_ATTR: VERSION,
             "rows": [[r[0], list(r[1]), int(r[3]), r[2]] for r in rows]}
 
     def write(tmp):
@@ -459,13 +471,18 @@ def _read_journal(path: Path, warn: bool):
             data = json.loads(fh.read())
     except FileNotFoundError:
         return None
-    except (OSError, ValueError) as err:
+    except (OSError, ValueError, RecursionError) as err:  # RecursionError: nested too deep
         _ignored(path, f"unreadable: {err}", warn)
         return None
     try:
         if data.get(JOURNAL_KEY) != JOURNAL_VERSION:
             _ignored(path, f"version {data.get(JOURNAL_KEY)!r}, this library reads version "
                            f"{JOURNAL_VERSION}", warn)
+            return None
+        summaries = data.get(INDEX_ATTR, JOURNAL_UNVERSIONED)
+        if summaries != VERSION:  # what the summaries hold changed: not this library's
+            _ignored(path, f"summaries of version {summaries!r}, this library reads version "
+                           f"{VERSION}", warn)
             return None
         return [(str(name), tuple(int(v) for v in st), str(text), written, int(order))
                 for name, st, order, text in data["rows"]]
