@@ -25,7 +25,8 @@ degrees 3-3-3):
    lower) and the coverage of the 95 % discs per band (goal 90-99 % in every band; a
    flagged bin, whose band is unbounded, counts as covered), with the fraction of bins
    flagged undetermined and the median factor the split halves put on the pooled
-   covariance (``spread_calibration``); the goal lines say met or NOT met.
+   covariance (``spread_calibration``) and the median factor of the halves' ``P`` on its band
+   (``P_spread_calibration``, VCM/PZT); the goal lines say met or NOT met.
    ``--first-group g`` starts at group ``g`` (seeds ``500 + 8 g + e``);
    ``--band-forms`` prints instead the pooled coverage per form of the ``S^-1`` factor
    (:data:`BAND_FORMS`), each from the same pooled fit per group (:func:`pooled_band_forms`).
@@ -55,7 +56,7 @@ from lcmr_xr.kernels.adaptive import (K95, nonlinearity_factor, second_order_var
                                       small_sample_factor, weak_direction)
 from lcmr_xr.kernels.closed_loop import frf_variance_from_first_row, indirect_first_row
 from lcmr_xr.kernels.lifting import frf_from_first_block_row
-from lcmr_xr.kernels.pooling import half_variances, spread_calibration
+from lcmr_xr.kernels.pooling import half_variances, p_spread_factor, spread_calibration
 from lcmr_xr.simulation import simulate_closed_loop
 
 N, CASE, WINDOW, DEGREES = 3600, 2, 30, (3, 3, 3)
@@ -209,7 +210,10 @@ def disturbances_pooled(groups: int, n_exp: int = 8, denominators=("ls", "iv"),
                     cal = frf.get("spread_calibration")
                     sf = frf.slow_frequency.values
                     c = 1.0 if cal is None else np.median(cal.values[(sf >= lo) & (sf < hi) & (sf > 0)])
-                    extra.append([[flagged, c]] * 2)
+                    # the halves' factor on the band of P, median per input (1 for one record)
+                    pcal = frf.get(cv.P_SPREAD_CALIBRATION)
+                    pc = [1.0, 1.0] if pcal is None else np.median(pcal.values[sel, 0], axis=0)
+                    extra.append([[flagged, c, pc[0]], [flagged, c, pc[1]]])
                 stats[name, d].append(np.concatenate(
                     [np.stack([t.median_error.values, t.coverage.values], axis=-1),
                      np.array(extra)], axis=-1))
@@ -236,7 +240,9 @@ def report_disturbances(bands, stats, n_exp=8):
                      c1[0], c1[1]]
             print(f"   {f'{lo:g}-{hi:g}':<15}" + "".join(f"{c:>11.3g}" for c in cells)
                   + f"   flagged {stats['pooled', d][:, b, 0, 2].mean():.2f}, spread "
-                    f"calibration {np.median(stats['pooled', d][:, b, 0, 3]):.2f}")
+                    f"calibration {np.median(stats['pooled', d][:, b, 0, 3]):.2f}, factor on P "
+                    f"{np.median(stats['pooled', d][:, b, 0, 4]):.2f}/"
+                    f"{np.median(stats['pooled', d][:, b, 1, 4]):.2f}")
         cover = stats["pooled", d][:, :, :, 1].mean(axis=0)  # (band, input)
         misses = [f"{lo:g}-{hi:g} Hz {name} {cover[b, i]:.3f}" for b, (lo, hi) in enumerate(bands)
                   for i, name in enumerate(hdd.INPUTS) if not 0.90 <= cover[b, i] <= 0.99]
@@ -260,6 +266,9 @@ BAND_FORMS = {
     "1/(1 - k rho)": lambda v, v2, q, rv: v / (1 - q) ** 2,
     "no c_S": lambda v, v2, q, rv: v,
 }
+#: The form ``identify`` uses for pooled fits calibrated by their halves (on top of the
+#: halves' factor on ``P``, ``P_spread_calibration``); single records keep the bound form.
+PRODUCTION_FORM = "1/(1 - k rho)"
 
 
 def _halves(R, Z, kw, covariance):
@@ -420,6 +429,7 @@ def _band_pieces(fit, kw, out, ratio=None):
     ``identify`` would compute with it: the undetermined flag recomputed)."""
     production = ratio is None
     cal = spread_calibration(fit["spread_ratio"] if production else ratio)
+    pf = 1.0
     G, C = fit["G"], fit["G_cov"] * cal[..., None, None]
     n_fast, f_, nu, ny = kw["n_fast"], kw["factor"], kw["nu"], kw["ny"]
     nr = f_ * nu
@@ -438,18 +448,22 @@ def _band_pieces(fit, kw, out, ratio=None):
     und_slow = nonlinearity_factor(rho, rho_v)[1] & ~fit["s_singular"]
     und = und_slow[slow][:, None, None]
     if production:
-        # the pieces are production's: the bound form gives identify's P_var (and v its
-        # P_var_linear), the flag is identify's
+        # the pieces are production's: its form times the halves' factor on P gives
+        # identify's P_var (and v its P_var_linear), the flag is identify's
         np.testing.assert_array_equal(und[:, 0, 0], out["P_undetermined"])
+        P_h = [frf_from_first_block_row(fit[h], f_)[..., : bins.size, :, :]
+               for h in ("P1_half_a", "P1_half_b")]
+        pf = p_spread_factor(*P_h, v, und[:, 0, 0], weight=fit["half_weight"][slow])
+        np.testing.assert_allclose(pf, out["P_spread_calibration"], rtol=1e-12)
         with np.errstate(divide="ignore", invalid="ignore"):
             check = np.where(und, np.inf,
-                             dof ** 2 * BAND_FORMS["bound c_S"](v, v2, K95 * rho[slow, None, None],
-                                                                rho_v[slow, None, None]))
+                             dof ** 2 * pf * BAND_FORMS[PRODUCTION_FORM](
+                                 v, v2, K95 * rho[slow, None, None], rho_v[slow, None, None]))
         ok = np.isfinite(out["P_var"])
         np.testing.assert_allclose(check[ok], out["P_var"][ok], rtol=1e-9)
         np.testing.assert_allclose(v, out["P_var_linear"], rtol=1e-9)
     return dict(v=v, v2=v2, q=K95 * rho[slow, None, None], rho_v=rho_v[slow, None, None],
-                dof=dof, und=und, P=out["P"], cal=cal, t2=t2)
+                dof=dof, und=und, P=out["P"], cal=cal, t2=t2, pf=pf)
 
 
 def pooled_band_forms(groups: int, first_group: int = 0, n_exp: int = 8, denominator="iv",
@@ -520,7 +534,7 @@ def pooled_band_forms(groups: int, first_group: int = 0, n_exp: int = 8, denomin
                 undetermined = chosen(und) | und[-1]
                 var_c = np.where(undetermined, np.inf, chosen(var) + chosen(bias2))
                 P_c = chosen(P)
-                first = cal_name == "production" and name == "bound c_S"
+                first = cal_name == "production" and name == PRODUCTION_FORM
                 if first:  # identify's own result
                     np.testing.assert_allclose(np.sqrt(var_c), pooled.P_std.values, rtol=1e-9)
                     np.testing.assert_array_equal(P_c, pooled.P.values)
@@ -529,7 +543,7 @@ def pooled_band_forms(groups: int, first_group: int = 0, n_exp: int = 8, denomin
                     v2 = np.stack([p["v2"] for p in pieces])
                     dof = np.stack([np.broadcast_to(p["dof"], p["v"].shape) for p in pieces])
                     with np.errstate(divide="ignore", invalid="ignore"):
-                        cs = chosen(1 + K95 * rv / (1 - q))
+                        cs = chosen(1 / (1 - q))
                         r2 = chosen(v2 / v)
                         # the error over the calibrated first-order variance (ln 2 = 0.69 if right)
                         z = np.abs(P_c - truth) ** 2 / (chosen(dof) ** 2 * chosen(v))
@@ -543,7 +557,7 @@ def pooled_band_forms(groups: int, first_group: int = 0, n_exp: int = 8, denomin
                         # (fast bins, both inputs, for the factors on P)
                         ssel = (sf > lo) & (sf < hi)
                         factor[cal_name][gi, b] = (np.median(pieces[-1]["pf"][sel])
-                                                   if "pf" in pieces[-1] else
+                                                   if cal_name in P_CALIBRATIONS else
                                                    np.median(pieces[-1]["cal"][ssel]))
                     if first:
                         keep = sel & ~undetermined[:, 0, 0]
@@ -625,7 +639,9 @@ def pooling_cost(n_exp: int = 64, repeat: int = 3, calibrations=(), loop: bool =
     """Seconds (best of ``repeat``, the variants run in turn each round so that a change
     of load hits them alike): ``n_exp`` experiments pooled, with production's split-half
     calibration and with each of ``calibrations`` (names of :data:`CALIBRATIONS`, swapped
-    in for production's ratio) and without any (``"no calibration"``), against
+    in for production's ratio), with the calibration of ``G_cov`` alone (``"G calibration
+    only"``: no factor on ``P``, the band as before it) and without any (``"no
+    calibration"``), against
     identifying them one by one in one call and (``loop``) in a loop of calls."""
     from lcmr_xr.kernels import identification as kid
 
@@ -638,9 +654,15 @@ def pooling_cost(n_exp: int = 64, repeat: int = 3, calibrations=(), loop: bool =
         spread, limit = kid._spread_ratio, kid.MIN_SPLIT_EXPERIMENTS
         if name == "no calibration":
             kid.MIN_SPLIT_EXPERIMENTS = n_exp + 1
+        elif name == "G calibration only":  # no factor on P (the halves' P not formed)
+            def ratio_only(R, Z, t, **k):
+                G_var = np.where(t["ill_posed"][..., None, None], np.nan, t["G_var"])
+                k.pop("closed_loop", None)
+                return {"spread_ratio": kid.split_half_spread(R, Z, G_var, **k)}
+            kid._spread_ratio = ratio_only
         elif name != "pooled":
             fn = CALIBRATIONS[name]
-            kid._spread_ratio = lambda R, Z, t, **k: fn(R, Z, t, k)
+            kid._spread_ratio = lambda R, Z, t, **k: {"spread_ratio": fn(R, Z, t, k)}
         try:
             yield
         finally:
@@ -652,7 +674,7 @@ def pooling_cost(n_exp: int = 64, repeat: int = 3, calibrations=(), loop: bool =
 
     runs = {"pooled": lambda: pooled("pooled")}
     runs.update({name: (lambda name=name: pooled(name))
-                 for name in ("no calibration", *calibrations)})
+                 for name in ("G calibration only", "no calibration", *calibrations)})
     runs["one by one, one call"] = lambda: lcmr_xr.identify(exps, **kw)
     if loop:
         runs["one by one, loop"] = lambda: [lcmr_xr.identify(exps.isel(experiment=e), **kw)

@@ -79,7 +79,9 @@ POOLED_VARIABLES = (PERIOD_NOISE_VARIANCE_U, PERIOD_NOISE_VARIANCE_Y)
 # covariance from the spread between the even- and odd-numbered experiments' fits
 # (docs/uncertainty.md, "Pooled experiments"), per slow bin.
 SPREAD_CALIBRATION = "spread_calibration"
-COMBINED_VARIABLES = (SPREAD_CALIBRATION,)
+# ... and the factor on the band of P from the two halves' own P, per fast bin and entry.
+P_SPREAD_CALIBRATION = "P_spread_calibration"
+COMBINED_VARIABLES = (SPREAD_CALIBRATION, P_SPREAD_CALIBRATION)
 
 # Attribute names.
 CONVENTIONS_ATTR = "conventions"  # value CONVENTIONS, on experiment and FRF datasets

@@ -204,14 +204,15 @@ print(table.to_dataframe(name="median relative error")["median relative error"].
 # covered).  Pooling shrinks the noise scatter as `1/E`, but least squares gives the LRM a
 # noise-induced bias that all experiments share (its denominator regressors carry the
 # noise).  So pooled fits estimate the denominator by instrumental variables by default
-# (`denominator="iv"`, recorded in `attrs["denominator"]`): measured over 6 groups of 8,
-# coverage 0.89-0.995 per band above 500 Hz (least squares: 0.73-0.98).  Below 500 Hz,
-# where the data barely determine `S`, the local model's own covariance is 2-3x too small;
-# pooled fits therefore also fit the even- and odd-numbered experiments apart and scale
-# the covariance by their spread (`spread_calibration`), which brings that band from
-# 0.77-0.78 to 0.94-0.95 (least squares 0.93-0.96); the last cell compares the two
-# denominators.  `docs/uncertainty.md` ("Pooled bands: the covariance checked by split
-# halves") has the numbers.
+# (`denominator="iv"`, recorded in `attrs["denominator"]`).  Below 500 Hz, where the data
+# barely determine `S`, the local model's own covariance is 2-3x too small; pooled fits
+# therefore also fit the even- and odd-numbered experiments apart and scale the covariance
+# by their spread (`spread_calibration`), and the halves' own `P` put a factor on the band
+# of `P` (`P_spread_calibration`).  Measured over 6 groups of 8: IV coverage 0.94 below
+# 500 Hz (0.77-0.78 without the halves) and 0.905-0.967 per band above (least squares:
+# 0.93-0.96 and 0.77-0.93); the last cell compares the two denominators.
+# `docs/uncertainty.md` ("Pooled bands: the covariance checked by split halves", "The band
+# of `P` from the halves' `P`") has the numbers.
 
 # %%
 coverage = xr.concat([band_table(frf_one, truth_e).coverage, band_table(frf_pooled, truth_e).coverage],

@@ -70,8 +70,9 @@ def test_accuracy_band_forms_reproduce_identify():
 
 def test_pooling_band_forms_reproduce_identify():
     """The pooled band-form tool (benchmarks/pooling.py --band-forms) rebuilds the pooled
-    band from its pieces: it checks inside that its bound form with production's
-    calibration is identify's own P_std (to 1e-9), P and flag; the forms then differ where
+    band from its pieces: it checks inside that production's form (pooled: ``1 / (1 - k
+    rho)`` times the halves' factor on P) with production's calibration is identify's own
+    P_std (to 1e-9), P and flag; the forms then differ where
     they should, and the other calibrations (of G_cov, and the factor on P) give factors
     of at least 1 and coverages."""
     module = _load("pooling")

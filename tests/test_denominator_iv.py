@@ -111,7 +111,11 @@ def test_pooled_iv_band_covers_where_least_squares_is_biased():
     """8 pooled experiments, white output noise 0.2, window 30 (SISO, F = 2): least squares'
     errors-in-variables bias does not shrink with pooling, so its band is too narrow; the
     IV band is calibrated.  Measured (these 4 seeds): coverage LS 0.878, IV 0.938; mean squared
-    error over band variance (median over seeds) LS 1.88, IV 1.04; mse LS 6.3e-4, IV 3.7e-4."""
+    error over band variance (median over seeds) LS 1.88, IV 1.04; mse LS 6.3e-4, IV 3.7e-4.
+    With the halves' factor on the band of ``P`` (``P_spread_calibration``, a median over
+    13 fast bins whose errors the 61-bin window correlates, floored at 1: about 1.7 in the
+    mean where the band is right) the IV band is wider: mse over band variance 0.57,
+    coverage 0.956-0.962 (seeds 0, 1)."""
     n = 960
     truth = _true_frf(PLANT, n)[1:-1]
     k95 = np.sqrt(np.log(20.0))
@@ -127,7 +131,7 @@ def test_pooled_iv_band_covers_where_least_squares_is_biased():
     assert 0.90 <= iv[:, 0].mean() <= 0.99, iv[:, 0]
     assert ls[:, 0].mean() < iv[:, 0].mean() - 0.03, (ls[:, 0], iv[:, 0])
     assert iv[:, 1].mean() < 0.8 * ls[:, 1].mean()  # the bias is gone from the error
-    assert 0.7 < iv[:, 1].mean() / iv[:, 2].mean() < 1.4  # mse / band variance
+    assert 0.45 < iv[:, 1].mean() / iv[:, 2].mean() < 1.4  # mse / band variance
 
 
 def test_frequency_chunked_iv_equals_eager():

@@ -137,7 +137,7 @@ def test_identify_pooled_returns_the_factor_with_odd_counts_and_in_chunks():
                        frequency_chunks=40).compute()
     # 1e-6 as test_denominator_iv's chunked test: the moments of a haloed block are summed
     # in another order and the IV normal equations (of the pool and of each half) amplify it
-    for name in (cv.SPREAD_CALIBRATION, "P_std"):
+    for name in (cv.SPREAD_CALIBRATION, cv.P_SPREAD_CALIBRATION, "P_std"):
         np.testing.assert_allclose(chunked[name].values, frf[name].values, rtol=1e-6)
     few = identify(ds.isel(experiment=slice(0, MIN_SPLIT_EXPERIMENTS - 1)), window=20,
                    combine="experiment")
@@ -216,7 +216,7 @@ def test_auto_window_in_frequency_chunks_equals_eager():
     c = frf[cv.SPREAD_CALIBRATION].values
     assert np.all(c >= 1) and c.max() > 1.5  # the resonance is seen
     np.testing.assert_array_equal(chunked["local_window"].values, frf["local_window"].values)
-    for name in (cv.SPREAD_CALIBRATION, "P_std", "S_std", "P"):
+    for name in (cv.SPREAD_CALIBRATION, cv.P_SPREAD_CALIBRATION, "P_std", "S_std", "P"):
         np.testing.assert_allclose(chunked[name].values, frf[name].values, rtol=1e-6)
 
 

@@ -149,7 +149,10 @@ def identify(experiment: xr.Dataset, *, method: str = "lrm", window=DEFAULT_WIND
         ``pooled_experiments``.  With a covariance and at least 4 experiments, the even-
         and odd-numbered experiments are also fitted apart and the covariance is scaled
         per slow bin by their spread (variable ``spread_calibration``, at least 1;
-        docs/uncertainty.md).  Lazy data work along the other leading dims (not with
+        docs/uncertainty.md); their ``P`` put a further factor on the variance of ``P``
+        per fast bin and entry (``P_spread_calibration``, at least 1), and the band's
+        factor for the nonlinearity of ``S^-1`` is the milder ``1 / (1 - k rho)``.  Lazy
+        data work along the other leading dims (not with
         ``frequency_chunks``).  ``degrees`` with ``Rm = -1`` (no transient term) is
         accepted only for steady-state periodic records (a ``period`` dim, transient
         periods dropped).
@@ -358,7 +361,8 @@ def output_specs(closed_loop: str, stacked: bool = False,
     if auto:
         specs += [("P_bias", [FQ, cv.OUTPUT, cv.INPUT], float), ("local_window", [SF], int)]
     if pooled:
-        specs += [(cv.SPREAD_CALIBRATION, [SF], float)]
+        specs += [(cv.SPREAD_CALIBRATION, [SF], float),
+                  (cv.P_SPREAD_CALIBRATION, [FQ, cv.OUTPUT, cv.INPUT], float)]
     if closed_loop == "indirect":
         specs += [
             ("S", [SF, LP, cv.INPUT, LP2, IN2], complex),
@@ -437,6 +441,9 @@ def _split(out: dict, specs, *, factor: int, nu: int, ny: int, closed_loop: str)
     # pooled experiments: the split-half factor on the covariance (NaN where none was
     # computed: no covariance, fewer than 4 experiments, or window 0, no local model)
     pieces[cv.SPREAD_CALIBRATION] = out.get("spread_calibration", np.full(lead_m, np.nan))
+    # and the halves' factor on the band of P (the same cases NaN)
+    pieces[cv.P_SPREAD_CALIBRATION] = out.get("P_spread_calibration",
+                                              np.full(out["P"].shape, np.nan))
     if "window" in out:  # window="auto"
         pieces["P_bias"] = out["P_bias"]
         pieces["local_window"] = out["window"]
@@ -758,6 +765,8 @@ def _label(out, ds, *, factor, th):
         "P_bias": ("estimated model error of P", p_units),
         "local_window": ("chosen local window half-width n", "1"),
         cv.SPREAD_CALIBRATION: ("factor on the pooled covariance from the split-half spread", "1"),
+        cv.P_SPREAD_CALIBRATION: ("factor on the pooled variance of P from the split halves' P",
+                                  "1"),
         "G": ("lifted local model [S; PS] (rows: response, columns: excitation)",
               f"{_ratio_units(u_units, ru)} (u rows), {_ratio_units(y_units, ru)} (y rows)"),
         "G_std": ("standard deviation of G",

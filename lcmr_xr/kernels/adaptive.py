@@ -52,6 +52,7 @@ from lcmr_xr.kernels.lifting import first_block_row_weights
 
 __all__ = [
     "K95", "UNDETERMINED_LIMIT", "candidate_windows", "nonlinearity_factor",
+    "pooled_nonlinearity_factor",
     "second_order_variance", "small_sample_factor", "weak_direction", "whitened_weak_direction", "select_windows",
 ]
 
@@ -218,6 +219,25 @@ def nonlinearity_factor(rho, rho_v, limit: float = UNDETERMINED_LIMIT):
     undetermined = ~(q <= limit)
     with np.errstate(divide="ignore", invalid="ignore"):
         factor = 1.0 + K95 * np.asarray(rho_v, dtype=float) / (1.0 - q)
+    return np.where(undetermined, np.inf, factor), undetermined
+
+
+def pooled_nonlinearity_factor(rho, limit: float = UNDETERMINED_LIMIT):
+    """The milder factor of pooled fits whose band of ``P`` is calibrated by split halves.
+
+    Returns ``(factor, undetermined)`` as :func:`nonlinearity_factor`, with the factor
+    ``1 / (1 - K95 rho)`` (the geometric series of ``(I - dS S^-1)^-1`` alone) instead of
+    the bound form ``1 + K95 rho_v / (1 - K95 rho)``.  The bound form makes up for a
+    first-order covariance that understates the error (single records); where the
+    halves' ``P`` calibrate the band itself
+    (:func:`lcmr_xr.kernels.pooling.p_spread_factor`) that part is measured, and the
+    bound form over-covers 500-5000 Hz (docs/uncertainty.md, "Pooled bands").  The
+    undetermined flag is the same.
+    """
+    q = K95 * np.asarray(rho, dtype=float)
+    undetermined = ~(q <= limit)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        factor = 1.0 / (1.0 - q)
     return np.where(undetermined, np.inf, factor), undetermined
 
 

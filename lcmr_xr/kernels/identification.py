@@ -9,14 +9,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from lcmr_xr.kernels.adaptive import (nonlinearity_factor, select_windows, small_sample_factor,
-                                      weak_direction)
+from lcmr_xr.kernels.adaptive import (nonlinearity_factor, pooled_nonlinearity_factor,
+                                      select_windows, small_sample_factor, weak_direction)
 from lcmr_xr.kernels.closed_loop import frf_variance_from_first_row, indirect_first_row
 from lcmr_xr.kernels.lifting import frf_from_first_block_row, lift
 from lcmr_xr.kernels.local_models import (_restart_interval, fits_half, hermitian, local_model,
                                           parameters_per_row)
 from lcmr_xr.kernels.pooling import (MIN_SPLIT_EXPERIMENTS, group_weight, half_variances,
-                                     mean_and_covariance, pooled_least_squares,
+                                     mean_and_covariance, p_spread_factor, pooled_least_squares,
                                      rescale_covariance, split_halves, spread_calibration,
                                      spread_ratio, window_mean)
 
@@ -246,17 +246,25 @@ def slow_bin_terms(G, G_cov, *, nr: int, closed_loop: str = "indirect",
 
 
 def _recover(terms, *, n_fast, factor, nu, ny, closed_loop, ill_posed, dof,
-             calibration=None) -> dict:
+             calibration=None, halves=None) -> dict:
     """The fast FRF from :func:`slow_bin_terms` of every slow bin (:func:`recover_frf`).
 
     ``calibration`` (..., M), optional: the pooled fits' factor on ``G_cov``
     (:func:`lcmr_xr.kernels.pooling.spread_calibration`), applied here to what the terms
     derive from it: ``P1_cov`` scales with it, ``rho`` and ``rho_v`` with its square root.
+    ``halves`` (with ``calibration``): the split halves' first block rows ``P1_a``, ``P1_b``
+    (each (..., M, ny, nr)) and the weight of their difference (..., M)
+    (:func:`split_half_spread`): their ``P`` against the calibrated ``P_var_linear`` gives
+    :func:`lcmr_xr.kernels.pooling.p_spread_factor`, which multiplies ``P_var`` (returned
+    as ``P_spread_calibration``), and the nonlinearity factor is then the milder pooled
+    form (:func:`lcmr_xr.kernels.adaptive.pooled_nonlinearity_factor`).
     """
     f_ = int(factor)
+    p_factor = None
     P1, s_sing = terms["P1"], terms["s_singular"]
+    mild = halves is not None and calibration is not None
     slow = _slow_recovery(terms, closed_loop=closed_loop, ill_posed=ill_posed, dof=dof,
-                          calibration=calibration)
+                          calibration=calibration, mild=mild)
     P1_cov, undetermined = terms["P1_cov"], slow["undetermined"]
     if calibration is not None and P1_cov is not None:
         P1_cov = P1_cov * calibration[..., None, None]
@@ -267,11 +275,19 @@ def _recover(terms, *, n_fast, factor, nu, ny, closed_loop, ill_posed, dof,
         P_var_lin = frf_variance_from_first_row(P1_cov, n_fast, f_, bins, ny, nu)
         fast_factor = np.take(np.where(undetermined, 1.0, slow["factor"]), bins % m, axis=-1)
         P_var = P_var_lin * fast_factor[..., None, None] ** 2
+        fast_undetermined = np.take(undetermined, bins % m, axis=-1)
+        if mild:
+            P_halves = [frf_from_first_block_row(h, f_)[..., : n_fast // 2 + 1, :, :]
+                        for h in halves[:2]]
+            p_factor = p_spread_factor(*P_halves, P_var_lin, fast_undetermined,
+                                       weight=np.take(halves[2], bins % m, axis=-1))
+            P_var = P_var * p_factor
         # unbounded where undetermined (also where the first-order variance is 0 or NaN)
-        P_var = np.where(np.take(undetermined, bins % m, axis=-1)[..., None, None], np.inf, P_var)
+        P_var = np.where(fast_undetermined[..., None, None], np.inf, P_var)
     else:
         P_var_lin = P_var = np.full(P.shape, np.nan)
-    return {
+    extra = {} if p_factor is None else {"P_spread_calibration": p_factor}
+    return {**extra,
         "P": P,
         "P_var": P_var,
         "P_var_linear": P_var_lin,
@@ -283,11 +299,14 @@ def _recover(terms, *, n_fast, factor, nu, ny, closed_loop, ill_posed, dof,
     }
 
 
-def _slow_recovery(terms, *, closed_loop, ill_posed, dof, calibration=None) -> dict:
+def _slow_recovery(terms, *, closed_loop, ill_posed, dof, calibration=None,
+                   mild: bool = False) -> dict:
     """The per-slow-bin part of :func:`_recover`, bin by bin (so that the values at a
     subset of the bins are those of all bins there): ``rho`` with the ``calibration``
     applied, the ``factor`` turning the first-order standard deviation into the calibrated
-    one, ``undetermined`` and ``bad`` (ill-posed or ``S`` singular).  Of
+    one (``mild``: a pooled fit's band calibrated by its halves' ``P``, the pooled form of
+    the nonlinearity factor; the flag is the same), ``undetermined`` and ``bad``
+    (ill-posed or ``S`` singular).  Of
     ``terms["P1_cov"]`` only whether it is None is read."""
     s_sing, covariance = terms["s_singular"], terms["P1_cov"] is not None
     rho, rho_v = terms["rho"], terms["rho_v"]
@@ -300,7 +319,9 @@ def _slow_recovery(terms, *, closed_loop, ill_posed, dof, calibration=None) -> d
     if dof is not None:
         slow_factor = slow_factor * small_sample_factor(dof)
     if covariance and closed_loop == "indirect":
-        nl, undetermined = nonlinearity_factor(rho, rho_v)
+        # pooled fits calibrated by split halves: the milder form (their P calibrates the band)
+        nl, undetermined = (pooled_nonlinearity_factor(rho) if mild
+                            else nonlinearity_factor(rho, rho_v))
         undetermined = undetermined & ~s_sing
         slow_factor = slow_factor * nl
     return {"rho": rho, "factor": slow_factor, "undetermined": undetermined,
@@ -310,10 +331,10 @@ def _slow_recovery(terms, *, closed_loop, ill_posed, dof, calibration=None) -> d
 def packed_width(nz: int, nr: int, covariance: bool, n_exp: int = 1,
                  closed_loop: str = "indirect") -> int:
     """Length of the last axis of :func:`fit_packed`'s output (``n_exp`` transients; with
-    ``n_exp >= MIN_SPLIT_EXPERIMENTS`` and ``covariance``, one more column for the
-    split-half spread ratio)."""
+    ``n_exp >= MIN_SPLIT_EXPERIMENTS`` and ``covariance``, more columns for the split-half
+    spread ratio and the halves' first block rows)."""
     ny = nz - nr if closed_loop == "indirect" else nz
-    spread = 1 if covariance and n_exp >= MIN_SPLIT_EXPERIMENTS else 0
+    spread = 2 + 2 * ny * nr if covariance and n_exp >= MIN_SPLIT_EXPERIMENTS else 0
     reduced = nz * nr + 2 + (ny * nr) ** 2 if covariance else 0
     return nz * nr + (n_exp + 1) * nz + 2 + spread + ny * nr + 2 + reduced
 
@@ -329,7 +350,8 @@ def fit_packed(R, Z, *, half_width: int, degrees=(3, 3, 3), circular: bool = Tru
     the fit with ``map_overlap``-style halos: columns are ``vec(G)`` (``nz nr``), ``T``
     (``nz``), the noise variances (``nz``), the condition number, the ill-posed flag,
     with ``covariance`` and pooled experiments (``E >= MIN_SPLIT_EXPERIMENTS``) the
-    split-half spread ratio (:func:`split_half_spread`), then :func:`slow_bin_terms`:
+    split-half spread ratio (:func:`split_half_spread`), the weight of the halves'
+    difference and the two halves' ``vec(P_1)`` (``ny nr`` each), then :func:`slow_bin_terms`:
     ``vec(P_1)`` (``ny nr``), the condition and the singular flag of ``S`` and, with
     ``covariance``, the variances of ``G`` (``nz nr``), ``rho``, ``rho_v`` and
     ``vec(cov(P_1))`` (``(ny nr)^2``).  ``G_cov`` itself is not kept: :func:`finish_packed`
@@ -359,8 +381,8 @@ def fit_packed(R, Z, *, half_width: int, degrees=(3, 3, 3), circular: bool = Tru
                        experiment_axis=experiment_axis, denominator=denominator,
                        closed_loop=closed_loop)
     lead_m = terms["G"].shape[:-2]
-    names = ["G", "T", "noise_variance", "condition", "ill_posed", "spread_ratio", "P1",
-             "s_condition", "s_singular"]
+    names = ["G", "T", "noise_variance", "condition", "ill_posed", "spread_ratio", "half_weight",
+             "P1_half_a", "P1_half_b", "P1", "s_condition", "s_singular"]
     if covariance:
         names += ["G_var", "rho", "rho_v", "P1_cov"]
     return np.concatenate([np.asarray(terms[k], dtype=complex).reshape(lead_m + (-1,))
@@ -395,18 +417,21 @@ def _fit_terms(R, Z, *, half_width, degrees, circular, covariance, known_covaria
                               mirrors=False))
     del G_cov, fit
     if spread and covariance and (n_exp or 0) >= MIN_SPLIT_EXPERIMENTS:
-        out["spread_ratio"] = _spread_ratio(R, Z, out, half_width=half_width, degrees=degrees,
-                                            circular=circular, experiment_axis=experiment_axis,
-                                            denominator=denominator,
-                                            instruments=halves_instruments)
+        out.update(_spread_ratio(R, Z, out, half_width=half_width, degrees=degrees,
+                                 circular=circular, experiment_axis=experiment_axis,
+                                 denominator=denominator, instruments=halves_instruments,
+                                 closed_loop=closed_loop))
     return out
 
 
-def _spread_ratio(R, Z, terms, **kwargs):
+def _spread_ratio(R, Z, terms, **kwargs) -> dict:
     """:func:`split_half_spread` of a pooled fit's ``terms`` (the pool's own ill-posed
-    bins, ``P_bad``, have no variance to check)."""
+    bins, ``P_bad``, have no variance to check): ``spread_ratio`` and the halves' first
+    block rows ``P1_half_a``, ``P1_half_b`` and the weight of their difference
+    ``half_weight``."""
     G_var = np.where(terms["ill_posed"][..., None, None], np.nan, terms["G_var"])
-    return split_half_spread(R, Z, G_var, **kwargs)
+    ratio, (a, b), weight = split_half_spread(R, Z, G_var, **kwargs)
+    return {"spread_ratio": ratio, "P1_half_a": a, "P1_half_b": b, "half_weight": weight}
 
 
 #: The eager path (:func:`identify_spectra`) fits the local models in blocks of slow bins
@@ -490,10 +515,10 @@ def _fit_blocks(R, Z, *, half_width, degrees, covariance, noise_covariance, expe
             else:
                 dst[...] = src
     if covariance and (n_exp or 0) >= MIN_SPLIT_EXPERIMENTS:
-        out["spread_ratio"] = _spread_ratio(R, Z, out, half_width=half_width, degrees=degrees,
-                                            circular=True, experiment_axis=experiment_axis,
-                                            denominator=denominator,
-                                            instruments=halves_instruments)
+        out.update(_spread_ratio(R, Z, out, half_width=half_width, degrees=degrees,
+                                 circular=True, experiment_axis=experiment_axis,
+                                 denominator=denominator, instruments=halves_instruments,
+                                 closed_loop=closed_loop))
     return out
 
 
@@ -507,7 +532,8 @@ def _bin_axis(name, n_exp) -> int:
 #: The slow-bin axis of each per-bin output of :func:`_fit_terms` (``T``: :func:`_bin_axis`).
 _BIN_AXES = {"G": -3, "noise_variance": -2, "condition": -1, "ill_posed": -1, "P1": -3,
              "P1_cov": -3, "s_condition": -1, "s_singular": -1, "rho": -1, "rho_v": -1,
-             "G_var": -3, "spread_ratio": -1}
+             "G_var": -3, "spread_ratio": -1, "P1_half_a": -3, "P1_half_b": -3,
+             "half_weight": -1}
 
 
 def _bins_at(axis: int, bins: slice) -> tuple:
@@ -516,7 +542,8 @@ def _bins_at(axis: int, bins: slice) -> tuple:
 
 
 def split_half_spread(R, Z, G_var, *, half_width, degrees, circular=True,
-                      experiment_axis: int, denominator="ls", instruments=None) -> np.ndarray:
+                      experiment_axis: int, denominator="ls", instruments=None,
+                      closed_loop: str | None = None):
     """Per bin, the random-group variance of a pooled fit over the variance it reports.
 
     The even- and odd-numbered experiments (:func:`lcmr_xr.kernels.pooling.split_halves`)
@@ -532,9 +559,19 @@ def split_half_spread(R, Z, G_var, *, half_width, degrees, circular=True,
 
     ``instruments``: the halves' own (:func:`half_instruments`) when the caller has them.
 
+    ``closed_loop`` (``"indirect"`` or ``"direct"``): also return the halves' first block
+    rows ``P_1`` (their ``G`` through the indirect step; NaN where a half is ill-posed)
+    and the weight of their difference, from which
+    :func:`lcmr_xr.kernels.pooling.p_spread_factor` calibrates the band of ``P`` (no
+    further fit: the halves' ``G`` are those of the ratio).
+
     Returns
     -------
-    ndarray, real, shape (..., M)
+    ndarray, real, shape (..., M); with ``closed_loop``: ``(ratio, (P1_a, P1_b), weight)``,
+    the first rows (..., M, ny, nr) (bins of a block, ``circular=False``: computed bin by
+    bin) and per slow bin the mean over ``G``'s entries of the Gram weight
+    ``V_a V_b / (V_a + V_b)^2`` (1/4 for equal halves of one design; NaN where no entry
+    has one)
     """
     R, Z = _broadcast_leading(R, Z)
     if instruments is None:
@@ -556,7 +593,23 @@ def split_half_spread(R, Z, G_var, *, half_width, degrees, circular=True,
     # (another excitation level or design) are not n_a n_b / E^2 (docs/uncertainty.md).
     V = [half_variances(np.moveaxis(np.take(R, idx, axis=experiment_axis), experiment_axis, -3),
                         half_width, circular=circular)[..., None, :] for idx in halves]
-    return spread_ratio(G[0], G[1], G_var, group_weight(V[0], V[1]))
+    weight = group_weight(V[0], V[1])
+    ratio = spread_ratio(G[0], G[1], G_var, weight)
+    if closed_loop is None:
+        return ratio
+    nr = np.shape(R)[-1]
+    if closed_loop == "indirect":
+        with np.errstate(all="ignore"):  # (NaN where ill-posed: indirect_first_row flags it)
+            rows = tuple(indirect_first_row(g, nr, mirrors=circular).first_row for g in G)
+    else:
+        rows = tuple(G)
+    # the weight of the halves' difference per slow bin for P: the mean over G's columns
+    # (exact for Grams proportional to each other, where every entry of P has it)
+    w = np.broadcast_to(weight, G_var.shape)
+    ok = np.isfinite(w)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean_w = np.where(ok, w, 0.0).sum(axis=(-2, -1)) / ok.sum(axis=(-2, -1))
+    return ratio, rows, mean_w
 
 
 def half_instruments(R, Z, *, degrees, circular=True, experiment_axis: int,
@@ -595,12 +648,14 @@ def finish_packed(packed, *, nz: int, nr: int, n_fast: int, factor: int, nu: int
     widths = [("G", nz * nr, (nz, nr)), ("T", ne * nz, (nz,) if n_exp is None else (ne, nz)),
               ("noise_variance", nz, (nz,)), ("condition", 1, ()), ("ill_posed", 1, ())]
     if covariance and ne >= MIN_SPLIT_EXPERIMENTS:
-        widths.append(("spread_ratio", 1, ()))
+        widths += [("spread_ratio", 1, ()), ("half_weight", 1, ()),
+                   ("P1_half_a", ny * nr, (ny, nr)),
+                   ("P1_half_b", ny * nr, (ny, nr))]
     widths += [("P1", ny * nr, (ny, nr)), ("s_condition", 1, ()), ("s_singular", 1, ())]
     if covariance:
         widths += [("G_var", nz * nr, (nz, nr)), ("rho", 1, ()), ("rho_v", 1, ()),
                    ("P1_cov", (ny * nr) ** 2, (ny * nr, ny * nr))]
-    complex_ = {"G", "T", "P1", "P1_cov"}
+    complex_ = {"G", "T", "P1", "P1_cov", "P1_half_a", "P1_half_b"}
     terms, o = {"P1_cov": None}, 0
     for name, k, shape in widths:
         # copies, not views: a view would keep all of ``packed`` alive for as long as the
@@ -622,12 +677,17 @@ def _finish(fit: dict, *, n_fast, factor, nu, ny, closed_loop, dof) -> dict:
     ``T`` as :func:`finish_packed` returns it).  Pooled experiments
     (``fit["spread_ratio"]``): the covariance is scaled per bin by
     :func:`lcmr_xr.kernels.pooling.spread_calibration`, so the band of ``P``, the
-    weak-direction test of ``S`` and ``G_var`` see the spread the halves show."""
-    calibration = None
+    weak-direction test of ``S`` and ``G_var`` see the spread the halves show; the halves'
+    ``P`` put a further factor on ``P_var`` (``P_spread_calibration``,
+    :func:`lcmr_xr.kernels.pooling.p_spread_factor`) and the nonlinearity factor takes the
+    pooled form (:func:`lcmr_xr.kernels.adaptive.pooled_nonlinearity_factor`)."""
+    calibration = halves = None
     if fit["P1_cov"] is not None and "spread_ratio" in fit:
         calibration = spread_calibration(fit["spread_ratio"])
+        if "P1_half_a" in fit:
+            halves = (fit["P1_half_a"], fit["P1_half_b"], fit["half_weight"])
     out = _recover(fit, n_fast=n_fast, factor=factor, nu=nu, ny=ny, closed_loop=closed_loop,
-                   ill_posed=fit["ill_posed"], dof=dof, calibration=calibration)
+                   ill_posed=fit["ill_posed"], dof=dof, calibration=calibration, halves=halves)
     G_var = fit["G_var"] if calibration is None else fit["G_var"] * calibration[..., None, None]
     out.update({"G": fit["G"], "G_var": G_var, "T": fit["T"],
                 "noise_variance": fit["noise_variance"], "condition": fit["condition"],
@@ -780,9 +840,10 @@ def identify_spectra_auto(R, Z, *, n_fast: int, factor: int, nu: int, windows,
                               factor=factor, nu=nu, ny=ny, n_exp=n_exp,
                               halves_instruments=halves, **fit)
         if fast is None:
-            fast = {k: np.empty((len(windows),) + out[k].shape, out[k].dtype) for k in _FAST}
+            fast = {k: np.empty((len(windows),) + out[k].shape, out[k].dtype)
+                    for k in _FAST if k in out}
             calibrations = [None] * len(windows)
-        for k in _FAST:
+        for k in fast:
             fast[k][j] = out.pop(k)
         calibrations[j] = out.get("spread_calibration")
         size = sum(v.nbytes for v in out.values())
@@ -793,7 +854,7 @@ def identify_spectra_auto(R, Z, *, n_fast: int, factor: int, nu: int, windows,
     choice, bias2 = select_windows(fast["P"], fast["P_var"], fast["P_var_linear"], m)
     fast_choice = np.take(choice, np.arange(bias2.shape[-3]) % m, axis=-1)
     idx = fast_choice[None, ..., None, None]
-    for k in _FAST:  # the chosen candidate's, fast bin by fast bin
+    for k in fast:  # the chosen candidate's, fast bin by fast bin
         fast[k] = np.take_along_axis(fast[k], idx, axis=0)[0]
     # ``out`` is the widest candidate's; the bins another window won are gathered from it
     # if it is held, else fitted again
@@ -823,8 +884,9 @@ def identify_spectra_auto(R, Z, *, n_fast: int, factor: int, nu: int, windows,
 #: wins are fitted again.
 HELD_BYTES = 8 << 20
 
-#: The outputs of :func:`_finish` on the fast bins (what the window choice reads).
-_FAST = ("P", "P_var", "P_var_linear")
+#: The outputs of :func:`_finish` on the fast bins (what the window choice reads, and the
+#: pooled fits' factor on ``P_var``, which is smoothed over fast bins).
+_FAST = ("P", "P_var", "P_var_linear", "P_spread_calibration")
 
 
 def _refit_chosen(out, flags, chosen, R, Z, *, half_width, degrees, noise_covariance,

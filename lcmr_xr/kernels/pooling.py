@@ -33,13 +33,16 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
+import warnings
+
 import numpy as np
 
 from lcmr_xr.kernels.local_models import CONDITION_LIMIT
 
 __all__ = ["MIN_SPLIT_EXPERIMENTS", "PooledFit", "SPREAD_SMOOTHING", "group_weight",
-           "half_variances", "mean_and_covariance", "pooled_least_squares", "rescale_covariance",
-           "split_halves", "spread_calibration", "spread_ratio", "window_mean"]
+           "half_variances", "mean_and_covariance", "p_spread_factor", "pooled_least_squares",
+           "rescale_covariance", "split_halves", "spread_calibration", "spread_ratio",
+           "window_mean"]
 
 #: Neighbouring slow bins (each side) over which the split-half spread ratio of pooled
 #: experiments is averaged (a bin alone has a few degrees of freedom; the local model's
@@ -439,3 +442,62 @@ def spread_calibration(ratio: np.ndarray, smoothing: int = SPREAD_SMOOTHING) -> 
     with np.errstate(invalid="ignore", divide="ignore"):
         mean = np.where(count > 0, total / np.where(count > 0, count, 1.0), 1.0)
     return np.maximum(mean, 1.0)
+
+
+def p_spread_factor(P_a, P_b, P_var, undetermined, weight=0.25,
+                    smoothing: int = SPREAD_SMOOTHING) -> np.ndarray:
+    """Factor on the pooled band of ``P`` from the split halves' ``P``, per fast bin and entry.
+
+    The halves are fitted apart (:func:`split_halves`, each half's ``G`` through the
+    indirect step and the recovery gives ``P_a``, ``P_b``); the pooled ``P`` is about
+    their information-weighted mean, so ``w |P_a - P_b|^2`` estimates its error variance
+    with one complex degree of freedom (an exponential variable times the variance),
+    ``w`` the :func:`group_weight` (1/4 for equal halves of one design; exact for every
+    entry of ``P`` where the halves' Grams are proportional, e.g. one half excited more
+    weakly: each half's variance of ``P`` then scales alike).  Over
+    ``P_var``, the pooled fit's first-order variance (calibrated by
+    :func:`spread_calibration`), not at ``undetermined`` bins nor where not finite, the
+    ratio's median over ``2 smoothing + 1`` neighbouring fast bins (not circular: the
+    fast bins end at 0 and ``N/2``; over the finite values) divided by ``ln 2`` (the
+    median of ``Exp(1)``; robust to the few bins where a half is nearly singular), and
+    never below 1; 1 where no neighbour has a ratio.  It measures what the halves see of
+    ``P``'s own error: the misstatement along the weak direction of ``S`` that dominates
+    ``P``, which :func:`spread_calibration` (a mean over the entries of ``G``) cannot
+    (docs/uncertainty.md, "Pooled bands").
+
+    Parameters
+    ----------
+    P_a, P_b : ndarray, complex, shape (..., K, ny, nu)
+    P_var : ndarray, shape (..., K, ny, nu)
+    undetermined : ndarray of bool, shape (..., K)
+    weight : float or ndarray, shape (..., K), default 0.25
+        ``w``; NaN: no ratio at that bin.
+    smoothing : int, default :data:`SPREAD_SMOOTHING`
+
+    Returns
+    -------
+    ndarray, shape (..., K, ny, nu), at least 1
+
+    Examples
+    --------
+    >>> a = np.array([2.0, 2.0, 0.0, 2.0]).reshape(4, 1, 1) + 0j
+    >>> f = p_spread_factor(a, 0 * a, np.ones((4, 1, 1)), np.zeros(4, bool), smoothing=1)
+    >>> f.ravel().round(3).tolist()
+    [1.443, 1.443, 1.443, 1.0]
+    """
+    with np.errstate(all="ignore"):
+        w = np.asarray(weight, dtype=float)
+        w = w[..., None, None] if w.ndim else w
+        ratio = w * np.abs(np.asarray(P_a) - np.asarray(P_b)) ** 2 / np.asarray(P_var)
+    ratio = np.where(np.asarray(undetermined)[..., None, None] | ~np.isfinite(ratio), np.nan,
+                     ratio)
+    axis = ratio.ndim - 3
+    n = int(smoothing)
+    pad = [(0, 0)] * ratio.ndim
+    pad[axis] = (n, n)
+    windows = np.lib.stride_tricks.sliding_window_view(
+        np.pad(ratio, pad, constant_values=np.nan), 2 * n + 1, axis=axis)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN windows: factor 1
+        local = np.nanmedian(windows, axis=-1) / np.log(2.0)
+    return np.maximum(np.where(np.isfinite(local), local, 1.0), 1.0)
