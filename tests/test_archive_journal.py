@@ -519,3 +519,29 @@ def test_an_append_whose_file_another_process_edited_writes_no_entry_for_it(tmp_
     time.sleep(0.01)
     got = _assert_same_as_oracle(d)
     assert got.seed.values.tolist() == [0, 1, 99]
+
+
+@pytest.mark.parametrize("value", ["b", 2.5, np.array([1, 2])])
+def test_an_order_attribute_that_is_no_integer_is_refused_by_name(tmp_path, value):
+    """Another tool's order attribute ``2.5`` (or text, or a list) is refused at open and
+    by archive_files, naming the file and the attribute, instead of a bare int() error or
+    a silent 2."""
+    _archive(tmp_path, 3)
+    victim = sorted(_files(tmp_path))[1]
+    with h5py.File(victim, "r+") as f:
+        f.attrs[arc.ORDER_ATTR] = value
+    for call in (open_archive, arc.archive_files):
+        with pytest.raises(ValueError, match=rf"{victim.name}.*{arc.ORDER_ATTR}=.*not an "
+                                             "integer archive order.*Remove the attribute"):
+            call(tmp_path)
+
+
+def test_an_integral_float_order_is_that_integer(tmp_path):
+    """An order written as a float that is an integer (3.0, as some tools write numbers)
+    sorts as that integer."""
+    _archive(tmp_path, 3)
+    first = min(_files(tmp_path), key=lambda p: dirx.order_index(p, tmp_path))
+    with h5py.File(first, "r+") as f:
+        f.attrs[arc.ORDER_ATTR] = 7.0  # after the others (1, 2)
+    assert dirx.order_index(first, tmp_path) == 7
+    assert arc.archive_files(tmp_path)[-1] == first

@@ -155,9 +155,12 @@ def archive_files(directory) -> list[Path]:
                 order = load(text)["attrs"].get(ORDER_ATTR, -1)
             except (ValueError, TypeError, KeyError, AttributeError):
                 text = None
-        index = (dirx.order_index(path, directory) if text is None
-                 else None if order is None or int(order) < 0 else int(order))
-        keyed.append((0 if index is not None else 1, int(index) if index is not None else 0, path.name, path))
+        if text is None:
+            index = dirx.order_index(path, directory)
+        else:
+            index = dirx.order_value(order, path)
+            index = None if index is None or index < 0 else index  # -1: the file has none
+        keyed.append((0 if index is not None else 1, index if index is not None else 0, path.name, path))
     return [k[-1] for k in sorted(keyed)]
 
 
@@ -832,7 +835,7 @@ def _compact(directory: Path, blocking: bool, verify: bool = False) -> Path | No
             if text is None:
                 summary = _summary(dirx.read_header(directory / name, directory))
                 text, order = dirindex.summary_text(summary), summary["attrs"].get(ORDER_ATTR, -1)
-            rows.append((name, dirindex.stamp(st), text, int(order)))
+            rows.append((name, dirindex.stamp(st), text, dirx.order_value(order, directory / name)))
         out = dirindex.write_index(directory, rows)
         dirindex.remove_journal(directory, journal)
         return out
@@ -1042,9 +1045,9 @@ def _open_directory(directory: Path, chunks) -> xr.Dataset:
     signatures: dict = {}  # variable attributes / structure -> (id, first file with them)
     for path, st, summary in _summaries(directory, paths):
         attrs = summary["attrs"]
-        index = attrs.get(ORDER_ATTR)
+        index = dirx.order_value(attrs.get(ORDER_ATTR), path)
         row = {"path": path, "key": (0 if index is not None else 1,
-                                     int(index) if index is not None else 0, path.name),
+                                     index if index is not None else 0, path.name),
                "stamp": None if st is None else dirindex.stamp(st)}
         files.append(row)
         if not summary["experiment"]:

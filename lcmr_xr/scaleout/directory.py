@@ -279,7 +279,24 @@ def order_index(path: Path, directory: Path):
         value = _attr_value(h5a.open(fid, ORDER_ATTR.encode()))
     finally:
         fid.close()
-    return int(np.asarray(value).item())
+    return order_value(value, path)
+
+
+def order_value(value, path):
+    """The archive order that a file's order attribute ``value`` holds, as an int (None:
+    no attribute).  Refuses anything but an integer (a float only if it is one): another
+    tool's ``2.5`` or ``"b"`` is no order to guess from."""
+    if value is None:
+        return None
+    from lcmr_xr.scaleout.archive import ORDER_ATTR
+
+    v = np.asarray(value)
+    if v.ndim == 0 and (v.dtype.kind in "iu" or (v.dtype.kind == "f" and float(v).is_integer())):
+        return int(v)
+    raise ValueError(
+        f"{path}: its attribute {ORDER_ATTR}={value!r} is not an integer archive order. "
+        f"Remove the attribute (the file then comes after the ordered ones, by name) or set "
+        f"it to an integer, e.g. with h5py: h5py.File(path, 'r+').attrs[{ORDER_ATTR!r}] = 7.")
 
 
 # ------------------------------------------------------------------ attributes across files
