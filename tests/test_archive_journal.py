@@ -545,3 +545,29 @@ def test_an_integral_float_order_is_that_integer(tmp_path):
         f.attrs[arc.ORDER_ATTR] = 7.0  # after the others (1, 2)
     assert dirx.order_index(first, tmp_path) == 7
     assert arc.archive_files(tmp_path)[-1] == first
+
+
+@pytest.mark.parametrize("column", ["order", "size"])
+def test_a_base_whose_integer_column_is_not_integers_is_ignored_and_rebuilt(tmp_path, column):
+    """A base index whose ``order`` (or stamp) column another tool rewrote as text is
+    ignored with the usual warning at open (the headers are read), and an append treats
+    the directory as unindexed (no TypeError from inside the writer); the archive still
+    opens with every experiment in order."""
+    _archive(tmp_path, 3)
+    index_archive(tmp_path)
+    with h5py.File(tmp_path / INDEX, "r+") as f:
+        n = f[column].shape[0]
+        attrs = dict(f[column].attrs)
+        dims = f[column].dims[0][0] if len(f[column].dims[0]) else None
+        del f[column]
+        f.create_dataset(column, data=np.array([b"x"] * n))
+        for k, v in attrs.items():
+            if k not in ("DIMENSION_LIST", "REFERENCE_LIST"):
+                f[column].attrs[k] = v
+        if dims is not None:
+            f[column].dims[0].attach_scale(dims)
+    with pytest.warns(RuntimeWarning, match=rf"ignored.*column '{column}' holds"):
+        assert dirindex.read_index(tmp_path) is None  # no journal after index_archive
+    append_to_archive(_labelled(3), tmp_path)
+    got = open_archive(tmp_path)
+    assert got.seed.values.tolist() == [0, 1, 2, 3]

@@ -293,8 +293,9 @@ def _read_base(directory: Path, warn: bool) -> _Rows | None:
                 return None
             names = f["name"].asstr()[()]
             texts = f["summary"].asstr()[()]
-            columns = [f[c][()].tolist() for c in _COLUMNS]
-            orders = f["order"][()].tolist() if "order" in f else None  # kept since session 9
+            columns = [_integers(f[c][()], c).tolist() for c in _COLUMNS]
+            # kept since session 9
+            orders = _integers(f["order"][()], "order").tolist() if "order" in f else None
     except (OSError, KeyError, ValueError, TypeError) as err:
         _ignored(path, f"unreadable: {err}", warn)
         return None
@@ -306,6 +307,15 @@ def _read_base(directory: Path, warn: bool) -> _Rows | None:
         names.tolist(), zip(*columns), texts.tolist(), orders or [None] * len(names)))
     rows.ordered = orders is not None
     return rows
+
+
+def _integers(values, column: str) -> np.ndarray:
+    """A column of the base that must hold integers (stamps, orders); another tool's
+    floats or text make the base unreadable (ignored, then rebuilt by the next write)."""
+    values = np.asarray(values)
+    if values.dtype.kind not in "iu":
+        raise TypeError(f"column {column!r} holds {values.dtype}, not integers")
+    return values
 
 
 class BaseFacts:
@@ -333,9 +343,11 @@ def base_facts(directory: Path) -> BaseFacts:
             if version is None or np.asarray(version).item() != VERSION:
                 return BaseFacts()
             rows = f["name"].shape[0]
+            if any(f[c].dtype.kind not in "iu" for c in _COLUMNS):  # the open ignores it
+                return BaseFacts()
             if "order" not in f:
                 return BaseFacts(True, False, rows)
-            orders = f["order"][()]
+            orders = _integers(f["order"][()], "order")
             first = f["name"].asstr()[0] if rows else None
     except (OSError, KeyError, ValueError, TypeError):
         return BaseFacts()
