@@ -471,6 +471,20 @@ def _block_plan(R, Z, *, half_width, degrees, covariance, noise_covariance, expe
     return {"known": known, "half": half, "last": last, "align": align, "edges": edges}
 
 
+def _block_terms(R, Z, a, b, *, known, covariance, half_width, degrees, experiment_axis,
+                 closed_loop, denominator, instruments) -> dict:
+    """:func:`_fit_terms` of the slow bins ``a..b-1`` of the circle (a block of
+    :func:`_fit_blocks`, or a refit of :func:`_refit_chosen`), with those bins' window
+    mean ``known`` of a known noise covariance; without the split-half spread, which
+    needs every bin."""
+    return _fit_terms(R, Z, half_width=half_width, degrees=degrees, circular=True,
+                      covariance=covariance,
+                      known_covariance=None if known is None else known[..., a:b, :, :],
+                      experiment_axis=experiment_axis, closed_loop=closed_loop,
+                      denominator=denominator, instruments=instruments, bins=(a, b),
+                      spread=False)
+
+
 def _fit_blocks(R, Z, *, half_width, degrees, covariance, noise_covariance, experiment_axis,
                 closed_loop, denominator="ls", instruments=None, halves_instruments=None
                 ) -> dict:
@@ -491,12 +505,10 @@ def _fit_blocks(R, Z, *, half_width, degrees, covariance, noise_covariance, expe
     n_exp = _n_experiments(R, Z, experiment_axis)
     out = axes = None
     for a, b in zip(edges[:-1], edges[1:]):
-        block = _fit_terms(R, Z, half_width=half_width, degrees=degrees, circular=True,
-                           covariance=covariance,
-                           known_covariance=None if known is None else known[..., a:b, :, :],
-                           experiment_axis=experiment_axis, closed_loop=closed_loop,
-                           denominator=denominator, instruments=instruments, bins=(a, b),
-                           spread=False)
+        block = _block_terms(R, Z, a, b, known=known, covariance=covariance,
+                             half_width=half_width, degrees=degrees,
+                             experiment_axis=experiment_axis, closed_loop=closed_loop,
+                             denominator=denominator, instruments=instruments)
         if out is None:  # every per-bin output, all M bins: the bin axis of each
             axes = {k: _bin_axis(k, n_exp) for k, v in block.items() if v is not None}
             out = {k: (None if v is None else
@@ -938,12 +950,10 @@ def _refit_record(out, flags, chosen, R, Z, *, half_width, degrees, experiment_a
     names = ("G", "T", "noise_variance", "condition", "ill_posed", "s_condition",
              "s_singular", "G_var", "rho", "rho_v", "P1_cov")
     for a, b in _chosen_runs(need, edges, align):
-        terms = _fit_terms(R, Z, half_width=half_width, degrees=degrees, circular=True,
-                           covariance=True,
-                           known_covariance=None if known is None else known[..., a:b, :, :],
-                           experiment_axis=experiment_axis, closed_loop=closed_loop,
-                           denominator=denominator, instruments=instruments, bins=(a, b),
-                           spread=False)
+        terms = _block_terms(R, Z, a, b, known=known, covariance=True,
+                             half_width=half_width, degrees=degrees,
+                             experiment_axis=experiment_axis, closed_loop=closed_loop,
+                             denominator=denominator, instruments=instruments)
         # its own bins a..min(b, last)-1; with ``half`` also bins t = M/2+1..M-1 whose
         # mirror M - t is in a..b-1 (their terms are the conjugates, as _fit_blocks has them)
         t = np.arange(max(m // 2 + 1, m - b + 1), min(m - 1, m - a) + 1) if half else np.arange(0)
