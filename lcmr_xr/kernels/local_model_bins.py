@@ -510,34 +510,40 @@ def direct_moments(rt, zt, b, k, n, slot_i, slot_j, rho_pow, mom, base, x, y):
 
 
 @numba.njit(**_INNER)
-def step_moments(rt, zt, b, k, n, slot_i, slot_j, shift, lead, mom, base, x_out, x_in, acc):
+def step_moments(rt, zt, b, k, n, slot_i, slot_j, shift, lead, mom, base, x_out, x_in):
     """Moments of output bin ``k + 1`` from those of bin ``k``, in place.
 
-    With ``x`` a product series and the window moved by one bin,
-    ``S_a(k+1) = sum_c C(a, c) (-1/n)^(a-c) S_c(k) - (-(n+1)/n)^a x(k-n) + x(k+n+1)``
-    (``shift[a, c]``, ``lead[a]``): ``O(p^2)`` per product, whatever the width.
+    With ``x`` a product series and the window moved by one bin: first the window's
+    samples change in bin ``k``'s coordinates, ``S_c += ((n+1)/n)^c x(k+n+1) - (-1)^c
+    x(k-n)`` (``shift[0, c]``, ``shift[1, c]``), then the coordinates move by
+    ``h = 1/n``: ``S_a <- sum_c C(a, c) (-h)^(a-c) S_c``, a Taylor shift, applied as
+    ``p (p - 1) / 2`` bidiagonal steps ``S_(j+1) += -h S_j`` (``lead[0] = -h``; sweeps
+    ``i = 0..p-2``, each over ``j = p-2..i`` descending so that it reads the sweep's old
+    ``S_j``).  ``O(p^2)`` per product whatever the width, and about half the passes over
+    the moments of forming each new power as a sum over the old ones.
     """
     ns = slot_i.shape[0]
     _products(rt, zt, b, k, slot_i, slot_j, base, x_out)
     _products(rt, zt, b, k + 2 * n + 1, slot_i, slot_j, base, x_in)
     # real weights: real views, as in direct_moments
     mf = mom.view(np.float64)
-    af = acc.view(np.float64)
     xo = x_out.view(np.float64)
     xi = x_in.view(np.float64)
     n2 = 2 * ns
-    for a in range(shift.shape[0] - 1, -1, -1):  # descending: lower powers are still old
-        la = lead[a]
-        for s in range(n2):
-            af[s] = xi[s] - la * xo[s]
-        for c in range(a + 1):
-            w = shift[a, c]
-            row = mf[c * n2: (c + 1) * n2]  # a view: indices from 0 vectorise (an offset
-            for s in range(n2):  # index might be negative to the compiler: wraparound)
-                af[s] += w * row[s]
-        row = mf[a * n2: (a + 1) * n2]
-        for s in range(n2):
-            row[s] = af[s]
+    p1 = shift.shape[1]
+    for c in range(p1):
+        w_in = shift[0, c]
+        w_out = shift[1, c]
+        row = mf[c * n2: (c + 1) * n2]  # a view: indices from 0 vectorise (an offset
+        for s in range(n2):  # index might be negative to the compiler: wraparound)
+            row[s] += w_in * xi[s] - w_out * xo[s]
+    h = lead[0]
+    for i in range(p1 - 1):
+        for j in range(p1 - 2, i - 1, -1):
+            lo = mf[j * n2: (j + 1) * n2]
+            hi = mf[(j + 1) * n2: (j + 2) * n2]
+            for s in range(n2):
+                hi[s] += h * lo[s]
 
 
 @numba.njit(**_INNER)
@@ -577,22 +583,21 @@ def moments_and_floor(rt, zt, n, sel, restart, k_base, slot_i, slot_j, p1, mom_o
 
 @numba.njit(**_INNER)
 def _recurrence(n, p1):
-    """``rho^a`` over the window, and the coefficients of :func:`step_moments`."""
+    """``rho^a`` over the window, and the coefficients of :func:`step_moments`:
+    ``shift`` (2, p1) the weights ``((n+1)/n)^c`` of the sample entering the window and
+    ``(-1)^c`` of the one leaving it, ``lead`` (1,) the coordinate step ``-1/n``."""
     width = 2 * n + 1
     rho_pow = np.empty((width, p1))
     for r in range(width):
         rho = (r - n) / n
         for a in range(p1):
             rho_pow[r, a] = rho**a
-    shift = np.zeros((p1, p1))
-    for a in range(p1):
-        binom = 1.0
-        for c in range(a, -1, -1):  # C(a, c) (-1/n)^(a - c), c = a, a-1, ..
-            shift[a, c] = binom * (-1.0 / n) ** (a - c)
-            binom = binom * c / (a - c + 1)
-    lead = np.empty(p1)
-    for a in range(p1):
-        lead[a] = (-(n + 1.0) / n) ** a
+    shift = np.empty((2, p1))
+    for c in range(p1):
+        shift[0, c] = ((n + 1.0) / n) ** c
+        shift[1, c] = (-1.0) ** c
+    lead = np.empty(1)
+    lead[0] = -1.0 / n
     return rho_pow, shift, lead
 
 
@@ -615,7 +620,7 @@ def _advance(rt, zt, b, k, valid, sel_b, restart, k_base, n, slot_i, slot_j, rho
     if phase != 0 and (valid or k > 0):
         if valid:
             step_moments(rt, zt, b, k - 1, n, slot_i, slot_j, shift, lead, mom, scratch[0],
-                         scratch[1], scratch[2], scratch[3])
+                         scratch[1], scratch[2])
         return valid
     end = min(k + restart - phase, sel_b.shape[0])
     want = False
