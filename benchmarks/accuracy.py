@@ -10,7 +10,7 @@ the local model's own covariance (:func:`covariance_check`).
 
 Usage: ``python benchmarks/accuracy.py [--seeds 10] [--cases 1-9] [--n-samples 3600]
 [--denominator ls iv] [--band-forms] [--decomposition [--records 30] [--half-width 30]
-[--degrees 3 3 3]]``.
+[--degrees 3 3 3] [--denominator ls]]``.
 ``--band-forms`` prints only the coverage of candidate forms of the ``S^-1`` nonlinearity
 factor (:func:`band_forms`); ``--decomposition`` only the bias / variance decomposition of
 the local model's error at fixed excitations (:func:`covariance_decomposition`).
@@ -31,7 +31,8 @@ from lcmr_xr.hdd.plants import FAST_PERIOD
 from lcmr_xr.kernels.adaptive import (K95, candidate_windows, nonlinearity_factor,
                                       second_order_variance, small_sample_factor, weak_direction)
 from lcmr_xr.kernels.closed_loop import frf_variance_from_first_row, indirect_first_row
-from lcmr_xr.kernels.identification import (experiment_spectra, identify_spectra,
+from lcmr_xr.kernels.identification import (denominator_instruments, experiment_spectra,
+                                            identify_spectra,
                                             identify_spectra_auto, window_dof)
 from lcmr_xr.kernels.local_models import local_model
 from lcmr_xr.settings import auto_window_range
@@ -125,15 +126,16 @@ NOISE_VARIANTS = ("disturbances", "Gaussian, per-bin covariance",
 
 def covariance_decomposition(*, case=2, excitation_seeds=(0,), records=30, n_samples=3600,
                              half_width=30, degrees=(3, 3, 3), variants=NOISE_VARIANTS,
-                             seed=0):
+                             seed=0, denominator="ls"):
     """Bias and variance of the local model's error at a FIXED excitation.
 
     The loop is linear, so the disturbances' part of the lifted output spectra, ``V = Z(on)
     - Z(off)`` (``hdd.simulate`` with and without disturbances, same seed), does not depend
     on the excitation: ``records`` independent disturbance records (simulation seeds
     ``1000 + j``) are added to the noiseless spectra ``Z0`` of each excitation seed, and
-    ``dG_j = G(Z0 + V_j) - G(Z0)`` is the error the disturbances cause (least squares, the
-    one-record default).  Per slow bin and entry of ``G``, over the records: the bias
+    ``dG_j = G(Z0 + V_j) - G(Z0)`` is the error the disturbances cause (``denominator``:
+    ``"ls"``, least squares, the one-record default, or ``"iv"``, instrumental variables
+    from :func:`denominator_instruments` of each fit's own data).  Per slow bin and entry of ``G``, over the records: the bias
     ``mean_j dG_j`` (its square less ``var / records``, the sampling part), the variance
     ``var_j dG_j`` and the mean squared error, each over the kernel's mean reported
     variance ``G_var``; and ``|dG|^2 / G_var`` (median ``ln 2`` if calibrated).  The other
@@ -180,10 +182,15 @@ def covariance_decomposition(*, case=2, excitation_seeds=(0,), records=30, n_sam
     for es in excitation_seeds:
         clean = hdd.simulate(n_samples, case=case, noise=False, seed=es)
         R, Z0 = experiment_spectra(clean.r.values, clean.u.values, clean.y.values, factor=hdd.FACTOR)
-        G0 = local_model(R, Z0, half_width=half_width, degrees=degrees, covariance=None).G
+        def fit(Z, covariance):
+            iv = (denominator_instruments(R, Z, degrees=degrees) if denominator == "iv"
+                  else None)
+            return local_model(R, Z, half_width=half_width, degrees=degrees,
+                               covariance=covariance, instruments=iv)
+
+        G0 = fit(Z0, None).G
         for name in variants:
-            fits = [local_model(R, Z0 + v, half_width=half_width, degrees=degrees, covariance="diag")
-                    for v in draws[name]]
+            fits = [fit(Z0 + v, "diag") for v in draws[name]]
             dG = np.array([fit.G for fit in fits]) - G0
             var_rep = np.array([fit.G_cov for fit in fits])
             z = np.abs(dG) ** 2 / var_rep
@@ -198,9 +205,10 @@ def covariance_decomposition(*, case=2, excitation_seeds=(0,), records=30, n_sam
             {k: np.array(v) for k, v in biases.items()})
 
 
-def print_decomposition(stats, biases, *, case, records, half_width, degrees, n_samples):
+def print_decomposition(stats, biases, *, case, records, half_width, degrees, n_samples,
+                        denominator="ls"):
     print(f"local-model error at a fixed excitation, case {case}, window {half_width}, degrees "
-          f"{tuple(degrees)}, least squares, {records} records per excitation seed: medians over "
+          f"{tuple(degrees)}, denominator {denominator}, {records} records per excitation seed: medians over "
           "bins and entries of |dG|^2/G_var (ln 2 = 0.69 if calibrated) and of var, bias^2, "
           "mse over G_var (1, 0, 1 if calibrated and unbiased)")
     for name, s in stats.items():
@@ -330,7 +338,8 @@ def main(argv=None):
     ap.add_argument("--degrees", type=int, nargs=3, default=[3, 3, 3],
                     help="local-model degrees Rn Rm Rd for --decomposition")
     ap.add_argument("--denominator", nargs="+", default=["ls", "iv"], choices=["ls", "iv"],
-                    help="how the LRM denominator is estimated (default: both, one table each)")
+                    help="how the LRM denominator is estimated (default: both, one table each; "
+                         "--decomposition takes the first)")
     args = ap.parse_args(argv)
     lo, _, hi = args.cases.partition("-")
     cases = list(range(int(lo), int(hi or lo) + 1))
@@ -338,9 +347,10 @@ def main(argv=None):
     if args.decomposition:
         stats, biases = covariance_decomposition(
             case=cases[0], excitation_seeds=range(args.seeds), records=args.records,
-            n_samples=args.n_samples, half_width=args.half_width, degrees=tuple(args.degrees))
+            n_samples=args.n_samples, half_width=args.half_width, degrees=tuple(args.degrees),
+            denominator=args.denominator[0])
         print_decomposition(stats, biases, case=cases[0], records=args.records,
-                            half_width=args.half_width,
+                            half_width=args.half_width, denominator=args.denominator[0],
                             degrees=args.degrees, n_samples=args.n_samples)
         print(f"({time.perf_counter() - t0:.0f} s; machine shared with other jobs)")
         return
