@@ -9,8 +9,11 @@ against the fixed-window sweep 12..60 (best fixed window per band); then the cal
 the local model's own covariance (:func:`covariance_check`).
 
 Usage: ``python benchmarks/accuracy.py [--seeds 10] [--cases 1-9] [--n-samples 3600]
-[--denominator ls iv] [--band-forms]``.  ``--band-forms`` prints only the coverage of
-candidate forms of the ``S^-1`` nonlinearity factor (:func:`band_forms`).
+[--denominator ls iv] [--band-forms] [--decomposition [--records 30] [--half-width 30]
+[--degrees 3 3 3] [--denominator ls]]``.
+``--band-forms`` prints only the coverage of candidate forms of the ``S^-1`` nonlinearity
+factor (:func:`band_forms`); ``--decomposition`` only the bias / variance decomposition of
+the local model's error at fixed excitations (:func:`covariance_decomposition`).
 Prints progress to stderr; takes minutes (one identification per seed, case and setting).
 """
 
@@ -24,10 +27,12 @@ import numpy as np
 
 from lcmr_xr import hdd, identify
 from lcmr_xr.demo import BANDS_HZ as BANDS, band_table
+from lcmr_xr.hdd.plants import FAST_PERIOD
 from lcmr_xr.kernels.adaptive import (K95, candidate_windows, nonlinearity_factor,
                                       second_order_variance, small_sample_factor, weak_direction)
 from lcmr_xr.kernels.closed_loop import frf_variance_from_first_row, indirect_first_row
-from lcmr_xr.kernels.identification import (experiment_spectra, identify_spectra,
+from lcmr_xr.kernels.identification import (denominator_instruments, experiment_spectra,
+                                            identify_spectra,
                                             identify_spectra_auto, window_dof)
 from lcmr_xr.kernels.local_models import local_model
 from lcmr_xr.settings import auto_window_range
@@ -91,6 +96,133 @@ def covariance_check(*, case, seeds, n_samples, half_width=30, degrees=(3, 3, 3)
             sel = ((f > lo) & (f < hi)) | ((f > fs - hi) & (f < fs - lo))
             ratios[(lo, hi)].append(z[sel])
     return np.array([np.median(np.concatenate(v), axis=0) for v in ratios.values()])
+
+
+def _slow_bands(m, n_samples):
+    """Masks of the slow bins per band of ``BANDS[:3]`` (bins ``m`` and ``M - m`` pooled)."""
+    f = np.arange(m) * hdd.FACTOR / (n_samples * FAST_PERIOD)
+    fs = m * f[1]
+    return [((f > lo) & (f < hi)) | ((f > fs - hi) & (f < fs - lo)) for lo, hi in BANDS[:3]]
+
+
+def _mirror(X):
+    """Spectra of a real signal from bins ``0..M/2`` of ``X`` (..., M, c): ``X(M - k) =
+    conj(X(k))``, bins 0 and ``M/2`` real (as the lifted spectra of real records are)."""
+    m = X.shape[-2]
+    k = np.arange(m)
+    out = np.where((k <= m // 2)[:, None], X, np.conj(X[..., (m - k) % m, :]))
+    out[..., 0, :] = out[..., 0, :].real
+    if m % 2 == 0:
+        out[..., m // 2, :] = out[..., m // 2, :].real
+    return out
+
+
+#: Noise of the decomposition (:func:`covariance_decomposition`): the benchmark's
+#: disturbances themselves, and circular Gaussian noise with their per-bin covariance, with
+#: that covariance averaged over the local window, and white (per row constant).
+NOISE_VARIANTS = ("disturbances", "Gaussian, per-bin covariance",
+                  "Gaussian, window-averaged covariance", "white")
+
+
+def covariance_decomposition(*, case=2, excitation_seeds=(0,), records=30, n_samples=3600,
+                             half_width=30, degrees=(3, 3, 3), variants=NOISE_VARIANTS,
+                             seed=0, denominator="ls"):
+    """Bias and variance of the local model's error at a FIXED excitation.
+
+    The loop is linear, so the disturbances' part of the lifted output spectra, ``V = Z(on)
+    - Z(off)`` (``hdd.simulate`` with and without disturbances, same seed), does not depend
+    on the excitation: ``records`` independent disturbance records (simulation seeds
+    ``1000 + j``) are added to the noiseless spectra ``Z0`` of each excitation seed, and
+    ``dG_j = G(Z0 + V_j) - G(Z0)`` is the error the disturbances cause (``denominator``:
+    ``"ls"``, least squares, the one-record default, or ``"iv"``, instrumental variables
+    from :func:`denominator_instruments` of each fit's own data).  Per slow bin and entry of ``G``, over the records: the bias
+    ``mean_j dG_j`` (its square less ``var / records``, the sampling part), the variance
+    ``var_j dG_j`` and the mean squared error, each over the kernel's mean reported
+    variance ``G_var``; and ``|dG|^2 / G_var`` (median ``ln 2`` if calibrated).  The other
+    noise variants (:data:`NOISE_VARIANTS`) replace ``V_j`` by circular Gaussian draws
+    with the records' own per-bin covariance across the lifted rows (no inter-bin
+    correlation, no leakage), with that covariance averaged over ``2 n + 1`` bins (no
+    heteroscedasticity within the window), or white with per row the median over bins
+    of its variance.  Returns ``{variant: (seeds, band, 4)}`` medians over the band's bins
+    and entries of ``[|dG|^2/G_var, var/G_var, bias^2/G_var, mse/G_var]`` and
+    ``{variant: (seeds, M, nz, nr)}`` biases (for their agreement across excitations).
+    """
+    m = n_samples // hdd.FACTOR
+    V = []
+    for j in range(records):  # excitation-independent: the loop is linear
+        on = hdd.simulate(n_samples, case=case, noise=True, seed=1000 + j)
+        off = hdd.simulate(n_samples, case=case, noise=False, seed=1000 + j)
+        V.append(experiment_spectra(on.r.values, on.u.values, on.y.values, factor=hdd.FACTOR)[1]
+                 - experiment_spectra(off.r.values, off.u.values, off.y.values,
+                                      factor=hdd.FACTOR)[1])
+    V = np.array(V)
+    nz = V.shape[-1]
+    C = np.einsum("jki,jkl->kil", V, V.conj()) / records  # per-bin covariance (M, nz, nz)
+    w = 2 * half_width + 1
+    Cw = sum(np.roll(C, s, axis=0) for s in range(-half_width, half_width + 1)) / w
+
+    def factor(Cm):
+        lam, U = np.linalg.eigh(Cm)
+        return U * np.sqrt(np.clip(lam, 0, None))[..., None, :]
+
+    Ls = {"Gaussian, per-bin covariance": factor(C),
+          "Gaussian, window-averaged covariance": factor(Cw),
+          "white": np.sqrt(np.median(np.einsum("kii->ki", C).real, axis=0))[None, :, None]
+          * np.eye(nz)}
+    rng = np.random.default_rng(seed)
+    draws = {"disturbances": V}
+    for name in variants:
+        if name != "disturbances":
+            g = (rng.standard_normal((records, m, nz)) + 1j * rng.standard_normal((records, m, nz)))
+            draws[name] = _mirror(np.einsum("kil,jkl->jki", np.broadcast_to(Ls[name], C.shape),
+                                            g / np.sqrt(2)))
+    sel = _slow_bands(m, n_samples)
+    stats = {name: [] for name in variants}
+    biases = {name: [] for name in variants}
+    for es in excitation_seeds:
+        clean = hdd.simulate(n_samples, case=case, noise=False, seed=es)
+        R, Z0 = experiment_spectra(clean.r.values, clean.u.values, clean.y.values, factor=hdd.FACTOR)
+        def fit(Z, covariance):
+            iv = (denominator_instruments(R, Z, degrees=degrees) if denominator == "iv"
+                  else None)
+            return local_model(R, Z, half_width=half_width, degrees=degrees,
+                               covariance=covariance, instruments=iv)
+
+        G0 = fit(Z0, None).G
+        for name in variants:
+            fits = [fit(Z0 + v, "diag") for v in draws[name]]
+            dG = np.array([fit.G for fit in fits]) - G0
+            var_rep = np.array([fit.G_cov for fit in fits])
+            z = np.abs(dG) ** 2 / var_rep
+            bias, var = dG.mean(axis=0), dG.var(axis=0)
+            vr = var_rep.mean(axis=0)
+            terms = [var / vr, (np.abs(bias) ** 2 - var / records) / vr,
+                     (np.abs(dG) ** 2).mean(axis=0) / vr]
+            stats[name].append([[np.median(z[:, s])] + [np.median(t[s]) for t in terms]
+                                for s in sel])
+            biases[name].append(bias)
+    return ({k: np.array(v) for k, v in stats.items()},
+            {k: np.array(v) for k, v in biases.items()})
+
+
+def print_decomposition(stats, biases, *, case, records, half_width, degrees, n_samples,
+                        denominator="ls"):
+    print(f"local-model error at a fixed excitation, case {case}, window {half_width}, degrees "
+          f"{tuple(degrees)}, denominator {denominator}, {records} records per excitation seed: medians over "
+          "bins and entries of |dG|^2/G_var (ln 2 = 0.69 if calibrated) and of var, bias^2, "
+          "mse over G_var (1, 0, 1 if calibrated and unbiased)")
+    for name, s in stats.items():
+        print(f"- {name} (one column per excitation seed)")
+        b = biases[name]
+        for i, ((lo, hi), sel) in enumerate(zip(BANDS[:3], _slow_bands(b.shape[1], n_samples))):
+            line = f"  {f'{lo:.0f}-{hi:.0f}':<12}" + "   ".join(
+                f"z {row[i, 0]:.2f} var {row[i, 1]:.2f} bias2 {row[i, 2]:.2f} mse {row[i, 3]:.2f}"
+                for row in s)
+            if len(b) > 1:  # two excitations of one design: the same bias?
+                x, y = b[0][sel].ravel(), b[1][sel].ravel()
+                line += (f"   bias correlation seeds 0/1 "
+                         f"{abs(np.vdot(x, y)) / np.linalg.norm(x) / np.linalg.norm(y):.2f}")
+            print(line)
 
 
 def _band_terms(R, Z, *, half_width, n_fast, degrees=(3, 3, 3)):
@@ -196,12 +328,32 @@ def main(argv=None):
     ap.add_argument("--noiseless-seeds", type=int, default=3)
     ap.add_argument("--band-forms", action="store_true",
                     help="only the coverage of the candidate forms of the S^-1 factor")
+    ap.add_argument("--decomposition", action="store_true",
+                    help="only the bias / variance decomposition of the local model's error at "
+                         "fixed excitations (case: the first of --cases; --seeds excitation seeds)")
+    ap.add_argument("--records", type=int, default=30,
+                    help="disturbance records per excitation for --decomposition")
+    ap.add_argument("--half-width", type=int, default=30,
+                    help="local window half-width n for --decomposition")
+    ap.add_argument("--degrees", type=int, nargs=3, default=[3, 3, 3],
+                    help="local-model degrees Rn Rm Rd for --decomposition")
     ap.add_argument("--denominator", nargs="+", default=["ls", "iv"], choices=["ls", "iv"],
-                    help="how the LRM denominator is estimated (default: both, one table each)")
+                    help="how the LRM denominator is estimated (default: both, one table each; "
+                         "--decomposition takes the first)")
     args = ap.parse_args(argv)
     lo, _, hi = args.cases.partition("-")
     cases = list(range(int(lo), int(hi or lo) + 1))
     t0 = time.perf_counter()
+    if args.decomposition:
+        stats, biases = covariance_decomposition(
+            case=cases[0], excitation_seeds=range(args.seeds), records=args.records,
+            n_samples=args.n_samples, half_width=args.half_width, degrees=tuple(args.degrees),
+            denominator=args.denominator[0])
+        print_decomposition(stats, biases, case=cases[0], records=args.records,
+                            half_width=args.half_width, denominator=args.denominator[0],
+                            degrees=args.degrees, n_samples=args.n_samples)
+        print(f"({time.perf_counter() - t0:.0f} s; machine shared with other jobs)")
+        return
     if args.band_forms:
         cover = band_forms(cases=cases, seeds=args.seeds, n_samples=args.n_samples)
         print(f"HDD benchmark, N = {args.n_samples}, disturbances on, cases {args.cases}, "

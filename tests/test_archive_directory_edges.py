@@ -78,3 +78,54 @@ def test_consolidating_refuses_to_drop_other_data_variables(tmp_path):
     consolidate_archive(tmp_path / "d", tmp_path / "c.nc")
     xr.testing.assert_identical(open_archive(tmp_path / "c.nc").compute(),
                                 open_archive(tmp_path / "d").compute())
+
+
+def test_labels_of_two_kinds_are_refused_where_they_would_meet(tmp_path):
+    """An integer label next to text labels used to be appended to a directory and read
+    back as text (``7`` became ``"7"``, the int lost without a word); now the append, the
+    save of a mixed list and the consolidated append refuse it, naming both kinds."""
+    from lcmr_xr.scaleout import append_to_archive
+
+    save_archive([_labelled(0)], tmp_path / "d", layout="files")
+    with pytest.raises(ValueError, match=r"mix experiment labels of different kinds: "
+                                         r"text 'run0' \(run0.nc\), integer 7 \(7.nc\)"):
+        append_to_archive(_labelled(1).assign_coords(experiment=7), tmp_path / "d")
+    assert sorted(p.name for p in (tmp_path / "d").glob("[!.]*.nc")) == ["run0.nc"]
+    assert open_archive(tmp_path / "d").experiment.values.tolist() == ["run0"]
+    mixed = [_labelled(1), _labelled(2).assign_coords(experiment=5)]
+    for layout, path in (("files", tmp_path / "e"), ("consolidated", tmp_path / "c.nc")):
+        with pytest.raises(ValueError, match="integer 5 .experiment 1."):
+            save_archive(mixed, path, layout=layout)
+        assert not path.exists()
+    save_archive([_labelled(0).assign_coords(experiment=3)], tmp_path / "c.nc")
+    with pytest.raises(ValueError, match="integer 3 .c.nc., text 'run1'"):
+        append_to_archive(_labelled(1), tmp_path / "c.nc")
+    assert open_archive(tmp_path / "c.nc").experiment.values.tolist() == [3]
+    # one kind is fine, integers included
+    append_to_archive(_labelled(1).assign_coords(experiment=4), tmp_path / "c.nc")
+    assert open_archive(tmp_path / "c.nc").experiment.values.tolist() == [3, 4]
+
+
+def test_a_directory_whose_files_mix_label_kinds_is_refused_at_open(tmp_path):
+    """Files written by another tool (or renamed by hand) with integer and text labels:
+    the open names them instead of turning the integers into text."""
+    save_archive([_labelled(0), _labelled(1)], tmp_path / "d", layout="files")
+    save_archive([_labelled(2).assign_coords(experiment=9)], tmp_path / "other", layout="files")
+    (tmp_path / "other" / "9.nc").rename(tmp_path / "d" / "9.nc")
+    with pytest.raises(ValueError, match=r"files of archive .* mix experiment labels of different "
+                                         r"kinds: integer 9 \(9.nc\), text 'run0' \(run0.nc\)"):
+        open_archive(tmp_path / "d")
+
+
+def test_a_label_carried_by_two_files_is_refused_at_open(tmp_path):
+    """A file copied by hand keeps its label: two experiments with one label made an
+    archive whose ``sel(experiment=...)`` returned both; the open names the files."""
+    import shutil
+
+    save_archive([_labelled(0), _labelled(1)], tmp_path / "d", layout="files")
+    shutil.copy(tmp_path / "d" / "run1.nc", tmp_path / "d" / "copy.nc")
+    with pytest.raises(ValueError, match=r"label 'run1' is carried by 2 files \((copy.nc, run1.nc|"
+                                         r"run1.nc, copy.nc)\).*Move the copies out"):
+        open_archive(tmp_path / "d")
+    (tmp_path / "d" / "copy.nc").unlink()
+    assert open_archive(tmp_path / "d").experiment.values.tolist() == ["run0", "run1"]

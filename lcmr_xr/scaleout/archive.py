@@ -65,6 +65,34 @@ def _file_stem(label) -> str:
     return stem or "experiment"
 
 
+def _label_kind(label) -> str:
+    """``"integer"`` or ``"text"``: the two kinds of ``experiment`` label an archive keeps
+    (any other type is named as it is).  One archive holds one kind: a mixed coordinate
+    would come back from ``open_archive`` as text, ``7`` silently turned into ``"7"``."""
+    if isinstance(label, (bool, np.bool_)):
+        return "boolean"
+    if isinstance(label, (int, np.integer)):
+        return "integer"
+    if isinstance(label, (str, np.str_)):
+        return "text"
+    return type(label).__name__
+
+
+def _check_label_kinds(rows, where: str) -> None:
+    """Refuse ``[(label, name), ...]`` holding labels of more than one kind (see
+    :func:`_label_kind`); the message names one of each and the remedy."""
+    kinds: dict = {}
+    for label, name in rows:
+        kinds.setdefault(_label_kind(label), (label, name))
+    if len(kinds) > 1:
+        shown = ", ".join(f"{kind} {label!r} ({name})" for kind, (label, name) in kinds.items())
+        raise ValueError(
+            f"{where} mix experiment labels of different kinds: {shown}; an archive's labels "
+            "are all integers or all text (mixed, they would all be read back as text). "
+            "Relabel, e.g. ds.assign_coords(experiment=str(label)), or use another archive."
+        )
+
+
 def _split(experiments) -> list[tuple[object, xr.Dataset]]:
     """``[(label, single experiment), ...]`` from a stacked dataset or a sequence of them."""
     if isinstance(experiments, xr.Dataset):
@@ -351,6 +379,8 @@ def _validated(experiments):
             )
     if len(lengths) > 1:
         raise ValueError(_length_message(lengths, "the experiments to archive"))
+    _check_label_kinds([(label, f"experiment {i}") for i, (label, _) in enumerate(items)],
+                       "the experiments to archive")
     return items, first
 
 
@@ -466,10 +496,9 @@ def _append_consolidated(items, first, path: Path) -> None:
     if taken:
         raise ValueError(f"experiment(s) {taken[:5]} are already in {path}; give new labels, or "
                          "write a new archive with overwrite=True.")
-    kind = "U" if not header["labels"] or isinstance(header["labels"][0], str) else "i"
-    if kind == "i" and not all(isinstance(lab, (int, np.integer)) for lab, _ in items):
-        raise ValueError(f"{path} has integer experiment labels; label the new experiments with "
-                         "integers too (or rewrite the archive with string labels).")
+    if header["labels"]:
+        _check_label_kinds([(header["labels"][0], path.name)]
+                           + [(label, "new") for label, _ in items], f"{path} and the new experiments")
     metas = [con.metadata_of(label, ds) for label, ds in items]
     con.check_metadata([(label, m) for (label, _), m in zip(items, metas)], header["metadata"])
     count = header["count"]
@@ -499,7 +528,8 @@ def append_to_archive(experiment, path) -> Path:
     ------
     ValueError
         The experiment is invalid, of another shape than the archive, carries other
-        metadata, or its label is taken.
+        metadata, or its label is taken or of another kind than the archive's (integer
+        vs text).
 
     Notes
     -----
@@ -690,6 +720,10 @@ def _save_files(items, first, directory: Path, overwrite: bool, add_only: bool =
         con.check_metadata(expected + [(label, m) for (label, _), m in zip(items, metas)])
     except ValueError as err:
         raise ValueError(f"archive {directory}: {err}") from err
+    if expected:
+        _check_label_kinds([(expected[0][0], reference.name)] + [(label, n) for (label, _), n
+                                                                 in zip(items, names)],
+                           f"archive {directory} and the new experiments")
     orders = [o for o in (facts.top, dirindex.journal_max_order(journal)) if o is not None]
     start = max(orders) + 1 if orders else 0
     written, rows = [], []
@@ -1087,6 +1121,22 @@ def _open_directory(directory: Path, chunks) -> xr.Dataset:
                 f"experiments of one structure. Move it to another directory (compare them with "
                 f"lcmr_xr.open_dataset)."
             )
+    _check_label_kinds([(row["label"], row["path"].name) for row in files],
+                       f"the files of archive {directory}")
+    owners: dict = {}
+    for row in files:
+        owners.setdefault(row["label"], []).append(row["path"].name)
+    twice = {label: names for label, names in owners.items() if len(names) > 1}
+    if twice:
+        label, names = next(iter(twice.items()))
+        raise ValueError(
+            f"archive {directory}: experiment label {label!r} is carried by {len(names)} files "
+            f"({', '.join(names[:4])}){f' and {len(twice) - 1} more labels likewise' if len(twice) > 1 else ''}"
+            "; a label names one experiment (a file copied or renamed by hand keeps the label it "
+            "holds). Move the copies out of the directory; to keep one as another experiment, "
+            "save it back under a new label: save_archive(lcmr_xr.open_experiment(path)"
+            ".assign_coords(experiment=new_label), directory, layout='files')."
+        )
     metas = [(row["label"], row["meta"]) for row in files]
     try:
         con.check_metadata(metas, _metadata_kinds(metas))
