@@ -631,7 +631,7 @@ def _advance(rt, zt, b, k, valid, sel_b, restart, k_base, n, slot_i, slot_j, rho
     bins).  A chunk starting inside a segment starts with direct sums.  ``floor``:
     ``2 eps (W + 2 restart)`` times the R energy of the samples the segment's windows
     cover, a bound of the absolute rounding of the windowed ``sum |R_p|^2``.
-    ``scratch`` (4, >= max(n_slots, n_bases)).
+    ``scratch`` (>= 3, >= max(n_slots, n_bases)) complex.
     """
     nr = rt.shape[2]
     phase = (k_base + k) % restart
