@@ -14,7 +14,11 @@ Everything issue 12 asks for, in one run, with the user's default thread setting
 * M = 2**19 slow bins, covariance None, one thread, and 2 threads vs 1 (``--only-big``
   runs only this part);
 * first call with an empty numba cache, and a new process with a warm cache to its first
-  ``identify`` result, split into its steps (median of 5 processes); the compile time of
+  ``identify`` result, split into its steps (median of 5 processes, wall and CPU), and
+  its floor: the imports lcmr_xr cannot avoid (numpy, xarray with pandas, the dask.array
+  xarray imports, numba with the scipy.linalg and registries of its target set-up)
+  against lcmr_xr's own steps; the processes have Python's bytecode, as an installed
+  package has; the compile time of
   each version of the compiled loop (least squares, instrumental variables, pooled, pooled
   with instrumental variables: what a cold ``make test`` pays); the kernel alone on plain
   arrays, without xarray (``--only-start`` runs only this part);
@@ -125,44 +129,104 @@ def oracle_section(rows, label, R, Z, every=10):
     return t_oracle, t_plain
 
 
-#: A new process to its first ``identify`` result: the HDD experiment built from plain
-#: arrays (``lcmr_xr.experiment``), as a user's script would; each step timed, in the
-#: order in which the steps happen anyway, each import made explicit: xarray and pandas
-#: (any labelled function imports them), the library's own modules (``import lcmr_xr``
-#: alone imports them on first use; explicit here), dask.array (xarray imports it the
-#: first time it builds a variable, to check whether the data are a dask array,
-#: whenever dask is installed), the experiment itself, numba with the compiled module,
-#: scipy.linalg (numba's CPU target imports it when it is set up, to find a BLAS), the
-#: rest of numba's target set-up (its typing and lowering registries) and the
-#: ``identify`` call itself (reading the cache and computing).
-_FIRST_IDENTIFY = """
+#: The steps of a new process to its first result, each timed (wall and CPU seconds) in
+#: the order in which they happen anyway, each import made explicit.  ``STEP`` marks the
+#: end of a step; the first step is the interpreter's own start (from the parent's
+#: ``perf_counter`` at the spawn, passed as ``SPAWN``: the clock is system-wide).  The
+#: steps marked ``floor`` are imports that lcmr_xr cannot avoid: numpy; xarray with
+#: pandas (any labelled function); dask and dask.array, which xarray imports whenever dask
+#: is installed (``as_compatible_data``, on the first variable built from a numpy array
+#: and on every output of an eager ``xarray.apply_ufunc``, asks for dask's array type;
+#: ``is_duck_dask_array`` imports dask itself); numba; scipy.linalg, which numba imports
+#: when its CPU target is set up (it looks for a BLAS); the rest of that set-up (numba's
+#: typing and lowering registries, on the first compiled call or cache load, whatever the
+#: function).
+_STEPS = """
+import sys
 import time
-t0 = time.perf_counter()
+marks = [(time.perf_counter() - SPAWN, time.process_time())]
+def STEP():
+    marks.append((time.perf_counter() - SPAWN, time.process_time()))
+"""
+_STEPS_END = """
+walls = [marks[0][0]] + [b[0] - a[0] for a, b in zip(marks, marks[1:])]
+cpus = [marks[0][1]] + [b[1] - a[1] for a, b in zip(marks, marks[1:])]
+print(*walls, *cpus)
+"""
+_REFRESH = """
+from numba.core.registry import cpu_target
+cpu_target.target_context.refresh()
+"""
+#: A new process to its first ``identify`` result: the HDD experiment built from plain
+#: arrays (``lcmr_xr.experiment``), as a user's script would.  Steps: python start,
+#: numpy, xarray and pandas, lcmr_xr's own modules (``import lcmr_xr`` alone imports them
+#: on first use; explicit here), dask.array (xarray's), the experiment, numba, scipy.linalg
+#: (numba's), numba's target set-up, lcmr_xr's compiled module (its ``njit`` functions),
+#: and the ``identify`` call itself (reading the cache and computing).
+_FIRST_IDENTIFY_STEPS = (
+    ("python start", True), ("numpy", True), ("xarray+pandas", True),
+    ("lcmr_xr modules", False), ("dask.array (xarray's)", True), ("experiment", False),
+    ("numba", True), ("scipy.linalg (numba's)", True), ("numba target set-up", True),
+    ("compiled module", False), ("identify", False))
+_FIRST_IDENTIFY = _STEPS + """
 import numpy as np
+STEP()
 import xarray
-ta = time.perf_counter()
+STEP()
 import lcmr_xr
 import lcmr_xr.experiment, lcmr_xr.identification
-t1 = time.perf_counter()
+STEP()
 import dask.array
-tb = time.perf_counter()
+STEP()
 d = np.load(PATH)
 exp = lcmr_xr.experiment(d["r"], d["u"], d["y"], factor=int(d["factor"]),
                          sampling_period=float(d["th"]))
-t2 = time.perf_counter()
+STEP()
 import numba
-from lcmr_xr.kernels import local_model_bins
-t3 = time.perf_counter()
+STEP()
 import scipy.linalg
-tc = time.perf_counter()
-from numba.core.registry import cpu_target
-cpu_target.target_context.refresh()
-t4 = time.perf_counter()
+STEP()
+""" + _REFRESH + """
+STEP()
+from lcmr_xr.kernels import local_model_bins
+STEP()
 lcmr_xr.identify(exp, window=30)
-t5 = time.perf_counter()
-print(t5 - t0, ta - t0, t1 - ta, tb - t1, t2 - tb, t3 - t2, tc - t3, t4 - tc, t5 - t4,
-      time.process_time())
-"""
+STEP()
+""" + _STEPS_END
+#: The kernel alone on plain arrays: ``import lcmr_xr`` and the kernels import neither
+#: xarray nor pandas (checked: the script fails if they were imported).  Steps: python
+#: start, numpy, numba, scipy.linalg and the rest of numba's target set-up, lcmr_xr's
+#: kernel modules, the ``local_model`` call.
+_FIRST_KERNEL_STEPS = (
+    ("python start", True), ("numpy", True), ("numba", True),
+    ("scipy.linalg (numba's)", True), ("numba target set-up", True),
+    ("lcmr_xr kernel modules", False), ("local_model", False))
+_FIRST_KERNEL = _STEPS + """
+import numpy as np
+STEP()
+import numba
+STEP()
+import scipy.linalg
+STEP()
+""" + _REFRESH + """
+STEP()
+import lcmr_xr
+from lcmr_xr.kernels.local_models import local_model
+from lcmr_xr.kernels import local_model_bins
+STEP()
+R = np.exp(2j * np.pi * np.random.default_rng(0).random((200, 4)))
+Z = np.random.default_rng(1).standard_normal((200, 5)) + 0j
+local_model(R, Z, half_width=30, degrees=(3, 3, 3), covariance="full")
+STEP()
+assert "xarray" not in sys.modules and "pandas" not in sys.modules
+""" + _STEPS_END
+#: Imports every module the timed processes import (nothing compiled): Python's bytecode
+#: cache is then written before the timed processes start.
+_PRIME = """
+import numpy, xarray, dask.array, numba, scipy.linalg
+import lcmr_xr, lcmr_xr.experiment, lcmr_xr.identification
+from lcmr_xr.kernels import local_model_bins, local_models
+""" + _REFRESH
 #: An empty cache, each version of the compiled loop on its first call in one process,
 #: in the order ``make test`` meets them: least squares (everybody's first call),
 #: instrumental variables on one record, pooled experiments with least squares, pooled
@@ -188,56 +252,73 @@ for call in calls:
     out.append(time.process_time() - c0)
 print(*out)
 """
-#: The kernel alone on plain arrays: ``import lcmr_xr`` and the kernels import neither
-#: xarray nor pandas (checked: the script fails if they were imported); numba with the
-#: compiled module, numba's target set-up (with scipy.linalg), the call.  Wall and CPU
-#: seconds.
-_FIRST_KERNEL = """
-import sys
-import time
-t0 = time.perf_counter()
-import numpy as np
-import lcmr_xr
-from lcmr_xr.kernels.local_models import local_model
-R = np.exp(2j * np.pi * np.random.default_rng(0).random((200, 4)))
-Z = np.random.default_rng(1).standard_normal((200, 5)) + 0j
-local_model(R, Z, half_width=30, degrees=(3, 3, 3), covariance="full")
-t1 = time.perf_counter()
-assert "xarray" not in sys.modules and "pandas" not in sys.modules
-print(t1 - t0, time.process_time())
-"""
+
+
+def _start_env(tmp):
+    """The environment of the start-time processes: numba's cache and Python's bytecode
+    cache in ``tmp``.  An installed package has its bytecode (pip writes it); a shell
+    with ``PYTHONDONTWRITEBYTECODE`` set (as this project's is) would otherwise have every
+    process compile lcmr_xr's sources again: 0.085 s CPU of its warm start (measured)."""
+    env = dict(os.environ, NUMBA_CACHE_DIR=os.path.join(tmp, "numba"),
+               PYTHONPYCACHEPREFIX=os.path.join(tmp, "pycache"))
+    env.pop("PYTHONDONTWRITEBYTECODE", None)
+    subprocess.run([sys.executable, "-c", _PRIME], env=env, check=True, capture_output=True)
+    return env
+
+
+def _steps(code, env):
+    """Wall and CPU seconds of each step of ``code`` (``_STEPS``) in a new process."""
+    code = code.replace("SPAWN", repr(time.perf_counter()))
+    out = subprocess.run([sys.executable, "-c", code], env=env, check=True,
+                         capture_output=True, text=True).stdout.split()
+    times = np.array([float(x) for x in out])
+    return times.reshape(2, -1)  # wall, cpu
+
+
+def _step_rows(rows, what, names, times, goal=""):
+    """Rows of one start measurement: the median total, its steps, and the part of it that
+    lcmr_xr cannot avoid (the ``floor`` steps) against its own part."""
+    med = np.median(times, axis=0)  # (wall / cpu, step)
+    total = np.median(times.sum(axis=2), axis=0)
+    rows.append((f"{what} [s] (wall / CPU; median of {len(times)}){goal}",
+                 f"{total[0]:.2f} / {total[1]:.2f}"))
+    rows.append(("  " + " / ".join(name for name, _ in names) + " [s] (CPU)",
+                 " / ".join(f"{t:.3f}" for t in med[1])))
+    rows.append(("  the same [s] (wall)", " / ".join(f"{t:.3f}" for t in med[0])))
+    floor = np.array([floor for _, floor in names])
+    part = np.median(times[:, :, floor].sum(axis=2), axis=0)
+    own = np.median(times[:, :, ~floor].sum(axis=2), axis=0)
+    rows.append(("  imports lcmr_xr cannot avoid (" + ", ".join(
+        name for name, f in names if f) + ") / lcmr_xr's own steps [s] (CPU; wall)",
+        f"{part[1]:.2f} / {own[1]:.2f}; {part[0]:.2f} / {own[0]:.2f}"))
 
 
 def start_times(rows, exp, repeat=5):
     """First call in a new process: empty numba cache (compiles), then warm cache (median
     of ``repeat`` fresh processes), split into the steps of ``_FIRST_IDENTIFY``; the
-    kernel alone on plain arrays (``local_model``); and the compile time of every version
-    of the compiled loop (``_COLD_VERSIONS``)."""
+    kernel alone on plain arrays (``local_model``, steps of ``_FIRST_KERNEL``); and the
+    compile time of every version of the compiled loop (``_COLD_VERSIONS``).  The
+    processes have Python's bytecode, as an installed package has (``_start_env``)."""
     with tempfile.TemporaryDirectory() as tmp:
         data = os.path.join(tmp, "exp.npz")
         np.savez(data, r=exp.r.values, u=exp.u.values, y=exp.y.values,
                  factor=int(exp.attrs["factor"]), th=float(exp.time[1] - exp.time[0]))
         code = _FIRST_IDENTIFY.replace("PATH", repr(data))
-        env = dict(os.environ, NUMBA_CACHE_DIR=os.path.join(tmp, "numba"))
-        times = np.array([[float(x) for x in subprocess.run(
-            [sys.executable, "-c", code], env=env, check=True, capture_output=True,
-            text=True).stdout.split()] for _ in range(1 + repeat)])
-        kernel = np.median([[float(x) for x in subprocess.run(
-            [sys.executable, "-c", _FIRST_KERNEL], env=env, check=True, capture_output=True,
-            text=True).stdout.split()] for _ in range(repeat)], axis=0)
+        env = _start_env(tmp)
+        cold = _steps(code, env)
+        # alternating, so that a change of the machine's load hits both alike
+        warm, kernel = [], []
+        for _ in range(repeat):
+            warm.append(_steps(code, env))
+            kernel.append(_steps(_FIRST_KERNEL, env))
     rows.append(("new process to first identify, empty cache (compiles) [s] (goal < 15)",
-                 f"{times[0][0]:.1f} (CPU {times[0][9]:.1f})"))
-    warm = np.median(times[1:], axis=0)
-    rows.append((f"new process to first identify, warm cache [s] (goal < 1; median of {repeat})",
-                 f"{warm[0]:.2f} (CPU {warm[9]:.2f})"))
-    rows.append(("  xarray+pandas / lcmr_xr's own modules / dask.array (xarray's) / experiment "
-                 "/ numba + compiled module / scipy.linalg (numba's target) / numba target "
-                 "set-up / identify [s]", " / ".join(f"{t:.2f}" for t in warm[1:9])))
-    rows.append(("new process to first local_model result (plain arrays, no xarray), warm "
-                 f"cache [s] (goal < 1; median of {repeat})",
-                 f"{kernel[0]:.2f} (CPU {kernel[1]:.2f})"))
+                 f"{cold[0].sum():.1f} (CPU {cold[1].sum():.1f})"))
+    _step_rows(rows, "new process to first identify, warm cache", _FIRST_IDENTIFY_STEPS,
+               np.array(warm), " (goal < 1)")
+    _step_rows(rows, "new process to first local_model result (plain arrays, no xarray), "
+               "warm cache", _FIRST_KERNEL_STEPS, np.array(kernel), " (goal < 1)")
     with tempfile.TemporaryDirectory() as tmp:
-        env = dict(os.environ, NUMBA_CACHE_DIR=os.path.join(tmp, "numba"))
+        env = _start_env(tmp)
         cold = [float(x) for x in subprocess.run(
             [sys.executable, "-c", _COLD_VERSIONS], env=env, check=True, capture_output=True,
             text=True).stdout.split()]
