@@ -129,3 +129,17 @@ def test_a_label_carried_by_two_files_is_refused_at_open(tmp_path):
         open_archive(tmp_path / "d")
     (tmp_path / "d" / "copy.nc").unlink()
     assert open_archive(tmp_path / "d").experiment.values.tolist() == ["run0", "run1"]
+
+
+def test_an_unlabelled_append_to_a_text_labelled_archive_gets_its_position_as_text(tmp_path):
+    """append_to_archive labels an experiment without a label by its position in the
+    archive; in an archive of text labels that position is text (``"2"``), not an
+    integer that the one-kind rule then refuses; in one of integers it stays an integer."""
+    from lcmr_xr.scaleout import append_to_archive
+
+    save_archive([_labelled(0), _labelled(1)], tmp_path / "t.nc")
+    append_to_archive(_labelled(2).drop_vars("experiment"), tmp_path / "t.nc")
+    assert open_archive(tmp_path / "t.nc").experiment.values.tolist() == ["run0", "run1", "2"]
+    save_archive([_labelled(0).assign_coords(experiment=5)], tmp_path / "i.nc")
+    append_to_archive(_labelled(1).drop_vars("experiment"), tmp_path / "i.nc")
+    assert open_archive(tmp_path / "i.nc").experiment.values.tolist() == [5, 1]

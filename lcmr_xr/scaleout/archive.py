@@ -514,7 +514,8 @@ def append_to_archive(experiment, path) -> Path:
     ----------
     experiment : xarray.Dataset
         One experiment (``lcmr-xr-1``, validated), labelled by a scalar ``experiment``
-        coordinate (default: its position in the archive).  Several stacked along
+        coordinate (default: its position in the archive, as text in an archive of text
+        labels).  Several stacked along
         ``experiment`` are appended in order.
     path : str or os.PathLike
         A consolidated archive file (created when missing) or an archive directory.
@@ -567,7 +568,10 @@ def append_to_archive(experiment, path) -> Path:
     if not path.exists():
         return save_archive(experiment, path, layout="consolidated")[0]
     if isinstance(experiment, xr.Dataset) and cv.EXPERIMENT not in experiment.coords:
-        experiment = experiment.assign_coords({cv.EXPERIMENT: _header(path)["count"]})
+        header = _header(path)  # the default label, its position, of the archive's kind
+        text = bool(header["labels"]) and _label_kind(header["labels"][0]) == "text"
+        label = str(header["count"]) if text else header["count"]
+        experiment = experiment.assign_coords({cv.EXPERIMENT: label})
     items, first = _validated(experiment)
     _append_consolidated(items, first, path)
     return path
