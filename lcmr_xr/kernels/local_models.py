@@ -645,10 +645,9 @@ def local_model(R, Z, *, half_width, degrees=(3, 3, 3), circular: bool = True,
     cond = shaped["condition"]
     dof = (n_exp * (2 * scalar_n + 1) - p_pool if scalar_n is not None
            else (n_exp * (2 * widths + 1) - p_pool).reshape(batch + (m,)))
+    # (np.maximum keeps NaN: a failed bin's variance stays NaN)
     noise_var = np.maximum(np.real(np.diagonal(shaped["noise_covariance"], axis1=-2, axis2=-1)),
                            0.0)
-    noise_var = np.where(np.isnan(np.real(np.diagonal(shaped["noise_covariance"], axis1=-2,
-                                                      axis2=-1))), np.nan, noise_var)
     return LocalModelFit(
         G=shaped["G"], T=shaped["T"], noise_variance=noise_var,
         noise_covariance=shaped["noise_covariance"], dof=dof,
