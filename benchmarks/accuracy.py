@@ -11,10 +11,13 @@ the local model's own covariance (:func:`covariance_check`).
 Usage: ``python benchmarks/accuracy.py [--seeds 10] [--cases 1-9] [--n-samples 3600]
 [--denominator ls iv] [--band-forms] [--decomposition [--records 30] [--half-width 30]
 [--degrees 3 3 3] [--denominator ls] [--instruments narrow] [--first-window 30]
-[--noise VARIANT ...]]``.
+[--noise VARIANT ...]] [--instrument-coverage [--first-window 30]]``.
 ``--band-forms`` prints only the coverage of candidate forms of the ``S^-1`` nonlinearity
 factor (:func:`band_forms`); ``--decomposition`` only the bias / variance decomposition of
-the local model's error at fixed excitations (:func:`covariance_decomposition`).
+the local model's error at fixed excitations (:func:`covariance_decomposition`; with
+``--denominator iv`` the instruments of ``--instruments``, :func:`build_instruments`);
+``--instrument-coverage`` only the coverage of ``P``'s band per instrument kind and band
+form at a fixed window (:func:`instrument_coverage`).
 Prints progress to stderr; takes minutes (one identification per seed, case and setting).
 """
 
