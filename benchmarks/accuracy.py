@@ -10,10 +10,14 @@ the local model's own covariance (:func:`covariance_check`).
 
 Usage: ``python benchmarks/accuracy.py [--seeds 10] [--cases 1-9] [--n-samples 3600]
 [--denominator ls iv] [--band-forms] [--decomposition [--records 30] [--half-width 30]
-[--degrees 3 3 3] [--denominator ls]]``.
+[--degrees 3 3 3] [--denominator ls] [--instruments narrow] [--first-window 30]
+[--noise VARIANT ...]] [--instrument-coverage [--first-window 30]]``.
 ``--band-forms`` prints only the coverage of candidate forms of the ``S^-1`` nonlinearity
 factor (:func:`band_forms`); ``--decomposition`` only the bias / variance decomposition of
-the local model's error at fixed excitations (:func:`covariance_decomposition`).
+the local model's error at fixed excitations (:func:`covariance_decomposition`; with
+``--denominator iv`` the instruments of ``--instruments``, :func:`build_instruments`);
+``--instrument-coverage`` only the coverage of ``P``'s band per instrument kind and band
+form at a fixed window (:func:`instrument_coverage`).
 Prints progress to stderr; takes minutes (one identification per seed, case and setting).
 """
 
@@ -34,7 +38,7 @@ from lcmr_xr.kernels.closed_loop import frf_variance_from_first_row, indirect_fi
 from lcmr_xr.kernels.identification import (denominator_instruments, experiment_spectra,
                                             identify_spectra,
                                             identify_spectra_auto, window_dof)
-from lcmr_xr.kernels.local_models import local_model
+from lcmr_xr.kernels.local_models import hermitian, local_model
 from lcmr_xr.settings import auto_window_range
 SWEEP = (12, 16, 20, 24, 30, 40, 60)
 
@@ -117,6 +121,91 @@ def _mirror(X):
     return out
 
 
+#: Instrument builders of the decomposition's ``denominator="iv"``: ``"narrow"``, today's
+#: :func:`denominator_instruments` (the same LRM fitted in the narrow window
+#: :func:`first_fit_window`); ``"lrm"``, the same with the first fit in the window
+#: ``first_window``; ``"lpm"``, the prediction of an LPM first stage (degrees ``(Rn, Rm,
+#: 0)``) in the window ``first_window``; ``"jackknife"``, that prediction with its own bin
+#: left out (:func:`jackknife_instruments`); ``"jackknife lrm"``, the same with the LRM
+#: first stage (per-row leverage).
+INSTRUMENTS = ("narrow", "lrm", "lpm", "jackknife", "jackknife lrm")
+
+
+def build_instruments(R, Z, kind, *, degrees=(3, 3, 3), first_window=30):
+    """The instruments ``kind`` of :data:`INSTRUMENTS` (None: least squares)."""
+    if kind is None:
+        return None
+    if kind in ("narrow", "lrm"):
+        return denominator_instruments(R, Z, degrees=degrees,
+                                       half_width=None if kind == "narrow" else first_window)
+    return jackknife_instruments(R, Z, degrees=degrees, first_window=first_window,
+                                 jackknife=kind.startswith("jackknife"),
+                                 first="lrm" if kind == "jackknife lrm" else "lpm")
+
+
+def centre_leverage(R, half_width, degrees=(3, 3), Z=None):
+    """Leverage ``h(k) = a_0^T (A^H A)^-1 conj(a_0)`` of the centre bin of the local
+    regression at every bin ``k`` (circular windows ``r = -n..n``), the diagonal entry of
+    the hat matrix ``A (A^H A)^-1 A^H`` at ``r = 0``: ``A`` has the rows ``[R(k + r)^T x^s,
+    x^t]``, ``x = r / n``, ``s = 0..Rn``, ``t = 0..Rm`` (the LPM, the same for every output
+    row), and with ``Rd = degrees[2] > 0`` and ``Z`` the LRM's denominator columns ``-x^d
+    Z_i(k + r)``, ``d = 1..Rd`` (one regression per output row ``i``; they vanish at ``r =
+    0``, so ``a_0`` holds no ``Z``).  The leverage does not depend on the polynomial basis
+    (only on the span).  ``R`` (M, nr), ``Z`` (M, nz); returns (M,) for the LPM, (M, nz)
+    for the LRM, batched over bins (reduced QR, ``h = |Q[r = 0]|^2``)."""
+    R = np.asarray(R)
+    m, nr = R.shape[-2:]
+    n = int(half_width)
+    rn, rm = tuple(degrees)[:2]
+    rd = tuple(degrees)[2] if len(tuple(degrees)) > 2 else 0
+    x = np.arange(-n, n + 1) / n
+    idx = (np.arange(m)[:, None] + np.arange(-n, n + 1)) % m
+    Rw = R[idx, :]  # (M, w, nr)
+    A = (Rw[..., None] * (x[:, None] ** np.arange(rn + 1))[:, None, :]).reshape(
+        Rw.shape[:-1] + (nr * (rn + 1),))
+    if rm >= 0:
+        A = np.concatenate([A, np.broadcast_to(x[:, None] ** np.arange(rm + 1),
+                                               A.shape[:-1] + (rm + 1,)).astype(A.dtype)], axis=-1)
+    if rd < 1:
+        return (np.abs(np.linalg.qr(A)[0][..., n, :]) ** 2).sum(axis=-1)
+    Zw = np.asarray(Z)[idx, :]  # (M, w, nz)
+    h = np.empty(Zw.shape[::2])
+    for i in range(Zw.shape[-1]):  # one regression per output row (a few rows)
+        D = -Zw[..., i, None] * x[:, None] ** np.arange(1, rd + 1)
+        Q = np.linalg.qr(np.concatenate([A, D], axis=-1))[0]
+        h[:, i] = (np.abs(Q[..., n, :]) ** 2).sum(axis=-1)
+    return h
+
+
+def jackknife_instruments(R, Z, *, degrees=(3, 3, 3), first_window=30, jackknife=True,
+                          first="lpm"):
+    """Instruments for the denominator from a first stage in the window ``first_window``:
+    ``first="lpm"`` an LPM (degrees ``(Rn, Rm, 0)``), ``"lrm"`` the LRM ``degrees``; its
+    prediction ``Zhat(k) = G1(k) R(k) + T1(k)`` at the centre bin, and with ``jackknife``
+    the leave-one-out prediction ``(Zhat(k) - h(k) Z(k)) / (1 - h(k))``
+    (:func:`centre_leverage`), which does not contain the noise of bin ``k`` (jackknife IV:
+    Phillips & Hale 1977; Angrist, Imbens & Krueger 1999).  The first fit is linear least
+    squares in its regressors and the centre row ``a_0`` holds no ``Z`` (the LRM's
+    denominator columns vanish at ``r = 0``), so the leave-one-out identity is exact (for
+    the LRM with the other bins' ``Z`` in the regressors, per output row).
+    Conjugate-symmetrised like :func:`denominator_instruments` when ``Z`` is the spectrum
+    of real signals; non-finite predictions fall back to ``Z``.  ``R`` (M, nr), ``Z`` (M,
+    nz) (no batch dims)."""
+    R, Z = np.asarray(R), np.asarray(Z)
+    deg = (degrees[0], degrees[1], 0) if first == "lpm" else tuple(degrees)
+    fit = local_model(R, Z, half_width=first_window, degrees=deg, covariance=None)
+    zhat = np.einsum("...mip,...mp->...mi", fit.G, R) + fit.T
+    if jackknife:
+        h = centre_leverage(R, first_window, deg, Z=Z)
+        h = h[..., None] if h.ndim == 1 else h
+        zhat = (zhat - h * Z) / (1 - h)
+    zhat = np.where(np.isfinite(zhat), zhat, Z)
+    m = zhat.shape[-2]
+    if not hermitian(Z.reshape(-1, m, Z.shape[-1])):
+        return zhat
+    return (zhat + np.conj(np.take(zhat, (-np.arange(m)) % m, axis=-2))) / 2
+
+
 #: Noise of the decomposition (:func:`covariance_decomposition`): the benchmark's
 #: disturbances themselves, and circular Gaussian noise with their per-bin covariance, with
 #: that covariance averaged over the local window, and white (per row constant).
@@ -126,7 +215,7 @@ NOISE_VARIANTS = ("disturbances", "Gaussian, per-bin covariance",
 
 def covariance_decomposition(*, case=2, excitation_seeds=(0,), records=30, n_samples=3600,
                              half_width=30, degrees=(3, 3, 3), variants=NOISE_VARIANTS,
-                             seed=0, denominator="ls"):
+                             seed=0, denominator="ls", instruments="narrow", first_window=30):
     """Bias and variance of the local model's error at a FIXED excitation.
 
     The loop is linear, so the disturbances' part of the lifted output spectra, ``V = Z(on)
@@ -135,7 +224,8 @@ def covariance_decomposition(*, case=2, excitation_seeds=(0,), records=30, n_sam
     ``1000 + j``) are added to the noiseless spectra ``Z0`` of each excitation seed, and
     ``dG_j = G(Z0 + V_j) - G(Z0)`` is the error the disturbances cause (``denominator``:
     ``"ls"``, least squares, the one-record default, or ``"iv"``, instrumental variables
-    from :func:`denominator_instruments` of each fit's own data).  Per slow bin and entry of ``G``, over the records: the bias
+    from each fit's own data: ``instruments`` one of :data:`INSTRUMENTS`, ``first_window``
+    the LPM first stage's half-width).  Per slow bin and entry of ``G``, over the records: the bias
     ``mean_j dG_j`` (its square less ``var / records``, the sampling part), the variance
     ``var_j dG_j`` and the mean squared error, each over the kernel's mean reported
     variance ``G_var``; and ``|dG|^2 / G_var`` (median ``ln 2`` if calibrated).  The other
@@ -144,7 +234,7 @@ def covariance_decomposition(*, case=2, excitation_seeds=(0,), records=30, n_sam
     correlation, no leakage), with that covariance averaged over ``2 n + 1`` bins (no
     heteroscedasticity within the window), or white with per row the median over bins
     of its variance.  Returns ``{variant: (seeds, band, 4)}`` medians over the band's bins
-    and entries of ``[|dG|^2/G_var, var/G_var, bias^2/G_var, mse/G_var]`` and
+    and entries of ``[|dG|^2/G_var, var/G_var, bias^2/G_var, mse/G_var, mse/mse_LS]`` and
     ``{variant: (seeds, M, nz, nr)}`` biases (for their agreement across excitations).
     """
     m = n_samples // hdd.FACTOR
@@ -183,23 +273,29 @@ def covariance_decomposition(*, case=2, excitation_seeds=(0,), records=30, n_sam
         clean = hdd.simulate(n_samples, case=case, noise=False, seed=es)
         R, Z0 = experiment_spectra(clean.r.values, clean.u.values, clean.y.values, factor=hdd.FACTOR)
         def fit(Z, covariance):
-            iv = (denominator_instruments(R, Z, degrees=degrees) if denominator == "iv"
-                  else None)
+            iv = build_instruments(R, Z, instruments if denominator == "iv" else None,
+                                   degrees=degrees, first_window=first_window)
             return local_model(R, Z, half_width=half_width, degrees=degrees,
                                covariance=covariance, instruments=iv)
 
         G0 = fit(Z0, None).G
+        G0_ls = local_model(R, Z0, half_width=half_width, degrees=degrees, covariance=None).G
         for name in variants:
             fits = [fit(Z0 + v, "diag") for v in draws[name]]
             dG = np.array([fit.G for fit in fits]) - G0
+            mse_ls = np.mean([np.abs(local_model(R, Z0 + v, half_width=half_width,
+                                                 degrees=degrees, covariance=None).G - G0_ls) ** 2
+                              for v in draws[name]], axis=0) if denominator == "iv" else None
             var_rep = np.array([fit.G_cov for fit in fits])
             z = np.abs(dG) ** 2 / var_rep
             bias, var = dG.mean(axis=0), dG.var(axis=0)
             vr = var_rep.mean(axis=0)
             terms = [var / vr, (np.abs(bias) ** 2 - var / records) / vr,
                      (np.abs(dG) ** 2).mean(axis=0) / vr]
+            ls = (np.ones_like(vr) if mse_ls is None
+                  else (np.abs(dG) ** 2).mean(axis=0) / mse_ls)
             stats[name].append([[np.median(z[:, s])] + [np.median(t[s]) for t in terms]
-                                for s in sel])
+                                + [np.median(ls[s])] for s in sel])
             biases[name].append(bias)
     return ({k: np.array(v) for k, v in stats.items()},
             {k: np.array(v) for k, v in biases.items()})
@@ -210,13 +306,14 @@ def print_decomposition(stats, biases, *, case, records, half_width, degrees, n_
     print(f"local-model error at a fixed excitation, case {case}, window {half_width}, degrees "
           f"{tuple(degrees)}, denominator {denominator}, {records} records per excitation seed: medians over "
           "bins and entries of |dG|^2/G_var (ln 2 = 0.69 if calibrated) and of var, bias^2, "
-          "mse over G_var (1, 0, 1 if calibrated and unbiased)")
+          "mse over G_var (1, 0, 1 if calibrated and unbiased); iv: median of mse / least squares' mse")
     for name, s in stats.items():
         print(f"- {name} (one column per excitation seed)")
         b = biases[name]
         for i, ((lo, hi), sel) in enumerate(zip(BANDS[:3], _slow_bands(b.shape[1], n_samples))):
             line = f"  {f'{lo:.0f}-{hi:.0f}':<12}" + "   ".join(
                 f"z {row[i, 0]:.2f} var {row[i, 1]:.2f} bias2 {row[i, 2]:.2f} mse {row[i, 3]:.2f}"
+                + (f" mse/LS {row[i, 4]:.2f}" if row[i, 4] != 1 else "")
                 for row in s)
             if len(b) > 1:  # two excitations of one design: the same bias?
                 x, y = b[0][sel].ravel(), b[1][sel].ravel()
@@ -306,6 +403,72 @@ def band_forms(*, cases, seeds, n_samples, degrees=(3, 3, 3)):
     return out
 
 
+#: Instrument settings of :func:`instrument_coverage`: (denominator, instruments).
+IV_SETTINGS = {"ls": ("ls", None), "iv narrow": ("iv", "narrow"), "iv lrm": ("iv", "lrm"),
+               "iv lpm": ("iv", "lpm"), "iv jackknife": ("iv", "jackknife"),
+               "iv jackknife lrm": ("iv", "jackknife lrm")}
+#: Band forms of :func:`instrument_coverage` from the fit's pieces (``v`` the linear
+#: variance, ``q = K95 rho``, ``rv = rho_v``, ``c`` the small-sample factor).
+IV_BAND_FORMS = {
+    "linear (P_var_linear)": lambda v, q, rv, c: v,
+    "c_dof^2 linear": lambda v, q, rv, c: c ** 2 * v,
+    "variance form c_S": lambda v, q, rv, c: c ** 2 * v * (1 + (rv / (1 - q)) ** 2),
+    "bound c_S (P_var)": lambda v, q, rv, c: c ** 2 * v * (1 + K95 * rv / (1 - q)) ** 2,
+}
+
+
+def instrument_coverage(*, cases, seeds, n_samples, half_width=30, degrees=(3, 3, 3),
+                        first_window=30, settings=tuple(IV_SETTINGS)):
+    """Coverage of the 95 % disc of ``P`` at a fixed window for each denominator estimate
+    of :data:`IV_SETTINGS` (least squares and the instruments of :func:`build_instruments`,
+    the first stages in ``first_window``) and each band form of
+    :data:`IV_BAND_FORMS`, the median relative error, and the flagged fraction (the
+    production flag; a flagged bin counts as covered).  Fits through the kernel's own
+    pipeline (``_fit_blocks`` / ``_finish``, the instruments passed in).  Returns
+    ``{setting: {form or "error" or "flagged": (case, seed, band, input)}}``."""
+    from lcmr_xr.kernels.identification import _finish, _fit_blocks
+    out = {k: {f: np.zeros((len(cases), seeds, len(BANDS), 2))
+               for f in (*IV_BAND_FORMS, "error", "flagged")} for k in settings}
+    for ci, case in enumerate(cases):
+        for seed in range(seeds):
+            exp = hdd.simulate(n_samples, case=case, noise=True, seed=seed)
+            R, Z = experiment_spectra(exp.r.values, exp.u.values, exp.y.values, factor=hdd.FACTOR)
+            nr, m = R.shape[-1], R.shape[-2]
+            k = np.arange(n_samples // 2 + 1)
+            f = k / (n_samples * float(exp.time[1] - exp.time[0]))
+            truth = np.full((k.size, 1, nr // hdd.FACTOR), np.nan, dtype=complex)
+            truth[1:] = hdd.true_frf(f[1:], case=case).values
+            c = small_sample_factor(window_dof(half_width, nr, degrees))
+            for name in settings:
+                denominator, kind = IV_SETTINGS[name]
+                iv = build_instruments(R, Z, kind, degrees=degrees, first_window=first_window)
+                fit = _fit_blocks(R, Z, half_width=half_width, degrees=degrees, covariance=True,
+                                  noise_covariance=None, experiment_axis=None,
+                                  closed_loop="indirect", denominator=denominator,
+                                  instruments=iv)
+                res = _finish(fit, n_fast=n_samples, factor=hdd.FACTOR, nu=nr // hdd.FACTOR,
+                              ny=1, closed_loop="indirect", dof=window_dof(half_width, nr, degrees))
+                und = res["P_undetermined"][:, None, None]
+                q = K95 * fit["rho"][k % m, None, None]
+                rv = fit["rho_v"][k % m, None, None]
+                v = res["P_var_linear"]
+                err2 = np.abs(res["P"] - truth) ** 2
+                with np.errstate(divide="ignore", invalid="ignore"):
+                    check = np.where(und, np.inf, IV_BAND_FORMS["bound c_S (P_var)"](v, q, rv, c))
+                    ok = np.isfinite(res["P_var"])
+                    np.testing.assert_allclose(check[ok], res["P_var"][ok], rtol=1e-6)
+                    rel = np.sqrt(err2) / np.abs(truth)
+                    for form, fn in IV_BAND_FORMS.items():
+                        hit = (err2 <= K95 ** 2 * np.where(und, np.inf, fn(v, q, rv, c)))[:, 0]
+                        for b, (lo, hi) in enumerate(BANDS):
+                            sel = (f > max(lo, 0)) & (f < hi) & (k < k[-1])
+                            out[name][form][ci, seed, b] = hit[sel].mean(axis=0)
+                            out[name]["error"][ci, seed, b] = np.median(rel[sel, 0], axis=0)
+                            out[name]["flagged"][ci, seed, b] = und[sel, 0, 0].mean()
+        print(f"  case {case} done", file=sys.stderr, flush=True)
+    return out
+
+
 def print_table(title, s):
     """s: (case, seed, band, input, 3)."""
     print(title)
@@ -340,6 +503,18 @@ def main(argv=None):
     ap.add_argument("--denominator", nargs="+", default=["ls", "iv"], choices=["ls", "iv"],
                     help="how the LRM denominator is estimated (default: both, one table each; "
                          "--decomposition takes the first)")
+    ap.add_argument("--instruments", default="narrow", choices=INSTRUMENTS,
+                    help="instruments of --decomposition --denominator iv (and rows of "
+                         "--instrument-coverage): today's narrow LRM first fit, an LRM or LPM "
+                         "first stage in --first-window, or their leave-one-out (jackknife) forms")
+    ap.add_argument("--first-window", type=int, default=30,
+                    help="half-width of the first stage of --instruments lrm / lpm / jackknife")
+    ap.add_argument("--instrument-coverage", action="store_true",
+                    help="only the coverage of P's band at window --half-width for least squares "
+                         "and every kind of --instruments (first stages in --first-window)")
+    ap.add_argument("--noise", nargs="+", default=list(NOISE_VARIANTS), choices=NOISE_VARIANTS,
+                    metavar="VARIANT", help="noise variants of --decomposition (default: all; "
+                    f"of {NOISE_VARIANTS})")
     args = ap.parse_args(argv)
     lo, _, hi = args.cases.partition("-")
     cases = list(range(int(lo), int(hi or lo) + 1))
@@ -348,10 +523,35 @@ def main(argv=None):
         stats, biases = covariance_decomposition(
             case=cases[0], excitation_seeds=range(args.seeds), records=args.records,
             n_samples=args.n_samples, half_width=args.half_width, degrees=tuple(args.degrees),
-            denominator=args.denominator[0])
+            denominator=args.denominator[0], instruments=args.instruments,
+            first_window=args.first_window, variants=tuple(args.noise))
+        iv = "" if args.denominator[0] == "ls" else (
+            f" ({args.instruments}" + ("" if args.instruments == "narrow"
+                                       else f", first window {args.first_window}") + ")")
         print_decomposition(stats, biases, case=cases[0], records=args.records,
-                            half_width=args.half_width, denominator=args.denominator[0],
+                            half_width=args.half_width, denominator=args.denominator[0] + iv,
                             degrees=args.degrees, n_samples=args.n_samples)
+        print(f"({time.perf_counter() - t0:.0f} s; machine shared with other jobs)")
+        return
+    if args.instrument_coverage:
+        cover = instrument_coverage(cases=cases, seeds=args.seeds, n_samples=args.n_samples,
+                                    half_width=args.half_width, degrees=tuple(args.degrees),
+                                    first_window=args.first_window)
+        print(f"HDD benchmark, N = {args.n_samples}, disturbances on, cases {args.cases}, "
+              f"{args.seeds} seeds, window {args.half_width}, first-stage window "
+              f"{args.first_window}: coverage of the 95 % disc VCM/PZT per band form (flagged = "
+              "covered), mean (worst case); median relative error; flagged fraction")
+        print(f"  {'setting / form':<32}" + "".join(f"{f'{lo:.0f}-{hi:.0f} Hz':>26}"
+                                                    for lo, hi in BANDS))
+        for name, forms in cover.items():
+            for form, c in forms.items():
+                if form == "error":
+                    mean = worst = np.median(c, axis=(0, 1))
+                else:
+                    mean, worst = c.mean(axis=(0, 1)), c.mean(axis=1).min(axis=0)
+                print(f"  {f'{name}, {form}':<32}" + "".join(
+                    f"{f'{mean[b, 0]:.3f}/{mean[b, 1]:.3f} ({worst[b, 0]:.3f}/{worst[b, 1]:.3f})':>26}"
+                    for b in range(len(BANDS))))
         print(f"({time.perf_counter() - t0:.0f} s; machine shared with other jobs)")
         return
     if args.band_forms:

@@ -98,7 +98,85 @@ def test_accuracy_decomposition_shows_the_lrm_bias_on_white_noise():
     lpm, _ = module.covariance_decomposition(records=8, degrees=(3, 3, 0), variants=("white",))
     lrm, bias = module.covariance_decomposition(records=8, degrees=(3, 3, 3),
                                                 variants=("white",))
-    z, var, bias2, mse = lrm["white"][0, 2]  # excitation seed 0, 5-25.2 kHz
-    assert bias2 > 0.1 and var < 1.0 and mse > var + 0.1
+    z, var, bias2, mse, mse_over_ls = lrm["white"][0, 2]  # excitation seed 0, 5-25.2 kHz
+    assert bias2 > 0.1 and var < 1.0 and mse > var + 0.1 and mse_over_ls == 1
     assert np.all(np.abs(lpm["white"][0, :, 2]) < 0.01)  # medians of bias^2 / G_var
     assert bias["white"].shape == (1, 1800, 5, 4)
+
+
+@pytest.mark.parametrize("real", [False, True])
+def test_accuracy_jackknife_instruments_are_the_leave_one_out_lpm_predictions(real):
+    """The prototype instruments of benchmarks/accuracy.py (--instruments lpm / jackknife)
+    against a literal per-bin least-squares fit of the LPM (degrees (Rn, Rm, 0)): the
+    prediction at the centre bin, and the fit without the centre bin predicting it (the
+    leave-one-out identity with the batched leverage); windows wrap around the circle."""
+    module = _load("accuracy")
+    rng = np.random.default_rng(3)
+    m, nr, nz, n, rn, rm = 48, 2, 3, 9, 2, 1
+    R = rng.standard_normal((m, nr)) + 1j * rng.standard_normal((m, nr))
+    Z = rng.standard_normal((m, nz)) + 1j * rng.standard_normal((m, nz))
+    if real:  # spectra of real signals: the instruments are conjugate-symmetric too
+        R, Z = (np.fft.fft(rng.standard_normal((m, c)), axis=0) for c in (nr, nz))
+    plain = module.jackknife_instruments(R, Z, degrees=(rn, rm, 1), first_window=n,
+                                         jackknife=False)
+    loo = module.jackknife_instruments(R, Z, degrees=(rn, rm, 1), first_window=n)
+    h = module.centre_leverage(R, n, (rn, rm))
+    r = np.arange(-n, n + 1)
+    x = r / n
+    for k in range(m):
+        idx = (k + r) % m
+        A = np.concatenate([(R[idx][:, :, None] * x[:, None, None] ** np.arange(rn + 1))
+                            .reshape(r.size, -1), x[:, None] ** np.arange(rm + 1)], axis=1)
+        a0 = A[n]
+        theta = np.linalg.lstsq(A, Z[idx], rcond=None)[0]
+        keep = r != 0
+        theta_loo = np.linalg.lstsq(A[keep], Z[idx][keep], rcond=None)[0]
+        np.testing.assert_allclose(h[k], np.real(a0 @ np.linalg.solve(A.conj().T @ A, a0.conj())),
+                                   rtol=1e-9)
+        if not real:
+            np.testing.assert_allclose(plain[k], a0 @ theta, rtol=1e-8, atol=1e-10)
+            np.testing.assert_allclose(loo[k], a0 @ theta_loo, rtol=1e-8, atol=1e-10)
+    if real:  # symmetrised: equal to the per-bin fits to their rounding, and Hermitian
+        k = np.arange(m)
+        np.testing.assert_allclose(loo[(-k) % m], np.conj(loo), atol=1e-12)
+        idx = (5 + r) % m
+        A = np.concatenate([(R[idx][:, :, None] * x[:, None, None] ** np.arange(rn + 1))
+                            .reshape(r.size, -1), x[:, None] ** np.arange(rm + 1)], axis=1)
+        theta_loo = np.linalg.lstsq(A[r != 0], Z[idx][r != 0], rcond=None)[0]
+        np.testing.assert_allclose(loo[5], A[n] @ theta_loo, rtol=1e-8)
+
+
+def test_accuracy_jackknife_lrm_instruments_leave_the_centre_bin_out_per_row():
+    """With the LRM first stage (--instruments "jackknife lrm") the regressors hold the
+    other bins' Z (one regression per output row); the centre row holds none (``x^d`` with
+    ``d >= 1`` vanishes at ``r = 0``), so the per-row leave-one-out identity is exact:
+    against a literal per-bin, per-row least-squares fit without the centre bin."""
+    module = _load("accuracy")
+    rng = np.random.default_rng(4)
+    m, nr, nz, n, rn, rm, rd = 40, 2, 2, 9, 1, 1, 2
+    R = rng.standard_normal((m, nr)) + 1j * rng.standard_normal((m, nr))
+    Z = rng.standard_normal((m, nz)) + 1j * rng.standard_normal((m, nz))
+    loo = module.jackknife_instruments(R, Z, degrees=(rn, rm, rd), first_window=n, first="lrm")
+    assert module.centre_leverage(R, n, (rn, rm, rd), Z=Z).shape == (m, nz)
+    r = np.arange(-n, n + 1)
+    x = r / n
+    for k in range(0, m, 3):
+        idx = (k + r) % m
+        for i in range(nz):
+            A = np.concatenate([(R[idx][:, :, None] * x[:, None, None] ** np.arange(rn + 1))
+                                .reshape(r.size, -1), x[:, None] ** np.arange(rm + 1),
+                                -Z[idx, i, None] * x[:, None] ** np.arange(1, rd + 1)], axis=1)
+            theta = np.linalg.lstsq(A[r != 0], Z[idx, i][r != 0], rcond=None)[0]
+            np.testing.assert_allclose(loo[k, i], A[n] @ theta, rtol=1e-7)
+
+
+def test_accuracy_decomposition_wide_first_stage_instruments_trade_bias_for_variance():
+    """--decomposition --denominator iv --instruments lrm --first-window 30 on white noise
+    (docs/uncertainty.md, "Instruments from a wider or leave-one-out first stage"): the
+    LRM first stage in window 30 removes the errors-in-variables bias that least squares
+    shows (bias^2 > 0.1 G_var in the test above) and costs more mse than least squares."""
+    module = _load("accuracy")
+    iv, _ = module.covariance_decomposition(records=8, variants=("white",), denominator="iv",
+                                            instruments="lrm", first_window=30)
+    z, var, bias2, mse, mse_over_ls = iv["white"][0, 2]  # excitation seed 0, 5-25.2 kHz
+    assert abs(bias2) < 0.05 and mse_over_ls > 1.0  # 30 records: 0.00, 1.15-1.16
