@@ -143,3 +143,24 @@ def test_an_unlabelled_append_to_a_text_labelled_archive_gets_its_position_as_te
     save_archive([_labelled(0).assign_coords(experiment=5)], tmp_path / "i.nc")
     append_to_archive(_labelled(1).drop_vars("experiment"), tmp_path / "i.nc")
     assert open_archive(tmp_path / "i.nc").experiment.values.tolist() == [5, 1]
+
+
+def test_an_unlabelled_append_to_a_directory_gets_its_order_index(tmp_path):
+    """In a directory the position is the order index the file gets (from the index,
+    without listing the directory); before, the label was 0 (the position in the list
+    passed in), so an integer-labelled directory refused every unlabelled append as
+    "experiment 0 is already in ..." and a text-labelled one got the integer 0."""
+    from lcmr_xr.scaleout import append_to_archive
+
+    save_archive([_labelled(0).assign_coords(experiment=0),
+                  _labelled(1).assign_coords(experiment=1)], tmp_path / "i", layout="files")
+    written = append_to_archive(_labelled(2).drop_vars("experiment"), tmp_path / "i")
+    assert written.name == "2.nc"
+    assert open_archive(tmp_path / "i").experiment.values.tolist() == [0, 1, 2]
+    save_archive([_labelled(0), _labelled(1)], tmp_path / "t", layout="files")
+    append_to_archive(_labelled(2).drop_vars("experiment"), tmp_path / "t")
+    assert open_archive(tmp_path / "t").experiment.values.tolist() == ["run0", "run1", "2"]
+    fresh = append_to_archive(_labelled(0).drop_vars("experiment"), tmp_path / "new.nc")
+    assert open_archive(fresh).experiment.values.tolist() == [0]  # new path: consolidated
+    (tmp_path / "e").mkdir()  # an empty directory: the first experiment is 0
+    assert append_to_archive(_labelled(0).drop_vars("experiment"), tmp_path / "e").name == "0.nc"

@@ -78,7 +78,11 @@ def _label_kind(label) -> str:
     return type(label).__name__
 
 
-def _check_label_kinds(rows, where: str) -> None:
+_RELABEL = ("Relabel the new experiments, e.g. ds.assign_coords(experiment=str(label)), or "
+            "write them to another archive.")
+
+
+def _check_label_kinds(rows, where: str, remedy: str = _RELABEL) -> None:
     """Refuse ``[(label, name), ...]`` holding labels of more than one kind (see
     :func:`_label_kind`); the message names one of each and the remedy."""
     kinds: dict = {}
@@ -88,8 +92,8 @@ def _check_label_kinds(rows, where: str) -> None:
         shown = ", ".join(f"{kind} {label!r} ({name})" for kind, (label, name) in kinds.items())
         raise ValueError(
             f"{where} mix experiment labels of different kinds: {shown}; an archive's labels "
-            "are all integers or all text (mixed, they would all be read back as text). "
-            "Relabel, e.g. ds.assign_coords(experiment=str(label)), or use another archive."
+            "are of one kind, e.g. all integers or all text (mixed, they would all be read "
+            f"back as text). {remedy}"
         )
 
 
@@ -514,8 +518,9 @@ def append_to_archive(experiment, path) -> Path:
     ----------
     experiment : xarray.Dataset
         One experiment (``lcmr-xr-1``, validated), labelled by a scalar ``experiment``
-        coordinate (default: its position in the archive, as text in an archive of text
-        labels).  Several stacked along
+        coordinate (default: its position in the archive, the number of experiments
+        before it in a consolidated archive, its order index in a directory; as text in
+        an archive of text labels).  Several stacked along
         ``experiment`` are appended in order.
     path : str or os.PathLike
         A consolidated archive file (created when missing) or an archive directory.
@@ -563,6 +568,8 @@ def append_to_archive(experiment, path) -> Path:
     """
     path = Path(path)
     if path.is_dir():
+        if isinstance(experiment, xr.Dataset) and cv.EXPERIMENT not in experiment.coords:
+            experiment = experiment.assign_coords({cv.EXPERIMENT: _next_position(path)})
         items, first = _validated(experiment)
         return _save_files(items, first, path, overwrite=False, add_only=True)[-1]
     if not path.exists():
@@ -686,11 +693,7 @@ def _save_files(items, first, directory: Path, overwrite: bool, add_only: bool =
                 "layout='files')."
             )
     directory.mkdir(parents=True, exist_ok=True)
-    journal = dirindex.journal_files(directory)
-    facts = dirindex.base_facts(directory)
-    if not (facts.base and facts.ordered) and _nc_names(directory):
-        _compact(directory, blocking=True)  # no index (of this version): build it now, once
-        journal, facts = dirindex.journal_files(directory), dirindex.base_facts(directory)
+    journal, facts = _index_facts(directory)
     targets = set(names)
     # one file of the archive, not replaced: the base's first (no listing of the directory)
     if facts.first is not None and facts.first not in targets and (directory / facts.first).is_file():
@@ -728,8 +731,7 @@ def _save_files(items, first, directory: Path, overwrite: bool, add_only: bool =
         _check_label_kinds([(expected[0][0], reference.name)] + [(label, n) for (label, _), n
                                                                  in zip(items, names)],
                            f"archive {directory} and the new experiments")
-    orders = [o for o in (facts.top, dirindex.journal_max_order(journal)) if o is not None]
-    start = max(orders) + 1 if orders else 0
+    start = _next_order(journal, facts)
     written, rows = [], []
     for i, ((label, ds), name) in enumerate(zip(items, names)):
         out = ds.copy(deep=False)
@@ -751,6 +753,36 @@ def _save_files(items, first, directory: Path, overwrite: bool, add_only: bool =
         rows.append((name, dirindex.stamp(st), dirindex.summary_text(_summary(header)), start + i))
     _index_new_files(directory, rows, facts, len(journal))
     return written
+
+
+def _index_facts(directory: Path):
+    """The journal files and the base facts of a directory's index (built first, as
+    :func:`index_archive` does, when there is none of this version)."""
+    journal = dirindex.journal_files(directory)
+    facts = dirindex.base_facts(directory)
+    if not (facts.base and facts.ordered) and _nc_names(directory):
+        _compact(directory, blocking=True)  # no index (of this version): build it now, once
+        journal, facts = dirindex.journal_files(directory), dirindex.base_facts(directory)
+    return journal, facts
+
+
+def _next_order(journal, facts) -> int:
+    """The order index of the next experiment written into the directory."""
+    orders = [o for o in (facts.top, dirindex.journal_max_order(journal)) if o is not None]
+    return max(orders) + 1 if orders else 0
+
+
+def _next_position(directory: Path):
+    """Default label of an experiment appended to a directory without one: its position,
+    the order index it gets (from the index: no listing), as text when the archive's
+    labels are text (those of the base's first file)."""
+    journal, facts = _index_facts(directory)
+    position = _next_order(journal, facts)
+    if facts.first is not None and (directory / facts.first).is_file():
+        header = dirx.read_header(directory / facts.first, directory)
+        if _label_kind(header["scalars"].get(cv.EXPERIMENT, Path(facts.first).stem)) == "text":
+            return str(position)
+    return position
 
 
 def _write_checked(ds: xr.Dataset, path: Path, ref, label) -> tuple[Path, dict, tuple]:
@@ -1126,7 +1158,10 @@ def _open_directory(directory: Path, chunks) -> xr.Dataset:
                 f"lcmr_xr.open_dataset)."
             )
     _check_label_kinds([(row["label"], row["path"].name) for row in files],
-                       f"the files of archive {directory}")
+                       f"the files of archive {directory}",
+                       "Move the files of one kind to another directory, or save them again "
+                       "relabelled: save_archive(lcmr_xr.open_experiment(path).assign_coords("
+                       "experiment=str(label)), directory, layout='files'), then remove the old file.")
     owners: dict = {}
     for row in files:
         owners.setdefault(row["label"], []).append(row["path"].name)
