@@ -483,6 +483,13 @@ def print_table(title, s):
               f"{f'{worst[0]:.3f}/{worst[1]:.3f}':>20}{flag:>9.3f}")
 
 
+
+def _print_cover_row(label: str, width: int, mean, worst) -> None:
+    """One row of a per-band table: ``VCM/PZT mean (worst case)`` for each band."""
+    print(f"  {label:<{width}}" + "".join(
+        f"{f'{mean[b, 0]:.3f}/{mean[b, 1]:.3f} ({worst[b, 0]:.3f}/{worst[b, 1]:.3f})':>26}"
+        for b in range(len(BANDS))))
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=10)
@@ -549,9 +556,7 @@ def main(argv=None):
                     mean = worst = np.median(c, axis=(0, 1))
                 else:
                     mean, worst = c.mean(axis=(0, 1)), c.mean(axis=1).min(axis=0)
-                print(f"  {f'{name}, {form}':<32}" + "".join(
-                    f"{f'{mean[b, 0]:.3f}/{mean[b, 1]:.3f} ({worst[b, 0]:.3f}/{worst[b, 1]:.3f})':>26}"
-                    for b in range(len(BANDS))))
+                _print_cover_row(f"{name}, {form}", 32, mean, worst)
         print(f"({time.perf_counter() - t0:.0f} s; machine shared with other jobs)")
         return
     if args.band_forms:
@@ -562,9 +567,7 @@ def main(argv=None):
         print(f"  {'form':<20}" + "".join(f"{f'{lo:.0f}-{hi:.0f} Hz':>26}" for lo, hi in BANDS))
         for name, c in cover.items():
             mean, worst = c.mean(axis=(0, 1)), c.mean(axis=1).min(axis=0)
-            print(f"  {name:<20}" + "".join(
-                f"{f'{mean[b, 0]:.3f}/{mean[b, 1]:.3f} ({worst[b, 0]:.3f}/{worst[b, 1]:.3f})':>26}"
-                for b in range(len(BANDS))))
+            _print_cover_row(name, 20, mean, worst)
         print(f"({time.perf_counter() - t0:.0f} s; machine shared with other jobs)")
         return
     noisy = run({f"{name}, denominator {d}": (w, d) for d in args.denominator
