@@ -164,3 +164,16 @@ def test_an_unlabelled_append_to_a_directory_gets_its_order_index(tmp_path):
     assert open_archive(fresh).experiment.values.tolist() == [0]  # new path: consolidated
     (tmp_path / "e").mkdir()  # an empty directory: the first experiment is 0
     assert append_to_archive(_labelled(0).drop_vars("experiment"), tmp_path / "e").name == "0.nc"
+
+
+@pytest.mark.parametrize("layout", ["files", "consolidated"])
+def test_unlabelled_stacked_experiments_are_appended_at_their_positions(tmp_path, layout):
+    """Several unlabelled experiments stacked along ``experiment`` get the positions after
+    the archive's last one (they got 0, 1, ..: the positions in the stack, already taken)."""
+    from lcmr_xr.scaleout import append_to_archive
+
+    path = tmp_path / ("d" if layout == "files" else "c.nc")
+    save_archive([_labelled(i).assign_coords(experiment=i) for i in range(2)], path, layout=layout)
+    stack = xr.concat([_labelled(2), _labelled(3)], dim="experiment").drop_vars("experiment")
+    append_to_archive(stack, path)
+    assert open_archive(path).experiment.values.tolist() == [0, 1, 2, 3]

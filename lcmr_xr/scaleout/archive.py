@@ -567,18 +567,18 @@ def append_to_archive(experiment, path) -> Path:
     ['a', 'b']
     """
     path = Path(path)
+    unlabelled = isinstance(experiment, xr.Dataset) and cv.EXPERIMENT not in experiment.coords
     if path.is_dir():
-        if isinstance(experiment, xr.Dataset) and cv.EXPERIMENT not in experiment.coords:
-            experiment = experiment.assign_coords({cv.EXPERIMENT: _next_position(path)})
+        if unlabelled:
+            experiment = _positions(experiment, *_next_position(path))
         items, first = _validated(experiment)
         return _save_files(items, first, path, overwrite=False, add_only=True)[-1]
     if not path.exists():
         return save_archive(experiment, path, layout="consolidated")[0]
-    if isinstance(experiment, xr.Dataset) and cv.EXPERIMENT not in experiment.coords:
-        header = _header(path)  # the default label, its position, of the archive's kind
+    if unlabelled:
+        header = _header(path)  # the default labels, their positions, of the archive's kind
         text = bool(header["labels"]) and _label_kind(header["labels"][0]) == "text"
-        label = str(header["count"]) if text else header["count"]
-        experiment = experiment.assign_coords({cv.EXPERIMENT: label})
+        experiment = _positions(experiment, header["count"], text)
     items, first = _validated(experiment)
     _append_consolidated(items, first, path)
     return path
@@ -772,17 +772,26 @@ def _next_order(journal, facts) -> int:
     return max(orders) + 1 if orders else 0
 
 
-def _next_position(directory: Path):
-    """Default label of an experiment appended to a directory without one: its position,
-    the order index it gets (from the index: no listing), as text when the archive's
-    labels are text (those of the base's first file)."""
+def _next_position(directory: Path) -> tuple[int, bool]:
+    """The position of an experiment appended to a directory (the order index it gets,
+    from the index: no listing), and whether the archive's labels are text (those of the
+    base's first file)."""
     journal, facts = _index_facts(directory)
     position = _next_order(journal, facts)
+    text = False
     if facts.first is not None and (directory / facts.first).is_file():
         header = dirx.read_header(directory / facts.first, directory)
-        if _label_kind(header["scalars"].get(cv.EXPERIMENT, Path(facts.first).stem)) == "text":
-            return str(position)
-    return position
+        text = _label_kind(header["scalars"].get(cv.EXPERIMENT, Path(facts.first).stem)) == "text"
+    return position, text
+
+
+def _positions(experiment: xr.Dataset, start: int, text: bool) -> xr.Dataset:
+    """An unlabelled experiment (or several stacked along ``experiment``) labelled by its
+    positions in the archive from ``start`` on, as text when ``text``."""
+    n = experiment.sizes.get(cv.EXPERIMENT)
+    labels = [start] if n is None else list(range(start, start + n))
+    labels = [str(lab) for lab in labels] if text else labels
+    return experiment.assign_coords({cv.EXPERIMENT: labels[0] if n is None else labels})
 
 
 def _write_checked(ds: xr.Dataset, path: Path, ref, label) -> tuple[Path, dict, tuple]:
