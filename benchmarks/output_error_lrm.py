@@ -398,7 +398,7 @@ def coverage(*, cases=(1, 2, 5, 9), seeds=4, n_samples=3600, half_width=30, degr
     return out
 
 
-def cost(*, windows=(12, 19, 30, 45), n_samples=3600, repeats=2, iterations=60):
+def cost(*, windows=(12, 30, 45), n_samples=3600, repeats=1, iterations=60):
     """CPU time of one OE fit with covariance (``iterations`` steps, and 0 steps: the
     least-squares start, the Jacobian and the covariance alone) over one production
     ``local_model`` call (``covariance="full"``), alternating in this process; per window.

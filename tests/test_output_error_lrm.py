@@ -97,3 +97,10 @@ def test_noisy_fit_lowers_the_output_error_cost_to_a_stationary_point(oe):
     C = fit["G_cov"]
     np.testing.assert_allclose(C, np.conj(np.swapaxes(C, -1, -2)), atol=1e-12 * np.abs(C).max())
     assert np.all(np.real(np.einsum("kii->ki", C)) > 0)
+
+
+def test_command_line_parses(oe, capsys):
+    with pytest.raises(SystemExit) as exc:
+        oe.main(["--help"])
+    assert exc.value.code == 0
+    assert "usage:" in capsys.readouterr().out
