@@ -424,8 +424,8 @@ def test_an_append_whose_file_another_writer_replaced_writes_no_entry_for_it(tmp
     _archive(d, 2)
     real = arc._write_checked
 
-    def raced(ds, path, ref, label):
-        out = real(ds, path, ref, label)
+    def raced(ds, path, ref, label, **kwargs):
+        out = real(ds, path, ref, label, **kwargs)
         save(_labelled(2).assign_attrs(seed=99), d / "other.tmp")
         os.replace(d / "other.tmp", path)
         return out
@@ -513,8 +513,8 @@ def test_an_append_whose_file_another_process_edited_writes_no_entry_for_it(tmp_
     _archive(d, 2)
     real = arc._write_checked
 
-    def raced(ds, path, ref, label):
-        out = real(ds, path, ref, label)
+    def raced(ds, path, ref, label, **kwargs):
+        out = real(ds, path, ref, label, **kwargs)
         time.sleep(0.01)  # a later clock tick
         with h5py.File(path, "r+") as f:
             f.attrs["seed"] = np.int64(99)
@@ -636,6 +636,39 @@ def test_two_appends_at_once_get_different_orders_and_lose_nothing(tmp_path, mon
     got = _assert_same_as_oracle(d)
     assert got.seed.values.tolist() == [0, 1, 2, 3]
     assert got.experiment.values.tolist() == ([f"run{i}" for i in range(4)] if labelled else [0, 1, 2, 3])
+
+
+def test_without_locks_an_append_never_replaces_the_file_another_wrote_meanwhile(
+        tmp_path, monkeypatch):
+    """Where the write lock is not available (some network file systems) two unlabelled
+    appends at once take one label and file name.  The later rename used to replace the
+    other's experiment without a word; now the file is put in place by a hard link, which
+    fails on an existing name: the late append raises and the other's data stay."""
+    import contextlib
+    import threading
+
+    d = tmp_path / "d"
+    save_archive([_labelled(i).assign_coords(experiment=i) for i in range(2)], d, layout="files")
+    mine, theirs = (_labelled(i).drop_vars("experiment") for i in (2, 3))
+    monkeypatch.setattr(dirindex, "write_lock", lambda *a, **k: contextlib.nullcontext())
+    real_write, done = arc._write_checked, []
+
+    def write_checked(*args, **kwargs):
+        if not done:  # this append checked that its name is free; the other runs to its end
+            done.append(True)
+            other = threading.Thread(target=append_to_archive, args=(theirs, d))
+            other.start()
+            other.join(120)
+        return real_write(*args, **kwargs)
+
+    monkeypatch.setattr(arc, "_write_checked", write_checked)
+    with pytest.raises(FileExistsError, match=r"the file exists \(another process wrote it"):
+        append_to_archive(mine, d)
+    monkeypatch.undo()
+    files = arc.archive_files(d)
+    assert len(files) == 3 and not [p for p in d.iterdir() if p.name.endswith(".tmp")]
+    got = open_archive(d)
+    assert got.seed.values.tolist() == [0, 1, 3]  # the other's experiment, not replaced
 
 
 def _newer_base(d, order=True):
@@ -802,8 +835,8 @@ def test_an_appended_file_changed_in_the_tick_of_its_write_gets_no_trusted_entry
     _CoarseClock(monkeypatch, tmp_path / "clock")
     real = arc._write_checked
 
-    def edited(ds, path, ref, label):
-        out = real(ds, path, ref, label)
+    def edited(ds, path, ref, label, **kwargs):
+        out = real(ds, path, ref, label, **kwargs)
         size = path.stat().st_size
         _edit_seed(path, 99)
         assert path.stat().st_size == size

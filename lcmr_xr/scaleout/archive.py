@@ -766,7 +766,10 @@ def _save_files(items, first, directory: Path, overwrite: bool, add_only: bool =
         if not out[cv.EXPERIMENT].attrs:
             out[cv.EXPERIMENT].attrs.update(cv.label_attrs("experiment"))
         out.attrs = {**out.attrs, ORDER_ATTR: start + i}
-        path, header, ident, settled = _write_checked(out, directory / name, ref, label)
+        # an append never replaces a file, not even one another writer put there meanwhile
+        # (where the write lock is not available)
+        path, header, ident, settled = _write_checked(out, directory / name, ref, label,
+                                                      replace=not add_only)
         written.append(path)
         if ref is None:  # the next ones must agree with the first one written
             ref = (path, header)
@@ -838,7 +841,8 @@ def _positions(experiment: xr.Dataset, start: int, text: bool) -> xr.Dataset:
     return experiment.assign_coords({cv.EXPERIMENT: labels[0] if n is None else labels})
 
 
-def _write_checked(ds: xr.Dataset, path: Path, ref, label) -> tuple[Path, dict, tuple, bool]:
+def _write_checked(ds: xr.Dataset, path: Path, ref, label,
+                   replace: bool = True) -> tuple[Path, dict, tuple, bool]:
     """Write ``ds`` to ``path`` atomically as :func:`lcmr_xr.io.save` does, unless the
     header of what was written (read back before it is moved into place) fails the test
     the directory's open applies against ``ref`` (``(path, header)`` of a file of the
@@ -847,7 +851,8 @@ def _write_checked(ds: xr.Dataset, path: Path, ref, label) -> tuple[Path, dict, 
     is the header's only if the file at ``path`` still has them) and whether the file
     system's clock had passed that modification time before the rename (so that any
     later change of the file changes it; :func:`lcmr_xr.scaleout.dirindex.wait_past`,
-    at most one tick of coarse file times: without it the entry is written "racy")."""
+    at most one tick of coarse file times: without it the entry is written "racy").
+    Without ``replace`` an existing ``path`` is never replaced (``FileExistsError``)."""
     from lcmr_xr.io._atomic import atomic_write
     from lcmr_xr.io._guards import check_not_own_source
     from lcmr_xr.io.netcdf import _ENGINE, _flatten_attrs, _map_attrs
@@ -866,7 +871,7 @@ def _write_checked(ds: xr.Dataset, path: Path, ref, label) -> tuple[Path, dict, 
         got.extend([header, (st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns),
                      dirindex.wait_past(path.parent, st.st_mtime_ns)])
 
-    return atomic_write(path, write), *got
+    return atomic_write(path, write, overwrite=replace), *got
 
 
 def _check_structure(header: dict, ref, label, directory: Path) -> None:

@@ -54,8 +54,9 @@ writing its journal file, so that two never take the same order (nor the same la
 file name, appending without labels).  A compaction holds an exclusive ``flock`` on the
 journal directory (a writer that finds it held leaves the compaction to the holder);
 where locks are not available (some network file systems) two writers at once may take
-one order (their files then ordered by name; two appends without labels then one label,
-and the later file replaces the earlier), and two compactions at once may drop
+one order (their files then ordered by name; two appends without labels then one label:
+an append never replaces a file, so the later one fails with ``FileExistsError`` and is
+retried by its caller), and two compactions at once may drop
 entries of files that then are read from their headers at open (correct, only slower)
 until the next compaction.
 """
