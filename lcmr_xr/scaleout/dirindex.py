@@ -55,8 +55,8 @@ file name, appending without labels).  A compaction holds an exclusive ``flock``
 journal directory (a writer that finds it held leaves the compaction to the holder);
 where locks are not available (some network file systems) two writers at once may take
 one order (their files then ordered by name; two appends without labels then one label:
-an append never replaces a file, so the later one fails with ``FileExistsError`` and is
-retried by its caller), and two compactions at once may drop
+an append never replaces a file, so the later one fails with ``FileExistsError``, and
+appending it again gives it the next label), and two compactions at once may drop
 entries of files that then are read from their headers at open (correct, only slower)
 until the next compaction.
 """
