@@ -17,6 +17,7 @@ settings validator of issue 17 (``lcmr_xr.settings``).
 
 from __future__ import annotations
 
+import importlib.util
 import os
 import shutil
 import signal
@@ -35,6 +36,7 @@ import pytest
 import xarray as xr
 
 import lcmr_xr
+import lcmr_xr.plot
 from lcmr_xr import cli, hdd
 from lcmr_xr.experiment import experiment, validate_experiment
 from lcmr_xr.io import open_dataset, open_experiment, open_frf, save
@@ -42,6 +44,8 @@ from lcmr_xr.io._atomic import stale_temporaries, temporary_prefix
 from lcmr_xr.scaleout import open_archive, save_archive, select_settings, sweep
 
 TH = 1 / 100800
+_needs_control = pytest.mark.skipif(importlib.util.find_spec("control") is None,
+                                    reason="python-control (the [control] extra) is not installed")
 
 
 # ------------------------------------------------------------------------ environment
@@ -306,6 +310,11 @@ API = [
     Case("uneven_time", lambda e: experiment(e.small.r.assign_coords(time=e.small.time * (1 + np.arange(400) * 1e-4)),
                                              e.small.u.drop_vars("time"), e.small.y.drop_vars("slow_time"), factor=2),
          ValueError, ("not evenly spaced",)),
+    Case("units_not_text", lambda e: e.build(output_units=5), TypeError, ("output_units", "unit string", "5")),
+    Case("units_list", lambda e: e.build(input_units=["V"]), TypeError, ("input_units", "['V']")),
+    Case("units_empty", lambda e: e.build(output_units=""), ValueError, ("output_units", "unit string")),
+    Case("arrays_empty", lambda e: e.build(r=e.r[:0], u=e.u[:0], y=e.y[:0]), ValueError, ("r", "no data"),
+         absent=("transposed",)),
     # --- validate_experiment(): datasets -------------------------------------------------
     Case("validate_dataarray", lambda e: validate_experiment(e.small.r), TypeError,
          ("xarray.Dataset", "lcmr_xr.experiment(r, u, y")),
@@ -331,6 +340,47 @@ API = [
          ValueError, ("slow_time", "spaced by", "spacing / time spacing = 3")),
     Case("time_not_starting_at_zero", lambda e: validate_experiment(e.small.assign_coords(time=e.small.time + 1.0)),
          ValueError, ("starts at",)),
+    Case("units_attribute_not_text", lambda e: validate_experiment(e.changed(y=e.small.y.assign_attrs(units=["m"]))),
+         ValueError, ("'y'", "units ['m']", "UDUNITS")),
+    # --- the HDD simulation and multisines: whole numbers and flags are not coerced ----------
+    Case("simulate_samples_fractional", lambda e: hdd.simulate(n_samples=400.5, noise=False), ValueError,
+         ("n_samples", "400.5", "not rounded")),
+    Case("simulate_samples_text", lambda e: hdd.simulate(n_samples="400", noise=False), TypeError,
+         ("n_samples", "'400'")),
+    Case("simulate_noise_text", lambda e: hdd.simulate(n_samples=400, noise="no"), TypeError,
+         ("noise", "True or False")),
+    Case("simulate_fast_output_text", lambda e: hdd.simulate(n_samples=400, noise=False, fast_output="yes"),
+         TypeError, ("fast_output", "True or False")),
+    Case("simulate_seed_negative", lambda e: hdd.simulate(n_samples=400, noise=False, seed=-1), ValueError,
+         ("seed", ">= 0")),
+    Case("simulate_seed_fractional", lambda e: hdd.simulate(n_samples=400, noise=False, seed=1.5), ValueError,
+         ("seed", "1.5", "not rounded")),
+    Case("simulate_seed_none", lambda e: hdd.simulate(n_samples=400, noise=False, seed=None), TypeError,
+         ("seed", "None")),
+    Case("multisine_samples_fractional", lambda e: lcmr_xr.multisine(400.5, sampling_period=TH, rms=1.0, seed=0),
+         ValueError, ("n_samples", "400.5", "not rounded")),
+    Case("multisine_periods_bool", lambda e: lcmr_xr.multisine(400, sampling_period=TH, rms=1.0, seed=0,
+                                                               periods=True),
+         TypeError, ("periods", "True")),
+    # --- transforms ------------------------------------------------------------------------
+    Case("unlift_reordered_phases", lambda e: lcmr_xr.unlift(lcmr_xr.lift(e.small.r, 2).sortby("lift_phase", ascending=False)),
+         ValueError, ("lift_phase", "[1, 0]", "sortby")),
+    Case("unlift_selected_phase", lambda e: lcmr_xr.unlift(lcmr_xr.lift(e.small.r.drop_vars("time"), 2).isel(lift_phase=[1])),
+         ValueError, ("lift_phase", "[1]")),
+    Case("dft_numpy", lambda e: lcmr_xr.dft(e.r), TypeError, ("dft", "xr.DataArray"), absent=("attribute",)),
+    Case("idft_numpy", lambda e: lcmr_xr.idft(np.fft.fft(e.r, axis=0)), TypeError, ("idft", "xr.DataArray"),
+         absent=("attribute",)),
+    Case("dft_one_sided_text", lambda e: lcmr_xr.dft(e.small.r, one_sided="no"), TypeError,
+         ("one_sided", "True or False")),
+    # --- plots: flags are True or False ----------------------------------------------------
+    Case("bode_db_text", lambda e: lcmr_xr.plot.bode(e.frf, db="no"), TypeError, ("db", "True or False")),
+    Case("bode_unwrap_text", lambda e: lcmr_xr.plot.bode(e.frf, unwrap="yes"), TypeError, ("unwrap",)),
+    Case("lifted_db_text", lambda e: lcmr_xr.plot.lifted(e.frf, db="no"), TypeError, ("db", "True or False")),
+    # --- FRD export: python-control assumes increasing frequencies ----------------------------
+    Case("to_frd_frequencies_reversed", lambda e: lcmr_xr.to_frd(e.frf.isel(frequency=slice(None, None, -1))),
+         ValueError, ("increase strictly", "sortby"), marks=(_needs_control,)),
+    Case("to_frd_frequency_repeated", lambda e: lcmr_xr.to_frd(e.frf.isel(frequency=[1, 2, 2, 3])),
+         ValueError, ("increase strictly", "drop_duplicates"), marks=(_needs_control,)),
     # --- identify() ------------------------------------------------------------------------
     Case("identify_dataarray", lambda e: lcmr_xr.identify(e.small.r), TypeError, ("experiment xarray.Dataset",)),
     Case("method_unknown", lambda e: _identify12(e.small, method="lsq"), ValueError, ("method", "'lsq'")),
@@ -479,6 +529,8 @@ CLI = [
     Case("simulate_output_directory_missing", cli=lambda e: ["simulate", "-o", "nodir/x.nc"], words=("does not exist",)),
     Case("simulate_samples_odd", cli=lambda e: ["simulate", "-o", "x.nc", "--samples", "5"],
          words=("n_samples", "multiple")),
+    Case("cli_simulate_seed_negative", cli=lambda e: ["simulate", "-o", "x.nc", "--seed", "-1"],
+         words=("seed", ">= 0")),
     Case("simulate_case_unknown", cli=lambda e: ["simulate", "-o", "x.nc", "--case", "10"], argparse=True,
          words=("invalid choice",)),
     # sweep

@@ -69,6 +69,11 @@ def _scalar(value, name: str, meaning: str):
 def _check_orientation(arr: np.ndarray, time_dim: str, chan_dim: str, what: str) -> None:
     """Refuse numpy data that are almost surely transposed: more channels than samples."""
     samples, channels = arr.shape[-2], arr.shape[-1]
+    if samples == 0 or channels == 0:  # no data at all: transposing would not help
+        raise ValueError(
+            f"{what} has shape {arr.shape}: {samples} sample(s) of {channels} channel(s), no "
+            f"data; pass the recorded signal, ({time_dim}, {chan_dim}) with at least 2 samples."
+        )
     if channels > samples:
         lead = "(experiment, " if arr.ndim == 3 else "("
         fix = f"np.swapaxes({what}, -1, -2)" if arr.ndim == 3 else f"{what}.T"
@@ -173,6 +178,15 @@ def experiment(
         ``units`` and ``long_name``; attributes ``factor`` and ``conventions="lcmr-xr-1"``.
         Dask-backed DataArrays stay lazy except for the finiteness check.
 
+    Raises
+    ------
+    TypeError
+        ``factor`` or ``sampling_period`` not a single number, labels not a sequence,
+        ``input_units``/``output_units`` not a string.
+    ValueError
+        Empty units; shapes, labels, time coordinates or values that break the contract (see
+        :func:`validate_experiment`).
+
     Examples
     --------
     >>> import numpy as np
@@ -203,6 +217,11 @@ def experiment(
         input_units = str(r_da.attrs.get("units", u_da.attrs.get("units", "1")))
     if output_units is None:
         output_units = str(y_da.attrs.get("units", "1"))
+    for what, units in (("input_units", input_units), ("output_units", output_units)):
+        if not isinstance(units, str) or not units.strip():
+            error = TypeError if not isinstance(units, str) else ValueError
+            raise error(f"{what} must be a unit string (UDUNITS, e.g. 'm' or 'V'; '1' if "
+                        f"dimensionless), got {units!r}.")
 
     # Labels are checked before the variables are combined: xarray would otherwise align
     # mismatched labels by an outer join and fill the gaps with NaN.
@@ -410,8 +429,8 @@ def validate_experiment(ds: xr.Dataset, *, check_values: bool = True) -> xr.Data
         ``input``, ``output`` coordinates; ``N`` not a multiple of ``F`` or
         ``N != M F``; uneven spacing; time not starting at 0; slow spacing not ``F`` times
         the fast one; complex, boolean or non-numeric data; NaN or inf; duplicate or empty
-        channel labels; a ``period`` dim missing on ``u`` or ``y``, or an ``r`` that does not
-        repeat over periods.
+        channel labels; ``units`` that are not a non-empty string; a ``period`` dim missing
+        on ``u`` or ``y``, or an ``r`` that does not repeat over periods.
     TypeError
         If ``ds`` is not a Dataset.
 
@@ -472,6 +491,12 @@ def validate_experiment(ds: xr.Dataset, *, check_values: bool = True) -> xr.Data
             _fail(f"{name!r} has non-numeric dtype {dt}", "convert it to float, e.g. ds[name].astype(float).")
         if "units" not in var.attrs or "long_name" not in var.attrs:
             _fail(f"{name!r} lacks the 'units' or 'long_name' attribute", "set both (units '1' if dimensionless).")
+        units = var.attrs["units"]
+        if not isinstance(units, str) or not units.strip():
+            # the FRF's units are built from these ("m/V"): 5 or ['V'] would make "5/['V']"
+            _fail(f"{name!r} has units {units!r}, not a unit string",
+                  f"set ds[{name!r}].attrs['units'] to a UDUNITS string such as 'm' or 'V' "
+                  "('1' if dimensionless).")
 
     for dim in (INPUT, OUTPUT):
         if dim not in ds.coords:

@@ -122,8 +122,9 @@ def to_frd(frf, variable: str = P, *, sampling_period=None):
     ImportError
         If python-control is not installed (``pip install "lcmr_xr[control]"``).
     ValueError
-        If the variable is missing, has other dims or a frequency outside ``[0, 1/(2 Th)]``,
-        or the sampling period is missing or contradicts the attribute.
+        If the variable is missing, has other dims, a frequency outside ``[0, 1/(2 Th)]`` or
+        frequencies that do not increase strictly, or the sampling period is missing or
+        contradicts the attribute.
     TypeError
         If ``frf`` is neither a Dataset nor a DataArray.
 
@@ -154,6 +155,17 @@ def to_frd(frf, variable: str = P, *, sampling_period=None):
         raise ValueError(
             f"the frequencies of {variable} ({hz.min():g}..{hz.max():g} Hz) must lie in "
             f"[0, {nyquist:g}] Hz, the Nyquist band of dt = {dt:g} s; check sampling_period."
+        )
+    steps = np.diff(hz)
+    if (steps <= 0).any():
+        # python-control takes omega as given, but its margins, interpolation and plots
+        # assume increasing frequencies: stability_margins fails with 'Invalid inputs'
+        k = int(np.argmax(steps <= 0))
+        raise ValueError(
+            f"the frequency coordinate of {variable} must increase strictly, but bin {k + 1} "
+            f"({hz[k + 1]:g} Hz) follows {hz[k]:g} Hz; python-control's functions assume "
+            "sorted, distinct frequencies. Sort with frf.sortby('frequency') and drop repeated "
+            "bins with frf.drop_duplicates('frequency') first."
         )
     values = np.moveaxis(np.asarray(da.values), 0, -1)  # (output, input, frequency)
     return control.FrequencyResponseData(
