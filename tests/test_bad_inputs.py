@@ -72,6 +72,7 @@ def template(tmp_path_factory, small, small_frf):
     (root / "notes.nc").write_text("hello, not a netCDF file\n")
     data = (root / "exp.nc").read_bytes()
     (root / "trunc.nc").write_bytes(data[: len(data) // 3])
+    (root / "damaged.nc").write_bytes(_damaged(root / "exp.nc", "r"))
     save_archive(xr.concat([small, hdd.simulate(n_samples=400, noise=False, seed=2)],
                            dim="experiment").assign_coords(experiment=["e0", "e1"]), root / "arc",
                  layout="files")
@@ -90,6 +91,19 @@ def template(tmp_path_factory, small, small_frf):
     (root / "demo").mkdir()
     save(small_frf, root / "demo" / "hdd_frf.nc")
     return root
+
+
+def _damaged(path: Path, name: str) -> bytes:
+    """The bytes of ``path`` with 64 bytes of variable ``name``'s stored values changed
+    (the header intact: what a bad sector or a bit flip on a disk does)."""
+    import h5py
+
+    with h5py.File(path, "r") as f:
+        dset = f[name].id
+        offset = dset.get_offset() if dset.get_offset() is not None else dset.get_chunk_info(0).byte_offset
+    data = bytearray(path.read_bytes())
+    data[offset + 64: offset + 128] = bytes(0xA5 ^ b for b in data[offset + 64: offset + 128])
+    return bytes(data)
 
 
 def snapshot(root: Path) -> dict:
@@ -443,6 +457,13 @@ API = [
     Case("save_mixed_tuple_attribute", lambda e: save(_set_attr(e.small, settings=(1, "a")), "x.nc"), TypeError,
          ("mixed types",)),
     Case("open_missing", lambda e: open_experiment("nothing.nc"), FileNotFoundError, ("nothing.nc",)),
+    # damaged stored values (header intact) are refused, not read back as other numbers
+    Case("open_damaged_values", lambda e: open_experiment("damaged.nc"), ValueError, ("damaged.nc", "corrupt")),
+    # a bad chunks argument is not reported as a damaged file
+    Case("open_chunks_fractional", lambda e: open_frf("frf.nc", chunks={"frequency": 2.5}), ValueError,
+         ("chunks", "2.5", "whole number"), absent=("not a valid NetCDF",)),
+    Case("open_chunks_text", lambda e: open_dataset("frf.nc", chunks="x"), TypeError, ("chunks", "'x'"),
+         absent=("not a valid NetCDF",)),
     Case("open_text_file", lambda e: open_dataset("notes.nc"), ValueError, ("notes.nc", "not a valid NetCDF")),
     Case("open_truncated", lambda e: open_experiment("trunc.nc"), ValueError, ("trunc.nc", "truncated")),
     Case("open_foreign_netcdf", lambda e: open_experiment("cf.nc"), ValueError,
@@ -531,6 +552,8 @@ CLI = [
          words=("n_samples", "multiple")),
     Case("cli_simulate_seed_negative", cli=lambda e: ["simulate", "-o", "x.nc", "--seed", "-1"],
          words=("seed", ">= 0")),
+    Case("identify_damaged_input", cli=lambda e: ["identify", "damaged.nc", "-o", "out.nc"],
+         words=("damaged.nc", "corrupt")),
     Case("simulate_case_unknown", cli=lambda e: ["simulate", "-o", "x.nc", "--case", "10"], argparse=True,
          words=("invalid choice",)),
     # sweep

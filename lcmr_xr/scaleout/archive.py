@@ -803,10 +803,10 @@ def _write_checked(ds: xr.Dataset, path: Path, ref, label) -> tuple[Path, dict, 
     is the header's only if the file at ``path`` still has them)."""
     from lcmr_xr.io._atomic import atomic_write
     from lcmr_xr.io._guards import check_not_own_source
-    from lcmr_xr.io.netcdf import _ENGINE, _flatten_attrs, _map_attrs
+    from lcmr_xr.io.netcdf import _ENGINE, _checksummed, _flatten_attrs, _map_attrs
 
     check_not_own_source(ds, path)
-    flat = _map_attrs(ds, _flatten_attrs)
+    flat = _checksummed(_map_attrs(ds, _flatten_attrs))  # the layout save writes
     got = []
 
     def write(tmp):
