@@ -354,6 +354,14 @@ API = [
          ValueError, ("slow_time", "spaced by", "spacing / time spacing = 3")),
     Case("time_not_starting_at_zero", lambda e: validate_experiment(e.small.assign_coords(time=e.small.time + 1.0)),
          ValueError, ("starts at",)),
+    # identify drops the first transient_periods by position: periods out of recording
+    # order kept the transient and dropped a steady period (P changed by 41 % of its peak)
+    Case("periods_reversed", lambda e: _identify12(
+        hdd.simulate(n_samples=400, noise=False, seed=1, periods=3).isel(period=[2, 1, 0]),
+        transient_periods=1), ValueError, ("'period' coordinate [2, 1, 0]", "sortby")),
+    Case("period_coordinate_text", lambda e: validate_experiment(
+        hdd.simulate(n_samples=400, noise=False, seed=1, periods=2).assign_coords(period=["a", "b"])),
+        ValueError, ("'period' coordinate ['a', 'b']", "increasing integers")),
     Case("units_attribute_not_text", lambda e: validate_experiment(e.changed(y=e.small.y.assign_attrs(units=["m"]))),
          ValueError, ("'y'", "units ['m']", "UDUNITS")),
     # --- the HDD simulation and multisines: whole numbers and flags are not coerced ----------

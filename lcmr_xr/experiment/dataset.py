@@ -377,7 +377,9 @@ PERIODIC_RTOL = 1e-9
 
 
 def _check_period_dims(ds):
-    """``period`` (repeated periods of one excitation) must be on ``u`` and ``y`` together."""
+    """``period`` (repeated periods of one excitation) must be on ``u`` and ``y`` together,
+    its labels increasing: :func:`lcmr_xr.identify` drops the first ``transient_periods``
+    by position, so periods out of recording order would keep the transient."""
     missing = [name for name in ("u", "y") if PERIOD not in ds[name].dims]
     if missing:
         _fail(
@@ -385,6 +387,16 @@ def _check_period_dims(ds):
             f"the measured signals are recorded per period: give u and y the {PERIOD!r} dim "
             f"(time then counts within a period), or drop it from r.",
         )
+    if PERIOD in ds.coords:
+        labels = np.asarray(ds[PERIOD].values)
+        if labels.dtype.kind not in "iu" or (labels.size > 1 and not (np.diff(labels) > 0).all()):
+            shown = labels.tolist() if labels.size <= 8 else f"{labels[:7].tolist()} ..."
+            _fail(
+                f"the {PERIOD!r} coordinate {shown} is not increasing integers (the periods in "
+                "the order they were recorded, 0..P-1)",
+                f"sort them with ds.sortby({PERIOD!r}) (transient_periods drops the first ones "
+                "by position), or relabel them 0..P-1 in recording order.",
+            )
 
 
 def _check_periodic_excitation(r):
@@ -430,7 +442,8 @@ def validate_experiment(ds: xr.Dataset, *, check_values: bool = True) -> xr.Data
         ``N != M F``; uneven spacing; time not starting at 0; slow spacing not ``F`` times
         the fast one; complex, boolean or non-numeric data; NaN or inf; duplicate or empty
         channel labels; ``units`` that are not a non-empty string; a ``period`` dim missing
-        on ``u`` or ``y``, or an ``r`` that does not repeat over periods.
+        on ``u`` or ``y``, a ``period`` coordinate that is not increasing integers, or an
+        ``r`` that does not repeat over periods.
     TypeError
         If ``ds`` is not a Dataset.
 
