@@ -106,6 +106,14 @@ def _damaged(path: Path, name: str) -> bytes:
     return bytes(data)
 
 
+def _toy_loop():
+    """(plant, controller, filter) of a one-input loop with Th = 0.5 s and a controller at
+    1 s (F = 2, or F = 2.5 truncated)."""
+    from lcmr_xr.kernels.lti import static_gain, tf_q_inverse
+
+    return tf_q_inverse([0.0, 0.5], [1.0, -0.9], dt=0.5), static_gain(0.2, dt=1.0), None
+
+
 def snapshot(root: Path) -> dict:
     """Every file and directory under ``root`` (hidden ones too): size and mtime."""
     out = {}
@@ -394,6 +402,16 @@ API = [
          absent=("attribute",)),
     Case("dft_one_sided_text", lambda e: lcmr_xr.dft(e.small.r, one_sided="no"), TypeError,
          ("one_sided", "True or False")),
+    # --- simulate_closed_loop: the factor was truncated (2.5 simulated F = 2), flags coerced ---
+    Case("simulate_closed_loop_factor_fractional", lambda e: lcmr_xr.simulate_closed_loop(
+        *_toy_loop(), 2.5, xr.DataArray(np.ones((8, 1)), dims=("time", "input"))), ValueError,
+        ("factor", "positive integer", "2.5")),
+    Case("simulate_closed_loop_fast_output_text", lambda e: lcmr_xr.simulate_closed_loop(
+        *_toy_loop(), 2, xr.DataArray(np.ones((8, 1)), dims=("time", "input")), fast_output="no"), TypeError,
+        ("fast_output", "True or False")),
+    Case("simulate_closed_loop_plant_none", lambda e: lcmr_xr.simulate_closed_loop(
+        None, _toy_loop()[1], None, 2, xr.DataArray(np.ones((8, 1)), dims=("time", "input"))), TypeError,
+        ("plant", "StateSpace"), absent=("attribute",)),
     # --- exact lifted-system tools: labels checked, factors whole ------------------------------
     Case("lifted_frf_factor_fractional", lambda e: lcmr_xr.lifted_frf(e.frf.P, 2.5, n_samples=400), ValueError,
          ("factor", "2.5", "not rounded")),
