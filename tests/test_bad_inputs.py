@@ -41,7 +41,8 @@ from lcmr_xr import cli, hdd
 from lcmr_xr.experiment import experiment, validate_experiment
 from lcmr_xr.io import open_dataset, open_experiment, open_frf, save
 from lcmr_xr.io._atomic import stale_temporaries, temporary_prefix
-from lcmr_xr.scaleout import open_archive, save_archive, select_settings, sweep
+from lcmr_xr.scaleout import (consolidate_archive, open_archive, save_archive, select_settings, sweep,
+                              sweep_to_disk)
 
 TH = 1 / 100800
 _needs_control = pytest.mark.skipif(importlib.util.find_spec("control") is None,
@@ -535,6 +536,15 @@ API = [
         layout="files"),
         ValueError, ("same file names",)),
     Case("save_archive_empty", lambda e: save_archive([], "newarc"), ValueError, ("empty",)),
+    # overwrite="no" is truthy: it replaced the archive / the file (data lost); the snapshot
+    # check of every case proves nothing changed
+    Case("save_archive_overwrite_text", lambda e: save_archive(e.small, "arc1.nc", overwrite="no"), TypeError,
+         ("overwrite", "True or False")),
+    Case("consolidate_overwrite_text", lambda e: consolidate_archive("arc", "exp.nc", overwrite="no"), TypeError,
+         ("overwrite", "True or False")),
+    Case("sweep_to_disk_overwrite_text", lambda e: sweep_to_disk(open_archive("arc1.nc"), "frf.nc", window=[12],
+                                                                 degrees=["2-2-2"], overwrite="no"),
+         TypeError, ("overwrite", "True or False")),
     Case("save_archive_not_datasets", lambda e: save_archive([e.small.r], "newarc"), TypeError, ("not an experiment Dataset",)),
     # --- sweep / select ------------------------------------------------------------------------
     Case("sweep_window_too_small", lambda e: sweep(e.small, window=[3]), ValueError, ("Use window >=",)),

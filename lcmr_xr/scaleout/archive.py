@@ -47,6 +47,7 @@ from lcmr_xr import conventions as cv
 from lcmr_xr.scaleout import consolidated as con
 from lcmr_xr.scaleout import dirindex
 from lcmr_xr.scaleout import directory as dirx
+from lcmr_xr.settings import as_bool
 from lcmr_xr.transforms._coords import even_spacing
 
 __all__ = ["save_archive", "open_archive", "append_to_archive", "consolidate_archive", "index_archive",
@@ -401,6 +402,7 @@ def save_archive(experiments, path, *, overwrite: bool = False, layout: str | No
     overwrite : bool, default False
         Consolidated: replace an existing archive file instead of appending to it.
         Files: replace existing files even when their content has a different shape.
+        True or False only (a string such as ``"no"`` is refused, not read as True).
         Without it an existing file is only replaced by an experiment of the same shape
         (length, factor, sample time, channel labels), e.g. a re-measurement.
     layout : {"consolidated", "files"}, optional
@@ -457,6 +459,7 @@ def save_archive(experiments, path, *, overwrite: bool = False, layout: str | No
     ['0.nc', '1.nc']
     """
     path = Path(path)
+    overwrite = as_bool(overwrite, "overwrite")  # "no" must not replace an archive
     layout = _layout(path, layout)
     items, first = _validated(experiments)
     if layout == "files":
@@ -594,7 +597,8 @@ def consolidate_archive(directory, path, *, overwrite: bool = False, progress=No
     path : str or os.PathLike
         The consolidated archive to write (atomically: temporary file, then rename).
     overwrite : bool, default False
-        Replace ``path`` if it exists (otherwise an existing ``path`` is refused).
+        Replace ``path`` if it exists (otherwise an existing ``path`` is refused).  True or
+        False only.
     progress : callable, optional
         Called as ``progress(done, total)`` after each batch of experiments.
 
@@ -629,6 +633,7 @@ def consolidate_archive(directory, path, *, overwrite: bool = False, progress=No
     from lcmr_xr.io._atomic import atomic_write
 
     directory, path = Path(directory), Path(path)
+    overwrite = as_bool(overwrite, "overwrite")  # "no" must not replace a file
     if path.exists() and not overwrite:
         raise FileExistsError(f"{path} exists; pass overwrite=True (--overwrite) to replace it, "
                               "or choose another path.")
