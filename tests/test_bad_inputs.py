@@ -339,6 +339,8 @@ API = [
     Case("arrays_empty", lambda e: e.build(r=e.r[:0], u=e.u[:0], y=e.y[:0]), ValueError, ("r", "no data"),
          absent=("transposed",)),
     # --- validate_experiment(): datasets -------------------------------------------------
+    Case("validate_check_values_text", lambda e: validate_experiment(e.small, check_values="no"), TypeError,
+         ("check_values", "True or False")),
     Case("validate_dataarray", lambda e: validate_experiment(e.small.r), TypeError,
          ("xarray.Dataset", "lcmr_xr.experiment(r, u, y")),
     Case("conventions_missing", lambda e: validate_experiment(_drop_attr(e.small, "conventions")), ValueError,

@@ -25,6 +25,7 @@ from lcmr_xr.conventions import (
     label_attrs,
     time_attrs,
 )
+from lcmr_xr.settings import as_bool
 from lcmr_xr.transforms._coords import even_spacing
 
 __all__ = ["experiment", "validate_experiment"]
@@ -445,7 +446,7 @@ def validate_experiment(ds: xr.Dataset, *, check_values: bool = True) -> xr.Data
         on ``u`` or ``y``, a ``period`` coordinate that is not increasing integers, or an
         ``r`` that does not repeat over periods.
     TypeError
-        If ``ds`` is not a Dataset.
+        If ``ds`` is not a Dataset, or ``check_values`` is not True or False.
 
     Notes
     -----
@@ -466,6 +467,7 @@ def validate_experiment(ds: xr.Dataset, *, check_values: bool = True) -> xr.Data
             f"an experiment must be an xarray.Dataset, got {type(ds).__name__}; build one with "
             "lcmr_xr.experiment(r, u, y, factor=F, sampling_period=Th)."
         )
+    check_values = as_bool(check_values, "check_values")  # "no" would read as True
     conv = ds.attrs.get("conventions")
     if conv is None:
         _fail("attribute 'conventions' is missing", f"set ds.attrs['conventions'] = {CONVENTIONS!r} after checking the contract.")
