@@ -403,6 +403,9 @@ API = [
     Case("dft_numpy", lambda e: lcmr_xr.dft(e.r), TypeError, ("dft", "xr.DataArray"), absent=("attribute",)),
     Case("idft_numpy", lambda e: lcmr_xr.idft(np.fft.fft(e.r, axis=0)), TypeError, ("idft", "xr.DataArray"),
          absent=("attribute",)),
+    Case("fast_spectrum_factor_fractional", lambda e: lcmr_xr.fast_spectrum_from_lifted(
+        lcmr_xr.dft(lcmr_xr.lift(e.small.r, 2), dim="slow_time"), factor=2.5), ValueError,
+        ("factor=2.5", "2 lifting phases")),
     Case("dft_one_sided_text", lambda e: lcmr_xr.dft(e.small.r, one_sided="no"), TypeError,
          ("one_sided", "True or False")),
     # --- simulate_closed_loop: the factor was truncated (2.5 simulated F = 2), flags coerced ---

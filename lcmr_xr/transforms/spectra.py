@@ -322,7 +322,7 @@ def fast_spectrum_from_lifted(X, dim: str = SLOW_FREQUENCY, factor: int | None =
             "dft(lift(x), dim='slow_time')."
         )
     f_ = X.sizes[LIFT_PHASE]
-    if factor is not None and int(factor) != f_:
+    if factor is not None and (isinstance(factor, (bool, np.bool_)) or factor != f_):  # 2.5 != 2
         raise ValueError(
             f"factor={factor} does not match the {f_} lifting phases of the input; omit factor."
         )
