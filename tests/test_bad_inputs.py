@@ -436,6 +436,8 @@ API = [
     # --- plots: flags are True or False ----------------------------------------------------
     Case("bode_db_text", lambda e: lcmr_xr.plot.bode(e.frf, db="no"), TypeError, ("db", "True or False")),
     Case("bode_unwrap_text", lambda e: lcmr_xr.plot.bode(e.frf, unwrap="yes"), TypeError, ("unwrap",)),
+    Case("bode_ax_text", lambda e: lcmr_xr.plot.bode(e.frf, ax="a"), TypeError, ("matplotlib Axes", "str"),
+         absent=("shape",)),
     Case("lifted_db_text", lambda e: lcmr_xr.plot.lifted(e.frf, db="no"), TypeError, ("db", "True or False")),
     # --- FRD export: python-control assumes increasing frequencies ----------------------------
     Case("to_frd_frequencies_reversed", lambda e: lcmr_xr.to_frd(e.frf.isel(frequency=slice(None, None, -1))),
