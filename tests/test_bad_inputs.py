@@ -444,6 +444,12 @@ API = [
          ValueError, ("increase strictly", "sortby"), marks=(_needs_control,)),
     Case("to_frd_frequency_repeated", lambda e: lcmr_xr.to_frd(e.frf.isel(frequency=[1, 2, 2, 3])),
          ValueError, ("increase strictly", "drop_duplicates"), marks=(_needs_control,)),
+    Case("from_frd_units_number", lambda e: lcmr_xr.from_frd(lcmr_xr.to_frd(e.frf.isel(frequency=slice(1, None))),
+                                                             units=5),
+         TypeError, ("units", "non-empty string", "5"), marks=(_needs_control,)),
+    Case("from_frd_long_name_number", lambda e: lcmr_xr.from_frd(lcmr_xr.to_frd(e.frf.isel(frequency=slice(1, None))),
+                                                                 long_name=5),
+         TypeError, ("long_name", "5"), marks=(_needs_control,)),
     # --- identify() ------------------------------------------------------------------------
     Case("identify_dataarray", lambda e: lcmr_xr.identify(e.small.r), TypeError, ("experiment xarray.Dataset",)),
     Case("method_unknown", lambda e: _identify12(e.small, method="lsq"), ValueError, ("method", "'lsq'")),

@@ -203,7 +203,8 @@ def from_frd(frd, *, units=None, long_name=None) -> xr.DataArray:
     ImportError
         If python-control is not installed.
     TypeError
-        If ``frd`` is not a ``FrequencyResponseData``.
+        If ``frd`` is not a ``FrequencyResponseData``, or ``units``/``long_name`` is not a
+        non-empty string.
 
     See Also
     --------
@@ -223,9 +224,13 @@ def from_frd(frd, *, units=None, long_name=None) -> xr.DataArray:
             f"from_frd needs a control.FrequencyResponseData, got {type(frd).__name__}; for "
             "a transfer function or state space use control.frd(sys, omega) first."
         )
+    for what, text in (("units", units), ("long_name", long_name)):
+        if text is not None and (not isinstance(text, str) or not text.strip()):
+            raise TypeError(f"{what} must be a non-empty string (e.g. units='m', long_name='plant "
+                            f"FRF'), got {text!r}; the plots label axes 'long_name [units]'.")
     attrs = {"long_name": long_name if long_name is not None else "frequency response"}
     if units is not None:
-        attrs["units"] = str(units)
+        attrs["units"] = units
     # dt: None or 0 is continuous time, True a discrete time of unspecified period
     if not isinstance(frd.dt, bool) and frd.dt:
         attrs[SAMPLING_PERIOD] = float(frd.dt)
