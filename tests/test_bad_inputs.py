@@ -38,6 +38,7 @@ import xarray as xr
 import lcmr_xr
 import lcmr_xr.plot
 from lcmr_xr import cli, hdd
+from lcmr_xr.demo import band_table
 from lcmr_xr.experiment import experiment, validate_experiment
 from lcmr_xr.io import open_dataset, open_experiment, open_frf, save
 from lcmr_xr.io._atomic import stale_temporaries, temporary_prefix
@@ -450,6 +451,14 @@ API = [
     Case("from_frd_long_name_number", lambda e: lcmr_xr.from_frd(lcmr_xr.to_frd(e.frf.isel(frequency=slice(1, None))),
                                                                  long_name=5),
          TypeError, ("long_name", "5"), marks=(_needs_control,)),
+    # --- the accuracy table of the README: frf.P - truth aligns by label ----------------------
+    Case("band_table_truth_on_other_frequencies", lambda e: band_table(
+        e.frf, hdd.true_frf(e.frf.frequency[1:] * (1 + 1e-12)).reindex(frequency=e.frf.frequency * (1 + 1e-12))),
+        ValueError, ("truth must be on the FRF's frequencies", "reindex")),
+    Case("band_table_band_reversed", lambda e: band_table(
+        e.frf, hdd.true_frf(e.frf.frequency[1:]).reindex(frequency=e.frf.frequency), bands=[(5000, 500)]),
+        ValueError, ("0 <= f_lo < f_hi",)),
+    Case("band_table_experiment", lambda e: band_table(e.small, e.frf.P), TypeError, ("FRF dataset", "without P")),
     # --- identify() ------------------------------------------------------------------------
     Case("identify_dataarray", lambda e: lcmr_xr.identify(e.small.r), TypeError, ("experiment xarray.Dataset",)),
     Case("method_unknown", lambda e: _identify12(e.small, method="lsq"), ValueError, ("method", "'lsq'")),
