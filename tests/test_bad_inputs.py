@@ -79,6 +79,8 @@ def template(tmp_path_factory, small, small_frf):
                            dim="experiment").assign_coords(experiment=["e0", "e1"]), root / "arc",
                  layout="files")
     save_archive(small, root / "arc1.nc")  # a consolidated archive (one file)
+    shutil.copytree(root / "arc", root / "damagedarc")  # its first file's values damaged
+    (root / "damagedarc" / "e0.nc").write_bytes(_damaged(root / "arc" / "e0.nc", "r"))
     (root / "junkarc").mkdir()
     shutil.copy2(root / "exp.nc", root / "junkarc" / "good.nc")
     (root / "junkarc" / "junk.nc").write_bytes(b"\x89HDF\r\n\x1a\n not really")
@@ -549,6 +551,8 @@ API = [
     Case("archive_consolidated_into_directory_layout", lambda e: save_archive(e.small, "arc1.nc", layout="files"),
          ValueError, ("arc1.nc", "is a file", "layout='files' is a directory")),
     Case("archive_empty", lambda e: open_archive("empty"), FileNotFoundError, ("holds no .nc",)),
+    Case("archive_first_file_damaged", lambda e: open_archive("damagedarc"), ValueError,
+         ("damagedarc/e0.nc", "damaged", "move it out")),
     Case("archive_with_junk_file", lambda e: open_archive("junkarc"), ValueError, ("junkarc/junk.nc", "not a readable NetCDF",
                                                                         "move it out")),
     Case("archive_with_foreign_file", lambda e: open_archive("forarc"), ValueError, ("cf.nc", "not an lcmr-xr-1 experiment")),

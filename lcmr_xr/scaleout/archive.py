@@ -1284,7 +1284,13 @@ def _template(path: Path) -> xr.Dataset:
 
     # the engine of lcmr_xr.io.open_dataset's lazy reads, so the encodings are the same
     with xr.open_dataset(path, engine=_LAZY_ENGINE, decode_timedelta=False) as raw:
-        loaded = _map_attrs(raw.load(), lambda owner, attrs: _restore_attrs(attrs))
+        try:
+            loaded = _map_attrs(raw.load(), lambda owner, attrs: _restore_attrs(attrs))
+        except OSError as err:  # its header read, its values not: damaged (checksum) or cut
+            raise ValueError(
+                f"{path}: its stored values cannot be read ({err}): the file is damaged (a "
+                "checksum failed) or truncated; move it out of the archive directory, or "
+                "restore it, and open the archive again.") from err
     return _as_part(loaded, path)
 
 
