@@ -11,13 +11,14 @@ the local model's own covariance (:func:`covariance_check`).
 Usage: ``python benchmarks/accuracy.py [--seeds 10] [--cases 1-9] [--n-samples 3600]
 [--denominator ls iv] [--band-forms] [--decomposition [--records 30] [--half-width 30]
 [--degrees 3 3 3] [--denominator ls] [--instruments narrow] [--first-window 30]
-[--noise VARIANT ...]] [--instrument-coverage [--first-window 30]]``.
+[--noise VARIANT ...]] [--instrument-coverage [--first-window 30]] [--attribution]``.
 ``--band-forms`` prints only the coverage of candidate forms of the ``S^-1`` nonlinearity
 factor (:func:`band_forms`); ``--decomposition`` only the bias / variance decomposition of
 the local model's error at fixed excitations (:func:`covariance_decomposition`; with
 ``--denominator iv`` the instruments of ``--instruments``, :func:`build_instruments`);
 ``--instrument-coverage`` only the coverage of ``P``'s band per instrument kind and band
-form at a fixed window (:func:`instrument_coverage`).
+form at a fixed window (:func:`instrument_coverage`); ``--attribution`` only the error with
+each disturbance alone (:func:`attribution`).
 Prints progress to stderr; takes minutes (one identification per seed, case and setting).
 """
 
@@ -49,13 +50,14 @@ def band_stats(frf, truth):
     return np.stack([t.median_error.values, t.coverage.values, t.flagged.values], axis=-1)
 
 
-def run(settings, *, cases, seeds, n_samples, noise):
+def run(settings, *, cases, seeds, n_samples, noise, disturbances=hdd.DISTURBANCES):
     """stats[setting] -> array (case, seed, band, input, 3)."""
     stats = {name: [] for name in settings}
     for case in cases:
         per = {name: [] for name in settings}
         for seed in range(seeds):
-            exp = hdd.simulate(n_samples, case=case, noise=noise, seed=seed)
+            exp = hdd.simulate(n_samples, case=case, noise=noise, seed=seed,
+                               disturbances=disturbances if noise else ())
             truth = None
             for name, setting in settings.items():
                 window, denominator = setting if isinstance(setting, tuple) else (setting, None)
@@ -469,6 +471,24 @@ def instrument_coverage(*, cases, seeds, n_samples, half_width=30, degrees=(3, 3
     return out
 
 
+def attribution(*, cases, seeds, n_samples, windows=(30, "auto")):
+    """stats[(disturbances, window)] -> (case, seed, band, input, 3): each disturbance alone.
+
+    The benchmark's disturbances switched on one at a time (same realisations as the full
+    benchmark, ``hdd.simulate(..., disturbances=[...])``), none and all, for each of
+    ``windows`` (default 30 and ``auto``): which of them makes the estimate wrong in which band.
+    """
+    subsets = [(), *[(d,) for d in hdd.DISTURBANCES], hdd.DISTURBANCES]
+    out = {}
+    for sub in subsets:
+        label = " + ".join(sub) if sub else "none"
+        stats = run({w: w for w in windows}, cases=cases, seeds=seeds, n_samples=n_samples,
+                    noise=bool(sub), disturbances=sub)
+        for window, st in stats.items():
+            out[(label, window)] = st
+    return out
+
+
 def print_table(title, s):
     """s: (case, seed, band, input, 3)."""
     print(title)
@@ -522,10 +542,28 @@ def main(argv=None):
     ap.add_argument("--noise", nargs="+", default=list(NOISE_VARIANTS), choices=NOISE_VARIANTS,
                     metavar="VARIANT", help="noise variants of --decomposition (default: all; "
                     f"of {NOISE_VARIANTS})")
+    ap.add_argument("--attribution", action="store_true",
+                    help="only the error per band with each disturbance alone (none, each, all) "
+                         "for window 30 and auto")
     args = ap.parse_args(argv)
     lo, _, hi = args.cases.partition("-")
     cases = list(range(int(lo), int(hi or lo) + 1))
     t0 = time.perf_counter()
+    if args.attribution:
+        table = attribution(cases=cases, seeds=args.seeds, n_samples=args.n_samples)
+        print(f"HDD benchmark, N = {args.n_samples}, cases {args.cases}, {args.seeds} seeds, "
+              "disturbances one at a time: median relative error VCM/PZT per band; coverage "
+              "of the 95 % disc VCM/PZT (flagged = covered) and the flagged fraction below 500 Hz")
+        print(f"  {'disturbances, window':<34}" + "".join(
+            f"{f'{lo:.0f}-{hi:.0f} Hz':>18}" for lo, hi in BANDS) + f"{'cover <500':>14}{'flag':>7}")
+        for (label, window), s in table.items():
+            med = np.median(s[..., 0], axis=(0, 1))
+            cover = s[:, :, 0, :, 1].mean(axis=(0, 1))
+            print(f"  {f'{label}, {window}':<34}" + "".join(
+                f"{f'{med[b, 0]:.3g}/{med[b, 1]:.3g}':>18}" for b in range(len(BANDS)))
+                + f"{f'{cover[0]:.2f}/{cover[1]:.2f}':>14}{s[:, :, 0, 0, 2].mean():>7.2f}")
+        print(f"({time.perf_counter() - t0:.0f} s; machine shared with other jobs)")
+        return
     if args.decomposition:
         stats, biases = covariance_decomposition(
             case=cases[0], excitation_seeds=range(args.seeds), records=args.records,

@@ -134,6 +134,7 @@ ARCHIVE_ORDER_ATTR = "lcmr_archive_index"  # order of a file in an archive direc
 ARCHIVE_INDEX_FILE = ".lcmr_archive_index.nc"  # header index of an archive directory (hidden)
 ARCHIVE_INDEX_VERSION_ATTR = "lcmr_archive_index_version"  # its file attribute: format version
 ARCHIVE_INDEX_JOURNAL = ".lcmr_archive_index.journal"  # its journal: one JSON file per write (hidden dir)
+ARCHIVE_INDEX_DAMAGED_SUFFIX = ".unreadable"  # a damaged journal file set aside by a compaction
 ARCHIVE_METADATA = ("seed", "case", "date", "drive_id")  # attrs that become coords along experiment
 ARCHIVE_PARTS_SUFFIX = ".parts"  # sweep_to_disk keeps finished tasks in .OUTPUT.parts/
 EXPERIMENT_ERROR = "experiment_error"  # sweep output: why an experiment failed ("" if it did not)

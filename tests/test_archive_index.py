@@ -127,8 +127,15 @@ def test_a_corrupt_or_foreign_index_is_ignored_with_a_warning(tmp_path, monkeypa
     _fresh_index(d)
     with h5py.File(d / INDEX, "a") as f:  # another version
         f.attrs[dirindex.INDEX_ATTR] = np.int64(dirindex.VERSION + 1)
-    newer = rf"ignored \(version {dirindex.VERSION + 1}, this library reads version {dirindex.VERSION}"
+    newer = (rf"ignored \(version {dirindex.VERSION + 1}, written by a newer lcmr_xr; this library "
+             rf"reads version {dirindex.VERSION}\).*Upgrade lcmr_xr")
     with pytest.warns(RuntimeWarning, match=newer):
+        _assert_same_as_oracle(d)
+    older = dirindex.VERSION - 1
+    with h5py.File(d / INDEX, "a") as f:  # an older version: rebuilt by index_archive
+        f.attrs[dirindex.INDEX_ATTR] = np.int64(older)
+    with pytest.warns(RuntimeWarning, match=rf"ignored \(version {older}, this library reads "
+                                           rf"version {dirindex.VERSION}\).*index_archive"):
         _assert_same_as_oracle(d)
     # one damaged entry (its mtime kept: not racy): that file is read from its header
     _fresh_index(d)

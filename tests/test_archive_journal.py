@@ -201,8 +201,11 @@ def test_a_corrupt_journal_file_is_ignored_with_a_warning(tmp_path, monkeypatch)
     assert got.experiment.values.tolist() == ["run0", "run1", "run2", "run3"]
     assert "run2.nc" in [p.name for p in headers] and "run3.nc" not in [p.name for p in headers]
     monkeypatch.undo()
-    index_archive(d)
+    with pytest.warns(RuntimeWarning, match=rf"{first} is unreadable \(damaged\); set aside as .*"
+                                           rf"{first}\.unreadable"):
+        index_archive(d)  # kept, never read again (its file's entry: from the header)
     assert dirindex.journal_files(d) == []
+    assert (d / JOURNAL / (first + ".unreadable")).read_text().endswith('[["run2.nc"')
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         _assert_same_as_oracle(d)
@@ -250,6 +253,10 @@ def test_two_processes_appending_at_once_keep_each_others_entries(tmp_path, monk
         [f"run{i}" for i in [0, *range(10, 16), *range(20, 26)]])
     assert headers == []  # no entry lost
     assert sorted(dirindex.read_index(d)) == sorted(p.name for p in _files(d))
+    monkeypatch.undo()
+    # and no order taken twice (the directory's write lock; the threaded test below forces
+    # the interleaving that took one twice)
+    assert sorted(dirx.order_index(p, d) for p in _files(d)) == list(range(13))
 
 
 def test_an_append_applies_the_structure_test_of_the_open(tmp_path):
@@ -417,8 +424,8 @@ def test_an_append_whose_file_another_writer_replaced_writes_no_entry_for_it(tmp
     _archive(d, 2)
     real = arc._write_checked
 
-    def raced(ds, path, ref, label):
-        out = real(ds, path, ref, label)
+    def raced(ds, path, ref, label, **kwargs):
+        out = real(ds, path, ref, label, **kwargs)
         save(_labelled(2).assign_attrs(seed=99), d / "other.tmp")
         os.replace(d / "other.tmp", path)
         return out
@@ -506,8 +513,8 @@ def test_an_append_whose_file_another_process_edited_writes_no_entry_for_it(tmp_
     _archive(d, 2)
     real = arc._write_checked
 
-    def raced(ds, path, ref, label):
-        out = real(ds, path, ref, label)
+    def raced(ds, path, ref, label, **kwargs):
+        out = real(ds, path, ref, label, **kwargs)
         time.sleep(0.01)  # a later clock tick
         with h5py.File(path, "r+") as f:
             f.attrs["seed"] = np.int64(99)
@@ -571,3 +578,272 @@ def test_a_base_whose_integer_column_is_not_integers_is_ignored_and_rebuilt(tmp_
     append_to_archive(_labelled(3), tmp_path)
     got = open_archive(tmp_path)
     assert got.seed.values.tolist() == [0, 1, 2, 3]
+
+
+# ------------------------------------------------------------------ data safety (session 11)
+@pytest.mark.parametrize("labelled", [False, True])
+def test_two_appends_at_once_get_different_orders_and_lose_nothing(tmp_path, monkeypatch, labelled):
+    """Two appenders that read the index at the same time took the same next order (each
+    the largest order + 1): unlabelled, both got the same label and file name, and the
+    second rename replaced the first experiment; labelled, both files got one order.  The
+    second appender here computes its order while the first holds its own (the first
+    waits until the second reaches the order, or the lock that keeps it out)."""
+    import threading
+
+    d = tmp_path / "d"
+    save_archive([_labelled(i).assign_coords(experiment=i if not labelled else f"run{i}")
+                  for i in range(2)], d, layout="files")
+    news = [_labelled(i) for i in (2, 3)]
+    news = news if labelled else [ds.drop_vars("experiment") for ds in news]
+    arrived, errors = threading.Event(), []
+
+    def second():
+        try:
+            append_to_archive(news[1], d)
+        except BaseException as err:  # noqa: BLE001 - reported below
+            errors.append(err)
+            arrived.set()
+
+    other = threading.Thread(target=second)
+    real_order, real_lock = arc._next_order, getattr(dirindex, "write_lock", None)
+
+    def next_order(*args):
+        value = real_order(*args)
+        if threading.current_thread() is other:
+            arrived.set()
+        elif not other.is_alive() and not arrived.is_set():
+            other.start()  # the first appender has its order: the second runs now
+            assert arrived.wait(120)
+        return value
+
+    def write_lock(*args, **kwargs):
+        if threading.current_thread() is other:
+            arrived.set()  # about to wait for the first appender's lock
+        return real_lock(*args, **kwargs)
+
+    monkeypatch.setattr(arc, "_next_order", next_order)
+    monkeypatch.setattr(dirindex, "write_lock", write_lock, raising=False)
+    try:
+        append_to_archive(news[0], d)
+    except ValueError as err:
+        errors.append(err)
+    other.join(120)
+    monkeypatch.undo()
+    assert errors == []
+    files = arc.archive_files(d)
+    orders = [dirx.order_index(p, d) for p in files]
+    assert orders == [0, 1, 2, 3], [p.name for p in files]
+    got = _assert_same_as_oracle(d)
+    assert got.seed.values.tolist() == [0, 1, 2, 3]
+    assert got.experiment.values.tolist() == ([f"run{i}" for i in range(4)] if labelled else [0, 1, 2, 3])
+
+
+def test_without_locks_an_append_never_replaces_the_file_another_wrote_meanwhile(
+        tmp_path, monkeypatch):
+    """Where the write lock is not available (some network file systems) two unlabelled
+    appends at once take one label and file name.  The later rename used to replace the
+    other's experiment without a word; now the file is put in place by a hard link, which
+    fails on an existing name: the late append raises and the other's data stay."""
+    import contextlib
+    import threading
+
+    d = tmp_path / "d"
+    save_archive([_labelled(i).assign_coords(experiment=i) for i in range(2)], d, layout="files")
+    mine, theirs = (_labelled(i).drop_vars("experiment") for i in (2, 3))
+    monkeypatch.setattr(dirindex, "write_lock", lambda *a, **k: contextlib.nullcontext())
+    real_write, done = arc._write_checked, []
+
+    def write_checked(*args, **kwargs):
+        if not done:  # this append checked that its name is free; the other runs to its end
+            done.append(True)
+            other = threading.Thread(target=append_to_archive, args=(theirs, d))
+            other.start()
+            other.join(120)
+        return real_write(*args, **kwargs)
+
+    monkeypatch.setattr(arc, "_write_checked", write_checked)
+    with pytest.raises(FileExistsError, match=r"the file exists \(another process wrote it"):
+        append_to_archive(mine, d)
+    monkeypatch.undo()
+    files = arc.archive_files(d)
+    assert len(files) == 3 and not [p for p in d.iterdir() if p.name.endswith(".tmp")]
+    got = open_archive(d)
+    assert got.seed.values.tolist() == [0, 1, 3]  # the other's experiment, not replaced
+
+
+def _newer_base(d, order=True):
+    """The base as a newer library might write it: another version, a column this one does
+    not know (and, with ``order=False``, without the order column)."""
+    with h5py.File(d / INDEX, "r+") as f:
+        f.attrs[dirindex.INDEX_ATTR] = np.int64(dirindex.VERSION + 1)
+        f.create_dataset("future", data=np.arange(f["name"].shape[0]))
+        if not order:
+            del f["order"]
+    return (d / INDEX).read_bytes()
+
+
+@pytest.mark.parametrize("order", [True, False])
+def test_a_base_of_a_newer_version_is_never_rewritten_by_this_one(tmp_path, monkeypatch, order):
+    """A base of a newer index version was taken for no index: the next write rebuilt it
+    as this version (every header read; what the newer version kept lost) and every later
+    write compacted again.  Now it is left as it is, with a warning naming the version and
+    the remedy; orders continue after the newer base's, and index_archive refuses."""
+    d = tmp_path / "d"
+    _archive(d, 3)
+    before = _newer_base(d, order)
+    newer = dirindex.VERSION + 1
+    for i in (3, 4):
+        with pytest.warns(RuntimeWarning, match=rf"archive index .*{INDEX} is of version {newer}, "
+                                               r"written by a newer lcmr_xr.*left as it is.*[Uu]pgrade"):
+            append_to_archive(_labelled(i), d)
+        assert (d / INDEX).read_bytes() == before
+    with pytest.warns(RuntimeWarning, match=rf"ignored \(version {newer}, written by a newer"):
+        files = arc.archive_files(d)
+    assert [dirx.order_index(p, d) for p in files] == [0, 1, 2, 3, 4]
+    with pytest.raises(ValueError, match=rf"{INDEX} is of version {newer}, written by a newer "
+                                         r"lcmr_xr.*[Uu]pgrade.*or delete"):
+        index_archive(d)
+    assert (d / INDEX).read_bytes() == before
+    with pytest.warns(RuntimeWarning, match=rf"ignored \(version {newer}, written by a newer lcmr_xr"):
+        got = _assert_same_as_oracle(d)
+    assert got.experiment.values.tolist() == [f"run{i}" for i in range(5)]
+    (d / INDEX).unlink()  # the remedy: this version rebuilds it
+    index_archive(d)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert sorted(dirindex.read_index(d)) == [f"run{i}.nc" for i in range(5)]
+
+
+def test_a_compaction_removes_only_the_journal_files_it_folded_in(tmp_path):
+    """A compaction removed every journal file it listed, also those it could not read: a
+    newer version's entries were lost, and a damaged file's bytes with them.  Now a
+    newer version's file stays as it is and a damaged one is set aside (renamed, never
+    read again), named in a warning."""
+    d = tmp_path / "d"
+    _archive(d, 2)
+    append_to_archive(_labelled(2), d)
+    journal = d / JOURNAL
+    ours = dirindex.journal_files(d)
+    data = json.loads((journal / ours[0]).read_text())
+    newer = {**data, dirindex.INDEX_ATTR: dirindex.VERSION + 1}
+    (journal / "000000000002-1-newer.json").write_text(json.dumps(newer))
+    newer_format = {**data, dirindex.JOURNAL_KEY: dirindex.JOURNAL_VERSION + 1}
+    (journal / "000000000002-2-format.json").write_text(json.dumps(newer_format))
+    damaged = b'{"lcmr_archive_index_journal": 1, "rows": [["run2.nc"'
+    (journal / "000000000002-3-damaged.json").write_bytes(damaged)
+    with pytest.warns(RuntimeWarning, match=r"000000000002-3-damaged\.json .*unreadable.*set aside as "
+                                           r".*000000000002-3-damaged\.json\.unreadable"):
+        index_archive(d)
+    assert dirindex.journal_files(d) == ["000000000002-1-newer.json", "000000000002-2-format.json"]
+    assert json.loads((journal / "000000000002-1-newer.json").read_text()) == newer
+    assert json.loads((journal / "000000000002-2-format.json").read_text()) == newer_format
+    assert (journal / "000000000002-3-damaged.json.unreadable").read_bytes() == damaged
+    assert sorted(dirindex.read_index(d, warn=False)) == ["run0.nc", "run1.nc", "run2.nc"]
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        _assert_same_as_oracle(d)
+    ignored = {re.search(r"journal/(\S+) ignored", str(w.message)).group(1) for w in caught}
+    assert ignored == {"000000000002-1-newer.json", "000000000002-2-format.json"}
+
+
+class _CoarseClock:
+    """A file system whose times tick only when told: every ``os.stat`` / ``os.fstat``
+    time is floored to the last tick (a real time: what ``os.utime`` writes back stays in
+    its tick), a tick being where :meth:`tick` touched a file.  The index's waits for
+    the next tick (``time.sleep`` in ``dirindex``) tick it.  Models the file systems
+    whose times advance in ticks (4 ms on older Linux kernels, 1-2 s on FAT, some
+    network file systems), deterministically."""
+
+    def __init__(self, monkeypatch, scratch):
+        self.real_stat, self.real_fstat, self.scratch = os.stat, os.fstat, scratch
+        self.ticks = [0]
+        scratch.touch()
+        self.tick()
+        monkeypatch.setattr(os, "stat", lambda *a, **k: self._floored(self.real_stat(*a, **k)))
+        monkeypatch.setattr(os, "fstat", lambda *a, **k: self._floored(self.real_fstat(*a, **k)))
+
+        class _Time:
+            monotonic = staticmethod(time.monotonic)
+
+            @staticmethod
+            def sleep(seconds):
+                self.tick()
+
+        monkeypatch.setattr(dirindex, "time", _Time)
+
+    def tick(self):
+        os.utime(self.scratch)
+        self.ticks.append(self.real_stat(self.scratch).st_mtime_ns)
+
+    def _floor(self, ns):
+        return max(t for t in self.ticks if t <= ns)
+
+    def _floored(self, st):
+        m, c = self._floor(st.st_mtime_ns), self._floor(st.st_ctime_ns)
+        return os.stat_result(list(st)[:8] + [m // 10**9, c // 10**9], {
+            "st_atime": st.st_atime, "st_mtime": m / 1e9, "st_ctime": c / 1e9,
+            "st_atime_ns": st.st_atime_ns, "st_mtime_ns": m, "st_ctime_ns": c,
+            "st_blksize": st.st_blksize, "st_blocks": st.st_blocks, "st_rdev": st.st_rdev})
+
+
+def _edit_seed(path, seed):
+    """Another tool's edit of a file's header in place (same size once the attribute has
+    been rewritten once: ``modify`` keeps its storage)."""
+    with h5py.File(path, "r+") as f:
+        f.attrs.modify("seed", np.int64(seed))
+
+
+def test_an_entry_read_in_the_tick_of_its_files_change_is_trusted_only_if_checked_after_it(
+        tmp_path, monkeypatch):
+    """The "racy" rule trusts an entry when its file's times are older than the index
+    file's.  The writers waited for the next tick and then stamped the index file with
+    it: a file changed again in place, in the same tick, after its header was read (same
+    size, times and inode) kept the old summary, trusted.  Now a header read in the tick
+    of its file's change is read again once that tick is over (and kept only if the
+    file's stamp did not change)."""
+    d = tmp_path / "d"
+    _archive(d, 2)
+    victim = d / "run1.nc"
+    _edit_seed(victim, 50)  # the first edit grows the file; later ones keep its size
+    clock = _CoarseClock(monkeypatch, tmp_path / "clock")
+    _edit_seed(victim, 51)  # in this tick: the compaction below reads it in the same tick
+    size = victim.stat().st_size
+    real = dirx.read_header
+
+    def read_header(path, directory):
+        header = real(path, directory)
+        if path == victim and header["attrs"]["seed"] == 51:
+            _edit_seed(victim, 99)  # the same tick: the same stamp
+            assert victim.stat().st_size == size
+        return header
+
+    monkeypatch.setattr(dirx, "read_header", read_header)
+    index_archive(d)
+    monkeypatch.setattr(dirx, "read_header", real)
+    clock.tick()
+    assert open_archive(d).seed.values.tolist() == [0, 99]
+    _assert_same_as_oracle(d)
+
+
+def test_an_appended_file_changed_in_the_tick_of_its_write_gets_no_trusted_entry(tmp_path, monkeypatch):
+    """The same for an append: its file was renamed into place in the tick of its write,
+    so another tool's edit right after it (same size) left its stamp unchanged and the
+    entry (of the file as written) was trusted.  Now the append waits for the tick of its
+    file's write to end before the rename: any later change is seen in its stamp."""
+    d = tmp_path / "d"
+    _archive(d, 2)
+    _CoarseClock(monkeypatch, tmp_path / "clock")
+    real = arc._write_checked
+
+    def edited(ds, path, ref, label, **kwargs):
+        out = real(ds, path, ref, label, **kwargs)
+        size = path.stat().st_size
+        _edit_seed(path, 99)
+        assert path.stat().st_size == size
+        return out
+
+    monkeypatch.setattr(arc, "_write_checked", edited)
+    append_to_archive(_labelled(2), d)
+    monkeypatch.setattr(arc, "_write_checked", real)
+    assert open_archive(d).seed.values.tolist() == [0, 1, 99]
+    _assert_same_as_oracle(d)

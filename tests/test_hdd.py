@@ -251,6 +251,43 @@ def test_noise_free_output_is_linear_in_the_excitation():
     np.testing.assert_allclose(b.y, 2 * a.y, rtol=1e-12, atol=1e-24)
 
 
+@pytest.mark.parametrize("periods", [None, 2])
+def test_disturbances_taken_one_at_a_time_add_up_to_the_benchmark(periods):
+    # The loop is linear and each disturbance draws from its own stream: the responses to
+    # the subsets add up to the full benchmark's, and the excitation is unchanged.
+    kw = dict(n_samples=400, seed=5, periods=periods)
+    full, quiet = hdd.simulate(**kw), hdd.simulate(noise=False, **kw)
+    parts = [hdd.simulate(disturbances=[d], **kw) for d in hdd.DISTURBANCES]
+    for name in ("u", "y"):
+        total = quiet[name] + sum(p[name] - quiet[name] for p in parts)
+        scale = float(np.abs(full[name]).max())
+        np.testing.assert_allclose(total, full[name], rtol=0, atol=1e-12 * scale)
+        for p in parts:  # each disturbance moves the signal on its own
+            assert float(np.abs(p[name] - quiet[name]).max()) > 1e-6 * scale
+    for p, d in zip(parts, hdd.DISTURBANCES):
+        np.testing.assert_array_equal(p.r, full.r)
+        assert p.attrs["disturbances"] == d and p.attrs["noise"] == 1
+    assert full.attrs["disturbances"] == "rotational fan runout"
+    assert "disturbances" not in quiet.attrs
+    two = hdd.simulate(disturbances=["runout", "fan"], **kw)  # listed in the benchmark's order
+    assert two.attrs["disturbances"] == "fan runout"
+
+
+def test_simulate_refuses_bad_disturbances():
+    with pytest.raises(ValueError, match=r"unknown disturbances \['wind'\]; choose from"):
+        hdd.simulate(n_samples=400, disturbances=["fan", "wind"])
+    with pytest.raises(TypeError, match=r"pass \['fan'\] for one"):
+        hdd.simulate(n_samples=400, disturbances="fan")
+    with pytest.raises(TypeError, match="sequence of names"):
+        hdd.simulate(n_samples=400, disturbances=3)
+    with pytest.raises(ValueError, match="twice"):
+        hdd.simulate(n_samples=400, disturbances=["fan", "fan"])
+    with pytest.raises(ValueError, match="noise=False switches them all off"):
+        hdd.simulate(n_samples=400, noise=False, disturbances=["fan"])
+    quiet = hdd.simulate(n_samples=400, noise=False, disturbances=[])
+    xr.testing.assert_identical(quiet, hdd.simulate(n_samples=400, noise=False))
+
+
 def test_simulate_refuses_bad_settings():
     with pytest.raises(ValueError, match="multiple of the factor 2"):
         hdd.simulate(n_samples=401)

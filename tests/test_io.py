@@ -237,3 +237,27 @@ def test_atomic_writes_list_their_directory_o1_times_and_still_clean_dead_writer
     assert 2 <= len(listings) <= 1 + 600 // 200
     assert not during.exists() and other.exists()
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".") and "during00" not in p.name]
+
+
+@pytest.mark.parametrize("links", [True, False])
+def test_atomic_write_without_overwrite_never_replaces_an_existing_file(tmp_path, monkeypatch, links):
+    """``overwrite=False`` puts the complete file in place only under a free name: by a hard
+    link (refused atomically by the file system), or where links are not supported, by a
+    check just before the rename.  Nothing is replaced and no temporary stays behind."""
+    from pathlib import Path
+
+    from lcmr_xr.io import _atomic
+
+    if not links:
+        def no_link(src, dst):
+            raise PermissionError(1, "Operation not permitted")
+        monkeypatch.setattr(_atomic.os, "link", no_link)
+    target = tmp_path / "a.txt"
+    _atomic.atomic_write(target, lambda tmp: Path(tmp).write_text("first"), overwrite=False)
+    assert target.read_text() == "first"
+    with pytest.raises(FileExistsError, match="a.txt: the file exists"):
+        _atomic.atomic_write(target, lambda tmp: Path(tmp).write_text("second"), overwrite=False)
+    assert target.read_text() == "first"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.txt"]
+    _atomic.atomic_write(target, lambda tmp: Path(tmp).write_text("third"))  # the default replaces
+    assert target.read_text() == "third"

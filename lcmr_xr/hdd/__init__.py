@@ -5,7 +5,7 @@
 disturbances, the exact FRF, and :func:`simulate` for the paper's experiment.
 """
 
-from lcmr_xr.hdd.benchmark import BENCHMARK, PAPER_RMS, simulate, true_frf
+from lcmr_xr.hdd.benchmark import BENCHMARK, DISTURBANCES, PAPER_RMS, simulate, true_frf
 from lcmr_xr.hdd.control import (closed_loop, controller, notch_filters, pzt_controller,
                                  pzt_filter, vcm_controller, vcm_filter)
 from lcmr_xr.hdd.disturbances import (fan_filter, fan_vibration, repeatable_runout,
@@ -14,7 +14,7 @@ from lcmr_xr.hdd.plants import (CASES, FACTOR, FAST_PERIOD, INPUTS, OUTPUTS, PZT
                                 SLOW_PERIOD, TRACK_PITCH, check_case, plant, pzt_plant, vcm_plant)
 
 __all__ = [
-    "BENCHMARK", "CASES", "FACTOR", "FAST_PERIOD", "INPUTS", "OUTPUTS", "PAPER_RMS",
+    "BENCHMARK", "CASES", "DISTURBANCES", "FACTOR", "FAST_PERIOD", "INPUTS", "OUTPUTS", "PAPER_RMS",
     "PZT_STROKE_LIMIT", "SLOW_PERIOD", "TRACK_PITCH", "check_case", "closed_loop", "controller",
     "fan_filter", "fan_vibration", "notch_filters", "plant", "pzt_controller", "pzt_filter",
     "pzt_plant", "repeatable_runout", "rotational_filter", "rotational_vibration", "simulate",

@@ -172,7 +172,7 @@ def _forget_temporaries(directory: Path, paths) -> None:
             state["temporaries"].difference_update(p.name for p in paths)
 
 
-def atomic_write(path, write: Callable[[str], None]) -> Path:
+def atomic_write(path, write: Callable[[str], None], *, overwrite: bool = True) -> Path:
     """Call ``write(temporary_path)``, make the bytes durable, then move them onto ``path``.
 
     Parameters
@@ -181,6 +181,12 @@ def atomic_write(path, write: Callable[[str], None]) -> Path:
         Destination file; its directory must exist.
     write : callable
         Writes the complete file to the temporary path it is given.
+    overwrite : bool, optional
+        Replace an existing ``path`` (default True).  With False the complete file is put
+        in place by a hard link, which the file system refuses atomically if ``path``
+        exists by then (a file another process wrote meanwhile is never replaced): that
+        raises ``FileExistsError`` and leaves nothing behind.  Where hard links are not
+        supported, it falls back to checking for ``path`` just before the rename.
 
     Returns
     -------
@@ -211,9 +217,33 @@ def atomic_write(path, write: Callable[[str], None]) -> Path:
         umask = os.umask(0)
         os.umask(umask)
         os.chmod(tmp, 0o666 & ~umask)
-        os.replace(tmp, path)
+        if overwrite:
+            os.replace(tmp, path)
+        else:
+            _place_new(tmp, path)
     except BaseException:
         if os.path.exists(tmp):
             os.remove(tmp)
         raise
     return path
+
+
+def _place_new(tmp: str, path: Path) -> None:
+    """Move the complete ``tmp`` to ``path`` only if ``path`` does not exist (atomically
+    where hard links work: ``link`` fails on an existing name, ``rename`` would replace it)."""
+    try:
+        os.link(tmp, path)
+    except FileExistsError:
+        raise FileExistsError(
+            f"cannot write {path}: the file exists (another process wrote it while this one "
+            "was writing); nothing was replaced: choose another name or write again."
+        ) from None
+    except OSError:  # no hard links on this file system: check, then rename (a small race)
+        if os.path.lexists(path):
+            raise FileExistsError(
+                f"cannot write {path}: the file exists (another process wrote it while this "
+                "one was writing); nothing was replaced: choose another name or write again."
+            ) from None
+        os.replace(tmp, path)
+        return
+    os.remove(tmp)

@@ -430,8 +430,11 @@ def save_archive(experiments, path, *, overwrite: bool = False, layout: str | No
     header index (:mod:`lcmr_xr.scaleout.dirindex`: one journal file, folded into the base
     ``.lcmr_archive_index.nc`` by a compaction now and then), so that
     :func:`open_archive` reads no file's header.  Two processes writing at once keep each
-    other's entries (they may give their experiments the same order index; those are
-    then ordered by file name).  A directory without an index (of this version) gets one first, as
+    other's experiments and entries: a writer holds the directory's write lock
+    (:func:`lcmr_xr.scaleout.dirindex.write_lock`) from reading the next order index
+    to writing its journal file, so they never take the same order (nor, appending
+    without labels, the same label and file).  A directory without an index (of this
+    version) gets one first, as
     :func:`index_archive` writes it (every header read once).
 
     All experiments of an archive must agree as its open requires: the same shape and
@@ -549,6 +552,9 @@ def append_to_archive(experiment, path) -> Path:
     the directory before it is moved into place, see :func:`save_archive`), then its
     index entry as one journal file; an interrupted append leaves the directory without
     the experiment, or with it and (without its entry) read from its header at open.
+    Writers into one directory take turns (an exclusive ``flock`` on it, from the label
+    position and the order to the journal file): two appends at once get different
+    orders and, without labels, different labels; neither replaces the other's file.
     Cost: the same whatever the directory holds (measured 37-71 ms into 10 000 files,
     load 4-6), plus, once per 128 appends or a sixteenth of the directory, a compaction
     of the index (10 000 files: 1.8-2.6 s, once per 625 appends).
@@ -569,10 +575,13 @@ def append_to_archive(experiment, path) -> Path:
     path = Path(path)
     unlabelled = isinstance(experiment, xr.Dataset) and cv.EXPERIMENT not in experiment.coords
     if path.is_dir():
-        if unlabelled:
-            experiment = _positions(experiment, *_next_position(path))
-        items, first = _validated(experiment)
-        return _save_files(items, first, path, overwrite=False, add_only=True)[-1]
+        with dirindex.write_lock(path):  # the position, the file and its entry: one writer at a time
+            if unlabelled:
+                experiment = _positions(experiment, *_next_position(path))
+            items, first = _validated(experiment)
+            written = _save_files(items, first, path, overwrite=False, add_only=True, locked=True)
+        _compact_if_due(path, written.due)
+        return written[-1]
     if not path.exists():
         return save_archive(experiment, path, layout="consolidated")[0]
     if unlabelled:
@@ -661,8 +670,20 @@ def consolidate_archive(directory, path, *, overwrite: bool = False, progress=No
     return atomic_write(path, write)
 
 
-def _save_files(items, first, directory: Path, overwrite: bool, add_only: bool = False) -> list[Path]:
+class _Written(list):
+    """The files written (:func:`_save_files`) and whether a compaction of the index is due."""
+
+    due = False
+
+
+def _save_files(items, first, directory: Path, overwrite: bool, add_only: bool = False,
+                locked: bool = False) -> list[Path]:
     """Write experiment files into an archive directory (see :func:`save_archive`).
+
+    The directory's write lock (:func:`lcmr_xr.scaleout.dirindex.write_lock`) is held
+    from the check that the new names are free to the journal file that lists the new
+    files (``locked``: the caller holds it already), so concurrent writers never take
+    the same order or replace each other's new file; a compaction then runs outside it.
 
     The cost does not grow with the directory (no listing, no pass over the entries):
     the new experiments are checked against ONE file of it (the first that the index's
@@ -682,6 +703,12 @@ def _save_files(items, first, directory: Path, overwrite: bool, add_only: bool =
             "characters); give the experiments unique labels, e.g. "
             "ds.assign_coords(experiment=[f'run{i}' for i in range(n)])."
         )
+    directory.mkdir(parents=True, exist_ok=True)
+    if not locked:
+        with dirindex.write_lock(directory):
+            written = _save_files(items, first, directory, overwrite, add_only, locked=True)
+        _compact_if_due(directory, written.due)
+        return written
     if add_only:  # append_to_archive: never a file of the archive replaced
         taken = [(label, n) for (label, _), n in zip(items, names) if (directory / n).exists()]
         if taken:
@@ -692,7 +719,6 @@ def _save_files(items, first, directory: Path, overwrite: bool, add_only: bool =
                 f"of the same shape) with save_archive(experiment, {str(directory)!r}, "
                 "layout='files')."
             )
-    directory.mkdir(parents=True, exist_ok=True)
     journal, facts = _index_facts(directory)
     targets = set(names)
     # one file of the archive, not replaced: the base's first (no listing of the directory)
@@ -731,8 +757,8 @@ def _save_files(items, first, directory: Path, overwrite: bool, add_only: bool =
         _check_label_kinds([(expected[0][0], reference.name)] + [(label, n) for (label, _), n
                                                                  in zip(items, names)],
                            f"archive {directory} and the new experiments")
-    start = _next_order(journal, facts)
-    written, rows = [], []
+    start = _next_order(journal, facts, directory)
+    written, rows, unsettled = _Written(), [], set()
     for i, ((label, ds), name) in enumerate(zip(items, names)):
         out = ds.copy(deep=False)
         if cv.EXPERIMENT not in out.coords:
@@ -740,7 +766,10 @@ def _save_files(items, first, directory: Path, overwrite: bool, add_only: bool =
         if not out[cv.EXPERIMENT].attrs:
             out[cv.EXPERIMENT].attrs.update(cv.label_attrs("experiment"))
         out.attrs = {**out.attrs, ORDER_ATTR: start + i}
-        path, header, ident = _write_checked(out, directory / name, ref, label)
+        # an append never replaces a file, not even one another writer put there meanwhile
+        # (where the write lock is not available)
+        path, header, ident, settled = _write_checked(out, directory / name, ref, label,
+                                                      replace=not add_only)
         written.append(path)
         if ref is None:  # the next ones must agree with the first one written
             ref = (path, header)
@@ -751,24 +780,42 @@ def _save_files(items, first, directory: Path, overwrite: bool, add_only: bool =
         if (st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns) != ident:  # replaced or edited
             continue  # by someone else already: no entry (read from its header)
         rows.append((name, dirindex.stamp(st), dirindex.summary_text(_summary(header)), start + i))
-    _index_new_files(directory, rows, facts, len(journal))
+        if not settled:
+            unsettled.add(name)
+    written.due = _index_new_files(directory, rows, facts, len(journal), unsettled)
     return written
 
 
 def _index_facts(directory: Path):
     """The journal files and the base facts of a directory's index (built first, as
-    :func:`index_archive` does, when there is none of this version)."""
+    :func:`index_archive` does, when there is none of this version; a base of a newer
+    version is left as it is, with a warning)."""
     journal = dirindex.journal_files(directory)
     facts = dirindex.base_facts(directory)
-    if not (facts.base and facts.ordered) and _nc_names(directory):
+    if facts.newer is not None:
+        _warn_newer(directory, facts.newer)
+    elif not (facts.base and facts.ordered) and _nc_names(directory):
         _compact(directory, blocking=True)  # no index (of this version): build it now, once
         journal, facts = dirindex.journal_files(directory), dirindex.base_facts(directory)
     return journal, facts
 
 
-def _next_order(journal, facts) -> int:
-    """The order index of the next experiment written into the directory."""
+def _warn_newer(directory: Path, version) -> None:
+    warnings.warn(dirindex.newer_message(
+        directory / dirindex.INDEX_NAME, version,
+        "left as it is (rewriting it would drop what this version cannot read): the new files' "
+        "entries go to its journal, and this version's opens read the headers of the files "
+        "that its journal does not list"),
+        RuntimeWarning, stacklevel=5)
+
+
+def _next_order(journal, facts, directory: Path) -> int:
+    """The order index of the next experiment written into the directory: after the
+    largest of the base's and the journal's (read under the directory's write lock)."""
     orders = [o for o in (facts.top, dirindex.journal_max_order(journal)) if o is not None]
+    if facts.newer is not None and not facts.ordered:  # a newer base without orders we know
+        orders += [o for o in (dirx.order_index(directory / n, directory)
+                               for n in _nc_names(directory)) if o is not None]
     return max(orders) + 1 if orders else 0
 
 
@@ -777,7 +824,7 @@ def _next_position(directory: Path) -> tuple[int, bool]:
     from the index: no listing), and whether the archive's labels are text (those of the
     base's first file)."""
     journal, facts = _index_facts(directory)
-    position = _next_order(journal, facts)
+    position = _next_order(journal, facts, directory)
     text = False
     if facts.first is not None and (directory / facts.first).is_file():
         header = dirx.read_header(directory / facts.first, directory)
@@ -794,13 +841,18 @@ def _positions(experiment: xr.Dataset, start: int, text: bool) -> xr.Dataset:
     return experiment.assign_coords({cv.EXPERIMENT: labels[0] if n is None else labels})
 
 
-def _write_checked(ds: xr.Dataset, path: Path, ref, label) -> tuple[Path, dict, tuple]:
+def _write_checked(ds: xr.Dataset, path: Path, ref, label,
+                   replace: bool = True) -> tuple[Path, dict, tuple, bool]:
     """Write ``ds`` to ``path`` atomically as :func:`lcmr_xr.io.save` does, unless the
     header of what was written (read back before it is moved into place) fails the test
     the directory's open applies against ``ref`` (``(path, header)`` of a file of the
-    archive; see :func:`_check_structure`).  Returns the path, the header and the
+    archive; see :func:`_check_structure`).  Returns the path, the header, the
     file's ``(st_dev, st_ino, st_size, st_mtime_ns)`` (which the rename keeps: the entry
-    is the header's only if the file at ``path`` still has them)."""
+    is the header's only if the file at ``path`` still has them) and whether the file
+    system's clock had passed that modification time before the rename (so that any
+    later change of the file changes it; :func:`lcmr_xr.scaleout.dirindex.wait_past`,
+    at most one tick of coarse file times: without it the entry is written "racy").
+    Without ``replace`` an existing ``path`` is never replaced (``FileExistsError``)."""
     from lcmr_xr.io._atomic import atomic_write
     from lcmr_xr.io._guards import check_not_own_source
     from lcmr_xr.io.netcdf import _ENGINE, _flatten_attrs, _map_attrs
@@ -816,9 +868,10 @@ def _write_checked(ds: xr.Dataset, path: Path, ref, label) -> tuple[Path, dict, 
             _check_structure(header, ref, label, path.parent)
             _check_units(header, ref, label)
         st = os.stat(tmp)
-        got.extend([header, (st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns)])
+        got.extend([header, (st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns),
+                     dirindex.wait_past(path.parent, st.st_mtime_ns)])
 
-    return atomic_write(path, write), *got
+    return atomic_write(path, write, overwrite=replace), *got
 
 
 def _check_structure(header: dict, ref, label, directory: Path) -> None:
@@ -872,33 +925,64 @@ def _check_units(header: dict, ref, label) -> None:
                 )
 
 
-def _index_new_files(directory: Path, rows: list, known, journal: int) -> None:
-    """Add the new files' entries to the directory's index: one journal file, and a
-    compaction when one is due; a failure only warns (the index is a shortcut)."""
+def _index_new_files(directory: Path, rows: list, known, journal: int, unsettled=()) -> bool:
+    """Add the new files' entries to the directory's index (one journal file); returns
+    whether a compaction is due (:func:`_compact_if_due`, run outside the write lock).
+    A failure only warns (the index is a shortcut)."""
     try:
-        dirindex.append_journal(directory, rows)
-        if dirindex.compaction_due(known, journal + 1, len(rows)):
-            _compact(directory, blocking=False)
+        dirindex.append_journal(directory, rows, unsettled)
     except (OSError, ValueError) as err:
-        warnings.warn(f"the archive index of {directory} was not written ({err}); the archive "
-                      "is complete but opens from the headers of the new files (slower) until "
-                      "lcmr_xr.scaleout.index_archive(directory) writes it.", RuntimeWarning,
-                      stacklevel=5)
+        _index_not_written(directory, err)
+        return False
+    return dirindex.compaction_due(known, journal + 1, len(rows))
 
 
-def _compact(directory: Path, blocking: bool, verify: bool = False) -> Path | None:
+def _index_not_written(directory: Path, err) -> None:
+    warnings.warn(f"the archive index of {directory} was not written ({err}); the archive "
+                  "is complete but opens from the headers of the new files (slower) until "
+                  "lcmr_xr.scaleout.index_archive(directory) writes it.", RuntimeWarning,
+                  stacklevel=5)
+
+
+def _compact_if_due(directory: Path, due: bool) -> None:
+    """The compaction a write found due (unless another process runs one)."""
+    if not due:
+        return
+    try:
+        _compact(directory, blocking=False)
+    except (OSError, ValueError) as err:
+        _index_not_written(directory, err)
+
+
+def _compact(directory: Path, blocking: bool, verify: bool = False,
+             refuse_newer: bool = False) -> Path | None:
     """Write the base of the directory's index from its current entries (base and
     journal) that match their files and the headers of the other files, then remove the
-    journal files it folded in.  ``verify``: decode every entry kept (a damaged one
-    makes its header read).  Returns None when another process holds the compaction
-    lock and ``blocking`` is False (that process compacts)."""
+    journal files it folded in (a damaged one is set aside, one of a newer version left).
+    ``verify``: decode every entry kept (a damaged one makes its header read).  Returns
+    None when another process holds the compaction lock and ``blocking`` is False (that
+    process compacts), and when the base is of a newer version (left as it is, with a
+    warning; ``refuse_newer``: raise ValueError instead)."""
     with dirindex.compaction_lock(directory, blocking) as locked:
         if not locked:
             return None
+        version = dirindex.base_version(directory)
+        if dirindex.newer(version):
+            if refuse_newer:
+                raise ValueError(dirindex.newer_message(
+                    directory / dirindex.INDEX_NAME, version,
+                    "not rebuilt: this version would drop what it cannot read"))
+            _warn_newer(directory, version)
+            return None
+        try:
+            clock = dirindex.fs_clock(directory)  # before any file is stat-ed or read
+        except OSError:  # no clock to read: every header read is unsettled
+            clock = None
         journal = dirindex.journal_files(directory)
-        known = dirindex.read_index(directory, warn=False, journal=journal)
+        report: dict = {}
+        known = dirindex.read_index(directory, warn=False, journal=journal, report=report)
         load = dirindex.loader()
-        rows, root = [], os.fspath(directory)
+        rows, root, hot = [], os.fspath(directory), []
         for name in _nc_names(directory):  # strings: a Path per file costs more than its stat
             try:
                 st = os.stat(os.path.join(root, name))
@@ -914,10 +998,41 @@ def _compact(directory: Path, blocking: bool, verify: bool = False) -> Path | No
             if text is None:
                 summary = _summary(dirx.read_header(directory / name, directory))
                 text, order = dirindex.summary_text(summary), summary["attrs"].get(ORDER_ATTR, -1)
+                if clock is None or max(st.st_mtime_ns, st.st_ctime_ns) >= clock:
+                    hot.append(len(rows))  # changed in the tick of its read: read again
             rows.append((name, dirindex.stamp(st), text, dirx.order_value(order, directory / name)))
-        out = dirindex.write_index(directory, rows)
-        dirindex.remove_journal(directory, journal)
+        unsettled = _settle(directory, rows, hot)
+        out = dirindex.write_index(directory, rows, unsettled)
+        dirindex.remove_journal(directory, report["folded"])
+        dirindex.set_aside(directory, report["damaged"])
         return out
+
+
+def _settle(directory: Path, rows: list, hot: list) -> set:
+    """Read again, once the file system's clock has passed their tick, the headers of the
+    files ``rows[hot]`` that changed in the tick in which the compaction read them (a
+    change after the read, in that tick, leaves their stamp as it was); a row is
+    replaced by what is read then if its file's stamp is still the same.  Returns the
+    names whose entries cannot be trusted (the clock did not pass in time, or the file
+    changed again): written "racy" (:func:`lcmr_xr.scaleout.dirindex.write_index`)."""
+    if not hot:
+        return set()
+    unsettled = set()
+    passed = dirindex.wait_past(directory, max(max(rows[i][1][1], rows[i][1][2]) for i in hot))
+    for i in hot:
+        name, stamp = rows[i][:2]
+        if passed:
+            try:
+                summary = _summary(dirx.read_header(directory / name, directory))
+                now = dirindex.stamp(os.stat(directory / name))
+            except (OSError, ValueError):
+                now = None
+            if now == stamp:
+                rows[i] = (name, stamp, dirindex.summary_text(summary),
+                           dirx.order_value(summary["attrs"].get(ORDER_ATTR, -1), directory / name))
+                continue
+        unsettled.add(name)
+    return unsettled
 
 
 def index_archive(directory) -> Path:
@@ -943,14 +1058,18 @@ def index_archive(directory) -> Path:
     FileNotFoundError, NotADirectoryError
         ``directory`` does not exist or is a file.
     ValueError
-        A file of the directory is not a readable NetCDF file (named).
+        A file of the directory is not a readable NetCDF file (named), or the index is
+        of a newer version than this library writes (named, with the remedies: upgrade
+        lcmr_xr, or delete the index file to rebuild it as this version).
 
     Notes
     -----
     Entries of the current index (its base and its journal) that still match their files
     (name, size, times, inode) are kept; every other file's header is read (about 4.6 ms
-    a file).  The journal files it read are folded into the new base and removed.  Waits
-    for a compaction that another process is running.
+    a file).  The journal files it read are folded into the new base and removed; one
+    of a newer version is left as it is, a damaged one set aside (renamed
+    ``NAME.json.unreadable``, with a warning).  Waits for a compaction that another
+    process is running.
 
     Examples
     --------
@@ -965,7 +1084,7 @@ def index_archive(directory) -> Path:
     """
     directory = Path(directory)
     _nc_files(directory)  # refuse a path that is no directory
-    return _compact(directory, blocking=True, verify=True)
+    return _compact(directory, blocking=True, verify=True, refuse_newer=True)
 
 
 def _length_message(lengths: dict, where: str) -> str:

@@ -19,24 +19,46 @@ journal (:data:`JOURNAL_NAME`)
     A hidden directory of small JSON files, one per write (an append adds one file of one
     entry, written atomically), so that a write costs the same whatever the archive
     holds.  A compaction folds the journal files it read into a new base and then
-    removes them; one holding more than :func:`compaction_due` allows triggers one.
+    removes them; one holding more than :func:`compaction_due` allows triggers one.  It
+    never removes a journal file it could not read: one of a newer version is left as
+    it is, a damaged one set aside (:func:`set_aside`, renamed ``NAME.json.unreadable``).
 
 Opening lists and stats the files; a file whose name, size, times and inode match an
 entry (of the journal or of the base) takes its summary from it, any other file (added by
 another tool, rewritten, or every file when there is no index) has its header read.  An
-entry is also not trusted when the file was modified in the same clock tick as the entry
-was written (git's "racy" rule, the time of the base or of the journal file; the writers
-wait out that tick).  The journal is read before the base, so that a compaction running
-meanwhile costs at most header reads, never a wrong summary.  An index that cannot be
-read, or of another version, and a journal file that cannot be read or holds summaries of
-another version are ignored with a warning.  Opening never writes.
+entry is also not trusted when its file's times are not older than the base or journal
+file that holds it (git's "racy" rule).  Waiting out the tick of a file's times before
+writing the index is not enough: a change of the file after its header was read, in the
+same tick of coarse file times (4 ms on older Linux kernels, 1-2 s on some file systems),
+leaves its size, times and inode as they were.  So the writers vouch only for entries no
+later change can hide (:func:`_written_after`): a compaction reads the header of a file
+changed in the tick of its read again once that tick is over (:func:`wait_past`), an
+append renames its file into place only after the tick of its write, and an entry
+without that guarantee (the clock did not pass in time) is written "racy" (not trusted).
+The journal is read before the base, so that a compaction running meanwhile costs at
+most header reads, never a wrong summary.  An index that cannot be read, or of another
+version, and a journal file that cannot be read or holds summaries of another version
+are ignored with a warning.  Opening never writes.
+
+Versions: a base (or journal file) of a newer version than :data:`VERSION` is never
+rewritten or removed by this library (it would drop what it cannot read): its writers
+warn, naming the version and the remedy (upgrade lcmr_xr, or delete the base to let this
+version rebuild it), add their journal files and take the next order from the base's
+``order`` column (or from the files); :func:`lcmr_xr.scaleout.index_archive` refuses.
+One of an older version is rewritten.
 
 Concurrent writers: each write adds its own journal file, so two processes appending at
-once keep each other's entries.  A compaction holds an exclusive ``flock`` on the journal
-directory (a writer that finds it held leaves the compaction to the holder); where locks
-are not available (some network file systems) two compactions at once may drop entries of
-files that then are read from their headers at open (correct, only slower) until the next
-compaction.
+once keep each other's entries, and holds the directory's write lock (:func:`write_lock`,
+an exclusive ``flock`` on the archive directory) from reading the next archive order to
+writing its journal file, so that two never take the same order (nor the same label and
+file name, appending without labels).  A compaction holds an exclusive ``flock`` on the
+journal directory (a writer that finds it held leaves the compaction to the holder);
+where locks are not available (some network file systems) two writers at once may take
+one order (their files then ordered by name; two appends without labels then one label:
+an append never replaces a file, so the later one fails with ``FileExistsError``, and
+appending it again gives it the next label), and two compactions at once may drop
+entries of files that then are read from their headers at open (correct, only slower)
+until the next compaction.
 """
 
 from __future__ import annotations
@@ -243,18 +265,27 @@ class Index(dict):
     ordered = False
 
 
-def read_index(directory: Path, warn: bool = True, journal: list[str] | None = None) -> Index | None:
+def read_index(directory: Path, warn: bool = True, journal: list[str] | None = None,
+               report: dict | None = None) -> Index | None:
     """The index of a directory: its journal files, then its base; None without either.
 
     An unreadable base, one of another version, and an unreadable journal file also warn
     if ``warn`` (a writer, which replaces them, does not).  ``journal``: the journal
-    files to read (default: every one listed now).
+    files to read (default: every one listed now).  ``report``: a dict that gets the
+    journal files whose entries were read or are superseded (``"folded"``: a compaction
+    may remove them) and those that are damaged (``"damaged"``: it sets them aside);
+    the others (gone, of a newer version, unreadable now) are in neither.
     """
     directory = Path(directory)
     index = Index()
     found = False
+    folded, damaged = [], []
     for name in (journal_files(directory) if journal is None else journal):
-        rows = _read_journal(directory / JOURNAL_NAME / name, warn)
+        rows, status = _read_journal(directory / JOURNAL_NAME / name, warn)
+        if status in ("read", "older"):
+            folded.append(name)
+        elif status == "damaged":
+            damaged.append(name)
         if rows is None:
             continue
         found = True
@@ -262,6 +293,8 @@ def read_index(directory: Path, warn: bool = True, journal: list[str] | None = N
             index.setdefault(row[0], []).append(row[1:])
     for entries in index.values():  # the newest journal file first
         entries.sort(key=lambda e: e[2], reverse=True)  # (stamp, text, written, order)
+    if report is not None:
+        report.update(folded=folded, damaged=damaged)
     base = _read_base(directory, warn)
     if base is not None:
         found = True
@@ -289,7 +322,11 @@ def _read_base(directory: Path, warn: bool) -> _Rows | None:
             version = f.attrs.get(INDEX_ATTR)
             version = None if version is None else np.asarray(version).item()
             if version != VERSION:
-                _ignored(path, f"version {version!r}, this library reads version {VERSION}", warn)
+                if newer(version):
+                    _ignored(path, f"version {version!r}, written by a newer lcmr_xr; this library "
+                                   f"reads version {VERSION}", warn, _UPGRADE)
+                else:
+                    _ignored(path, f"version {version!r}, this library reads version {VERSION}", warn)
                 return None
             names = f["name"].asstr()[()]
             texts = f["summary"].asstr()[()]
@@ -321,9 +358,36 @@ def _integers(values, column: str) -> np.ndarray:
 class BaseFacts:
     """What a writer needs of the base (see :func:`base_facts`)."""
 
-    def __init__(self, base=False, ordered=False, base_rows=0, top=None, first=None):
+    def __init__(self, base=False, ordered=False, base_rows=0, top=None, first=None, newer=None):
         self.base, self.ordered, self.base_rows, self.top = base, ordered, base_rows, top
-        self.first = first
+        self.first, self.newer = first, newer
+
+
+def newer(version) -> bool:
+    """Whether ``version`` (of a base or of a journal file's summaries) is an integer
+    version above this library's: written by a newer lcmr_xr, which this one never rewrites
+    or removes (it would drop what it cannot read)."""
+    return (isinstance(version, (int, np.integer)) and not isinstance(version, (bool, np.bool_))
+            and version > VERSION)
+
+
+def base_version(directory: Path):
+    """The version attribute of the directory's base (None: no base, or unreadable)."""
+    import h5py
+
+    try:
+        with h5py.File(Path(directory) / INDEX_NAME, "r") as f:
+            version = f.attrs.get(INDEX_ATTR)
+            return None if version is None else np.asarray(version).item()
+    except (OSError, ValueError, TypeError):
+        return None
+
+
+def newer_message(path: Path, version, what: str) -> str:
+    """Why a base of a newer version is not rewritten (``what``), and the remedies."""
+    return (f"archive index {path} is of version {version}, written by a newer lcmr_xr (this one "
+            f"writes version {VERSION}); {what}. Upgrade lcmr_xr to keep it current, or delete "
+            f"{path} to let this version rebuild it (lcmr_xr.scaleout.index_archive).")
 
 
 def base_facts(directory: Path) -> BaseFacts:
@@ -340,7 +404,10 @@ def base_facts(directory: Path) -> BaseFacts:
     try:
         with h5py.File(path, "r") as f:
             version = f.attrs.get(INDEX_ATTR)
-            if version is None or np.asarray(version).item() != VERSION:
+            version = None if version is None else np.asarray(version).item()
+            if newer(version):  # never rewritten here; its order column, if it keeps one
+                return _newer_facts(f, version)
+            if version != VERSION:
                 return BaseFacts()
             rows = f["name"].shape[0]
             if any(f[c].dtype.kind not in "iu" for c in _COLUMNS):  # the open ignores it
@@ -357,6 +424,24 @@ def base_facts(directory: Path) -> BaseFacts:
     return BaseFacts(True, True, rows, top, first)
 
 
+def _newer_facts(f, version) -> BaseFacts:
+    """:class:`BaseFacts` of a base of a newer version (open h5py file ``f``): its largest
+    ``order`` and first name where it keeps them as this version does (``ordered``),
+    else none (the writer then takes the orders from the files)."""
+    facts = BaseFacts(newer=version)
+    try:
+        orders = _integers(f["order"][()], "order")
+        names = f["name"]
+        first = names.asstr()[0] if names.shape[0] else None
+    except (KeyError, ValueError, TypeError, OSError):
+        return facts
+    facts.ordered = orders.shape == names.shape
+    if facts.ordered:
+        facts.top = int(orders.max()) if orders.size and orders.max() >= 0 else None
+        facts.first = first if first is not None and plain_name(first) else None
+    return facts
+
+
 def plain_name(name: str) -> bool:
     """Whether ``name`` can be an experiment file of the directory: a visible ``*.nc`` name
     without a directory part (an index never makes a writer open ``../x.nc`` or ``/x.nc``)."""
@@ -364,11 +449,15 @@ def plain_name(name: str) -> bool:
             and os.sep not in name and (os.altsep is None or os.altsep not in name))
 
 
-def _ignored(path: Path, why: str, warn: bool) -> None:
+_REBUILD = ("Rebuild it with lcmr_xr.scaleout.index_archive(directory) or "
+            "`lcmr-xr archive index DIR`.")
+_UPGRADE = "Upgrade lcmr_xr to use it (this version leaves it as it is)."
+
+
+def _ignored(path: Path, why: str, warn: bool, remedy: str = _REBUILD) -> None:
     if warn:
         warnings.warn(f"archive index {path} ignored ({why}); the files' headers are read "
-                      "instead (slower). Rebuild it with lcmr_xr.scaleout.index_archive(directory) "
-                      "or `lcmr-xr archive index DIR`.", RuntimeWarning, stacklevel=6)
+                      f"instead (slower). {remedy}", RuntimeWarning, stacklevel=6)
 
 
 def trusted(index: Index | None, name: str, st: os.stat_result):
@@ -384,22 +473,68 @@ def trusted(index: Index | None, name: str, st: os.stat_result):
 
 
 # ------------------------------------------------------------------ writing
-def _written_after(tmp: str, rows) -> None:
-    """Make the modification time of the index file ``tmp`` newer than every stamp of
-    ``rows`` (a file system with coarse times may put both in one tick: wait it out,
-    at most 50 ms; an entry that is still "racy" is only not trusted)."""
+#: Longest wait (s) for the file system's clock to pass a file's time (a tick of coarse
+#: file times; where it does not pass in time the entry is written "racy": not trusted).
+TICK_WAIT = 0.05
+
+
+def fs_clock(directory: Path) -> int:
+    """The file system's clock now (ns), as the modification time a write gets: the
+    journal directory's, touched (its own time is not used)."""
+    journal = Path(directory) / JOURNAL_NAME
+    journal.mkdir(exist_ok=True)
+    os.utime(journal)
+    return os.stat(journal).st_mtime_ns
+
+
+def wait_past(directory: Path, ns: int) -> bool:
+    """Wait until the file system's clock (:func:`fs_clock`) is past ``ns``, at most
+    :data:`TICK_WAIT`; whether it is."""
+    deadline = time.monotonic() + TICK_WAIT
+    try:
+        while fs_clock(directory) <= ns:
+            if time.monotonic() >= deadline:
+                return False
+            time.sleep(0.001)
+    except OSError:  # no clock to read here: unsettled
+        return False
+    return True
+
+
+def _written_after(tmp: str, rows, unsettled=()) -> None:
+    """Give the index file ``tmp`` the modification time that the "racy" rule reads
+    right (:func:`trusted`: an entry counts only if its file's times are older).
+
+    A writer hands in only entries that no later change of their file can leave
+    unseen: a header read after the tick of its file's last change ended (the file's
+    times then change with any later change), or a file it wrote, renamed into place
+    after the tick of its write ended.  For those the index file's time is put past
+    every stamp (the renames may have fallen in its tick: waited out, at most
+    :data:`TICK_WAIT`; what is still "racy" is only not trusted).  The entries of the
+    files named in ``unsettled`` (no such guarantee: the clock did not pass their tick
+    in time) must not be trusted: the time is set back to their oldest stamp instead.
+    Waiting out the tick alone does not make an entry safe: a change in that tick,
+    after the header was read, leaves the file's stamp as it was.
+    """
+    hot = [max(r[1][1], r[1][2]) for r in rows if r[0] in unsettled]
+    if hot:
+        oldest = min(hot)
+        if os.stat(tmp).st_mtime_ns > oldest:
+            os.utime(tmp, ns=(oldest, oldest))
+        return
     newest = max((max(r[1][1], r[1][2]) for r in rows), default=None)
     if newest is None:
         return
-    deadline = time.monotonic() + 0.05
+    deadline = time.monotonic() + TICK_WAIT
     while os.stat(tmp).st_mtime_ns <= newest and time.monotonic() < deadline:
         time.sleep(0.001)
         os.utime(tmp)
 
 
-def write_index(directory: Path, rows: list[tuple[str, tuple, str, int]]) -> Path:
+def write_index(directory: Path, rows: list[tuple[str, tuple, str, int]], unsettled=()) -> Path:
     """Write the base of the index of ``directory`` atomically from
-    ``[(name, stamp, summary text, order)]`` (order -1: the file has none)."""
+    ``[(name, stamp, summary text, order)]`` (order -1: the file has none; ``unsettled``:
+    the names whose entries must not be trusted, see :func:`_written_after`)."""
     import h5netcdf
     import h5py
 
@@ -426,7 +561,7 @@ def write_index(directory: Path, rows: list[tuple[str, tuple, str, int]]) -> Pat
             var.attrs["long_name"] = "the file's lcmr_archive_index attribute (-1: none)"
             if rows:
                 var[:] = np.array([r[3] for r in rows], dtype=np.int64)
-        _written_after(tmp, rows)
+        _written_after(tmp, rows, unsettled)
 
     return atomic_write(Path(directory) / INDEX_NAME, write)
 
@@ -450,10 +585,11 @@ def journal_max_order(names: list[str]) -> int | None:
     return max(orders) if orders else None
 
 
-def append_journal(directory: Path, rows: list[tuple[str, tuple, str, int]]) -> Path | None:
+def append_journal(directory: Path, rows: list[tuple[str, tuple, str, int]],
+                   unsettled=()) -> Path | None:
     """Add one journal file (atomically) holding the entries ``[(name, stamp, summary text,
     order)]``; its name begins with the largest order (so that a writer finds the next
-    order from the names alone)."""
+    order from the names alone).  ``unsettled``: see :func:`_written_after`."""
     from lcmr_xr.io._atomic import atomic_write
 
     rows = [r for r in rows if r[2] is not None]
@@ -469,38 +605,50 @@ def append_journal(directory: Path, rows: list[tuple[str, tuple, str, int]]) -> 
     def write(tmp):
         with open(tmp, "w", encoding="utf-8") as fh:
             json.dump(data, fh, separators=(",", ":"))
-        _written_after(tmp, rows)
+        _written_after(tmp, rows, unsettled)
 
     return atomic_write(journal / name, write)
 
 
 def _read_journal(path: Path, warn: bool):
-    """``[(name, stamp, text, written, order)]`` of one journal file, or None (gone: a
-    compaction folded it into the base; unreadable: warns if ``warn``)."""
+    """``(rows, status)`` of one journal file: ``rows`` ``[(name, stamp, text, written,
+    order)]`` or None, ``status`` what a compaction may do with the file: ``"read"`` and
+    ``"older"`` (summaries of an older version: superseded) it removes, ``"damaged"``
+    (not JSON, or not a journal file) it sets aside, ``"gone"`` (a compaction folded it
+    into the base), ``"newer"`` (a newer lcmr_xr's) and ``"unavailable"`` (an error of
+    the file system, e.g. no permission) it leaves.  Unreadable files warn if ``warn``."""
     try:
         with open(path, "rb") as fh:
             written = os.fstat(fh.fileno()).st_mtime_ns
             data = json.loads(fh.read())
     except FileNotFoundError:
-        return None
-    except (OSError, ValueError, RecursionError) as err:  # RecursionError: nested too deep
+        return None, "gone"
+    except OSError as err:
         _ignored(path, f"unreadable: {err}", warn)
-        return None
+        return None, "unavailable"
+    except (ValueError, RecursionError) as err:  # RecursionError: nested too deep
+        _ignored(path, f"unreadable: {err}", warn)
+        return None, "damaged"
     try:
-        if data.get(JOURNAL_KEY) != JOURNAL_VERSION:
-            _ignored(path, f"version {data.get(JOURNAL_KEY)!r}, this library reads version "
-                           f"{JOURNAL_VERSION}", warn)
-            return None
+        form = data.get(JOURNAL_KEY)
+        if form != JOURNAL_VERSION:
+            later = type(form) is int and form > JOURNAL_VERSION
+            _ignored(path, f"version {form!r}{', written by a newer lcmr_xr' if later else ''}, "
+                           f"this library reads version {JOURNAL_VERSION}", warn,
+                     _UPGRADE if later else _REBUILD)
+            return None, "newer" if later else "damaged"
         summaries = data.get(INDEX_ATTR, JOURNAL_UNVERSIONED)
         if summaries != VERSION:  # what the summaries hold changed: not this library's
-            _ignored(path, f"summaries of version {summaries!r}, this library reads version "
-                           f"{VERSION}", warn)
-            return None
+            later = newer(summaries)
+            _ignored(path, f"summaries of version {summaries!r}"
+                           f"{', written by a newer lcmr_xr' if later else ''}, this library reads "
+                           f"version {VERSION}", warn, _UPGRADE if later else _REBUILD)
+            return None, ("newer" if later else "older" if type(summaries) is int else "damaged")
         return [(str(name), tuple(int(v) for v in st), str(text), written, int(order))
-                for name, st, order, text in data["rows"]]
+                for name, st, order, text in data["rows"]], "read"
     except (AttributeError, KeyError, ValueError, TypeError) as err:
         _ignored(path, f"malformed: {err!r}", warn)
-        return None
+        return None, "damaged"
 
 
 def remove_journal(directory: Path, names: list[str]) -> None:
@@ -513,13 +661,59 @@ def remove_journal(directory: Path, names: list[str]) -> None:
             pass
 
 
+#: Suffix of a damaged journal file set aside by a compaction (kept, never read again).
+DAMAGED_SUFFIX = cv.ARCHIVE_INDEX_DAMAGED_SUFFIX
+
+
+def set_aside(directory: Path, names: list[str]) -> None:
+    """Rename the damaged journal files ``names`` to ``NAME.unreadable`` (no ``.json``: no
+    reader takes them again; their bytes are kept), with a warning naming them.  Their
+    files' entries come from the files' headers (read by the compaction)."""
+    journal = Path(directory) / JOURNAL_NAME
+    for name in names:
+        try:
+            os.replace(journal / name, journal / (name + DAMAGED_SUFFIX))
+        except FileNotFoundError:
+            continue
+        warnings.warn(f"archive index journal file {journal / name} is unreadable (damaged); set "
+                      f"aside as {journal / (name + DAMAGED_SUFFIX)} (kept, no longer read: the "
+                      "entries of its files were taken from their headers). Delete it once "
+                      "inspected.", RuntimeWarning, stacklevel=4)
+
+
 def compaction_due(index: Index | BaseFacts | None, journal: int, new_rows: int) -> bool:
     """Whether a write that added ``new_rows`` entries, with ``journal`` journal files now,
     compacts: no base of this version, a base without the orders, a bulk write, or a
     journal grown past :data:`JOURNAL_FILES` (or a sixteenth of the base's entries)."""
+    if getattr(index, "newer", None) is not None:  # never rewritten by this version
+        return False
     if index is None or not index.base or not index.ordered:
         return True
     return new_rows >= BULK_ROWS or journal > max(JOURNAL_FILES, index.base_rows // 16)
+
+
+@contextlib.contextmanager
+def write_lock(directory: Path):
+    """Hold the directory's write lock (an exclusive ``flock`` on the archive directory
+    itself), waiting for it: a writer holds it from reading the next archive order (and
+    whether its files exist) until its journal file lists its files, so two writers never
+    take one order or replace each other's new file.  Where locks are not available it
+    proceeds without one (see the module notes)."""
+    try:
+        fd = os.open(Path(directory), os.O_RDONLY)
+    except OSError:
+        yield
+        return
+    try:
+        try:
+            import fcntl
+
+            fcntl.flock(fd, fcntl.LOCK_EX)
+        except (ImportError, OSError):  # no locks here: proceed without
+            pass
+        yield
+    finally:
+        os.close(fd)  # releases the lock
 
 
 @contextlib.contextmanager
