@@ -718,6 +718,28 @@ def test_real_signal_spectra_are_fitted_on_half_the_bins_and_mirrored():
     assert np.max(diff / np.linalg.norm(ref["G_cov"][bins], axis=(1, 2))) < 1e-6
 
 
+
+@pytest.mark.parametrize("covariance", [None, "diag", "full"])
+def test_mirror_in_pieces_per_thread_is_the_whole_mirror(monkeypatch, covariance):
+    """The mirrored half is written in one piece per thread: every output equal, bit for
+    bit, for one and for three threads (uneven pieces), odd and even M, a batch dim."""
+    rng = np.random.default_rng(5)
+    for m in (67, 80):
+        x = np.fft.fft(rng.standard_normal((2, m, 5)), axis=1)
+        fits = []
+        for threads in (1, 3):
+            monkeypatch.setattr(lm, "_threads", lambda t=threads: t)
+            monkeypatch.setattr(lm, "_CHUNK_BYTES", 16 * 79 * 8)  # several tasks
+            fits.append(local_model(x[..., :2], x[..., 2:], half_width=6,
+                                    degrees=(1, 1, 1), covariance=covariance))
+        k = np.arange(1, (m + 1) // 2)
+        np.testing.assert_array_equal(fits[0].G[:, m - k], np.conj(fits[0].G[:, k]))
+        for name in ("G", "T", "noise_covariance", "G_cov", "condition", "ill_posed",
+                     "dropped"):
+            np.testing.assert_array_equal(getattr(fits[1], name), getattr(fits[0], name),
+                                          err_msg=name)
+
+
 # -------------------------------------------------------- exactly modelled, noiseless data
 @pytest.mark.parametrize("nr,nz", [(1, 1), (2, 3)])
 def test_exactly_modelled_data_give_G_not_nan(nr, nz):
@@ -773,6 +795,26 @@ def test_one_thread_inside_worker_threads():
     worker.start()
     worker.join()
     np.testing.assert_allclose(got[0].G, main.G, rtol=1e-12)
+
+
+def test_thread_count_read_without_launching_numbas_pool():
+    """_threads() reads numba's setting without starting numba's thread pool (which the
+    kernel never uses), and follows numba.set_num_threads once it is called."""
+    import subprocess
+
+    code = (
+        "import numba\n"
+        "from numba.np.ufunc import parallel\n"
+        "from lcmr_xr.kernels import local_models as lm\n"
+        "assert lm._threads() == max(1, numba.config.NUMBA_NUM_THREADS)\n"
+        "assert not parallel._is_initialized\n"
+        "numba.set_num_threads(1)\n"
+        "assert lm._threads() == 1\n"
+        "print('ok')\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         env=dict(os.environ, NUMBA_NUM_THREADS="2"))
+    assert out.returncode == 0 and out.stdout.strip() == "ok", out.stderr
 
 
 def test_no_transient_term_is_exact_for_periodic_data():

@@ -618,26 +618,29 @@ def local_model(R, Z, *, half_width, degrees=(3, 3, 3), circular: bool = True,
                    n, degrees, mode, sel,
                    g.start * m + c0, m, n_exp * (2 * n + 1) - p_pool, out, n_exp, use_iv)
 
+    # mirrored: bins M/2+1..M-1 from bins (M-1)/2..1 (reversed views, written in place: no
+    # gathered copy of outputs that reach hundreds of MB for M = 2^19), in as many
+    # pieces as threads (numpy's copies release the GIL)
+    pieces = []
+    if mirror:
+        for value in out.values():
+            if value.size:
+                v = value.reshape((n_batch, m) + value.shape[1:])
+                src, dst = v[:, (m - 1) // 2:0:-1], v[:, m // 2 + 1:]
+                cuts = np.linspace(0, dst.shape[1], threads + 1).astype(int)
+                pieces += [(src[:, a:b], dst[:, a:b]) for a, b in zip(cuts, cuts[1:]) if b > a]
     with np.errstate(all="ignore"):
         if threads > 1 and len(tasks) > 1:
             with ThreadPoolExecutor(threads) as pool:
                 list(pool.map(run, tasks))
+                list(pool.map(_mirror_piece, pieces))
         else:
             for task in tasks:
                 run(task)
+            for piece in pieces:
+                _mirror_piece(piece)
     if not mirror:  # (mirrored: the bins not fitted are the mirror's)
         _fill_not_fitted(out, todo)
-    if mirror:
-        # bins M/2+1..M-1 from bins (M-1)/2..1 (a reversed view, written in place: no
-        # gathered copy of outputs that reach hundreds of MB for M = 2^19)
-        for name, value in out.items():
-            if value.size:
-                v = value.reshape((n_batch, m) + value.shape[1:])
-                src, dst = v[:, (m - 1) // 2:0:-1], v[:, m // 2 + 1:]
-                if v.dtype.kind == "c":
-                    np.conjugate(src, out=dst)
-                else:
-                    dst[...] = src
     shaped = {name: (v.reshape(batch + (m,) + v.shape[1:]) if v.shape[0] else None)
               for name, v in out.items()}
     # T: (..., M, E, nz) -> (..., E, M, nz) pooled, (..., M, nz) otherwise
@@ -654,6 +657,15 @@ def local_model(R, Z, *, half_width, degrees=(3, 3, 3), circular: bool = True,
         G_cov=shaped["G_cov"] if covariance == "full" else shaped["G_var"],
         condition=cond, ill_posed=shaped["ill_posed"], dropped=shaped["dropped"],
     )
+
+
+def _mirror_piece(piece):
+    """``dst = conj(src)`` (complex) or ``src`` (real, int, bool) of one mirrored piece."""
+    src, dst = piece
+    if dst.dtype.kind == "c":
+        np.conjugate(src, out=dst)
+    else:
+        dst[...] = src
 
 
 def _haloed(x, lo, hi, circular):
@@ -792,7 +804,14 @@ def _threads() -> int:
     if threading.current_thread() is not threading.main_thread():
         return 1
     import numba
+    from numba.np.ufunc import parallel
 
+    # numba.get_num_threads() launches numba's thread pool (0.02 s, and threads this
+    # module never uses: its threads are its own) just to read the setting; until the
+    # pool is launched (numba.set_num_threads launches it) the setting is
+    # NUMBA_NUM_THREADS, as numba documents
+    if not getattr(parallel, "_is_initialized", True):
+        return max(1, numba.config.NUMBA_NUM_THREADS)
     return max(1, numba.get_num_threads())
 
 
