@@ -215,6 +215,20 @@ NOISE_VARIANTS = ("disturbances", "Gaussian, per-bin covariance",
                   "Gaussian, window-averaged covariance", "white")
 
 
+def disturbance_records(*, case, records, n_samples):
+    """(records, M, nz) lifted spectra ``Z`` of the benchmark's disturbances alone: the
+    difference of a record with and without them (simulation seeds ``1000 + j``).  They do
+    not depend on the excitation (the loop is linear), so one set serves every excitation."""
+    V = []
+    for j in range(records):
+        on = hdd.simulate(n_samples, case=case, noise=True, seed=1000 + j)
+        off = hdd.simulate(n_samples, case=case, noise=False, seed=1000 + j)
+        V.append(experiment_spectra(on.r.values, on.u.values, on.y.values, factor=hdd.FACTOR)[1]
+                 - experiment_spectra(off.r.values, off.u.values, off.y.values,
+                                      factor=hdd.FACTOR)[1])
+    return np.array(V)
+
+
 def covariance_decomposition(*, case=2, excitation_seeds=(0,), records=30, n_samples=3600,
                              half_width=30, degrees=(3, 3, 3), variants=NOISE_VARIANTS,
                              seed=0, denominator="ls", instruments="narrow", first_window=30):
@@ -240,14 +254,7 @@ def covariance_decomposition(*, case=2, excitation_seeds=(0,), records=30, n_sam
     ``{variant: (seeds, M, nz, nr)}`` biases (for their agreement across excitations).
     """
     m = n_samples // hdd.FACTOR
-    V = []
-    for j in range(records):  # excitation-independent: the loop is linear
-        on = hdd.simulate(n_samples, case=case, noise=True, seed=1000 + j)
-        off = hdd.simulate(n_samples, case=case, noise=False, seed=1000 + j)
-        V.append(experiment_spectra(on.r.values, on.u.values, on.y.values, factor=hdd.FACTOR)[1]
-                 - experiment_spectra(off.r.values, off.u.values, off.y.values,
-                                      factor=hdd.FACTOR)[1])
-    V = np.array(V)
+    V = disturbance_records(case=case, records=records, n_samples=n_samples)
     nz = V.shape[-1]
     C = np.einsum("jki,jkl->kil", V, V.conj()) / records  # per-bin covariance (M, nz, nz)
     w = 2 * half_width + 1
@@ -510,6 +517,18 @@ def _print_cover_row(label: str, width: int, mean, worst) -> None:
         f"{f'{mean[b, 0]:.3f}/{mean[b, 1]:.3f} ({worst[b, 0]:.3f}/{worst[b, 1]:.3f})':>26}"
         for b in range(len(BANDS))))
 
+def print_cover_forms(cover, width: int) -> None:
+    """Rows of ``{setting: {form: (case, seed, band, input)}}``: coverage mean (worst case)
+    per form, and for the form ``"error"`` the median (both columns)."""
+    for name, forms in cover.items():
+        for form, c in forms.items():
+            if form == "error":
+                mean = worst = np.median(c, axis=(0, 1))
+            else:
+                mean, worst = c.mean(axis=(0, 1)), c.mean(axis=1).min(axis=0)
+            _print_cover_row(f"{name}, {form}", width, mean, worst)
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=10)
@@ -588,13 +607,7 @@ def main(argv=None):
               "covered), mean (worst case); median relative error; flagged fraction")
         print(f"  {'setting / form':<32}" + "".join(f"{f'{lo:.0f}-{hi:.0f} Hz':>26}"
                                                     for lo, hi in BANDS))
-        for name, forms in cover.items():
-            for form, c in forms.items():
-                if form == "error":
-                    mean = worst = np.median(c, axis=(0, 1))
-                else:
-                    mean, worst = c.mean(axis=(0, 1)), c.mean(axis=1).min(axis=0)
-                _print_cover_row(f"{name}, {form}", 32, mean, worst)
+        print_cover_forms(cover, 32)
         print(f"({time.perf_counter() - t0:.0f} s; machine shared with other jobs)")
         return
     if args.band_forms:

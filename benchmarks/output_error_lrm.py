@@ -284,16 +284,9 @@ def decomposition(*, case=2, excitation_seeds=(0, 1), records=30, n_samples=3600
     ``[|dG|^2/G_var, var/G_var, bias^2/G_var, mse/G_var, mse/mse_LS, bias^2/G_var_LS]``
     (each method's own mean reported ``G_var``; the last column over least squares')."""
     m = n_samples // hdd.FACTOR
-    V = []
-    for j in range(records):
-        on = hdd.simulate(n_samples, case=case, noise=True, seed=1000 + j)
-        off = hdd.simulate(n_samples, case=case, noise=False, seed=1000 + j)
-        V.append(experiment_spectra(on.r.values, on.u.values, on.y.values, factor=hdd.FACTOR)[1]
-                 - experiment_spectra(off.r.values, off.u.values, off.y.values,
-                                      factor=hdd.FACTOR)[1])
-    V = np.array(V)
+    acc = _accuracy()
+    V = acc.disturbance_records(case=case, records=records, n_samples=n_samples)
     if noise == "white":
-        acc = _accuracy()
         nz = V.shape[-1]
         sd = np.sqrt(np.median(np.mean(np.abs(V) ** 2, axis=0), axis=0))
         g = np.random.default_rng(0).standard_normal((2,) + V.shape)
@@ -458,16 +451,8 @@ def main(argv=None):
                       iterations=args.iterations, start=args.start)
         print(f"P through the indirect step, cases {args.cases}, {args.seeds} seeds, window "
               f"{args.half_width}: coverage VCM/PZT mean (worst case); error: median; flagged")
-        print(f"  {'method, form':<30}" + "".join(f"{f'{lo}-{hi} Hz':>28}" for lo, hi in BANDS))
-        for name, forms in cv.items():
-            for form, c in forms.items():
-                if form == "error":
-                    mean = worst = np.median(c, axis=(0, 1))
-                else:
-                    mean, worst = c.mean(axis=(0, 1)), c.mean(axis=1).min(axis=0)
-                print(f"  {f'{name}, {form}':<30}" + "".join(
-                    f"{f'{mean[b, 0]:.3f}/{mean[b, 1]:.3f} ({worst[b, 0]:.3f}/{worst[b, 1]:.3f})':>28}"
-                    for b in range(len(BANDS))))
+        print(f"  {'method, form':<30}" + "".join(f"{f'{lo}-{hi} Hz':>26}" for lo, hi in BANDS))
+        _accuracy().print_cover_forms(cv, 30)
     if args.cost:
         print(f"cost per fit, CPU s (load {open('/proc/loadavg').read().split()[0]})")
         for w, (a, a0, b) in cost(iterations=args.iterations).items():
