@@ -847,3 +847,37 @@ def test_an_appended_file_changed_in_the_tick_of_its_write_gets_no_trusted_entry
     monkeypatch.setattr(arc, "_write_checked", real)
     assert open_archive(d).seed.values.tolist() == [0, 1, 99]
     _assert_same_as_oracle(d)
+
+
+def test_where_no_lock_can_be_taken_the_errors_of_a_write_are_not_chained_to_that(
+        tmp_path, monkeypatch):
+    """Where a directory cannot be opened to lock it (Windows; no permission), the write and
+    compaction locks proceed without one, but they did so inside the ``except OSError``
+    handler: every error of the write raised under them (a taken label, a file that is no
+    NetCDF) was reported "during handling of" that PermissionError, as if it were its
+    cause.  Now such errors carry no trace of the lock that could not be taken."""
+    d = tmp_path / "d"
+    _archive(d, 2)
+    real_open = os.open
+
+    def no_directories(path, *args, **kwargs):
+        if os.path.isdir(path):
+            raise PermissionError(13, "Permission denied", os.fspath(path))
+        return real_open(path, *args, **kwargs)
+
+    monkeypatch.setattr(dirindex.os, "open", no_directories)
+    with pytest.raises(ValueError, match="is already in") as taken:
+        append_to_archive(_labelled(1), d)  # under the write lock (none taken)
+    (d / "zz_not_netcdf.nc").write_bytes(b"not a NetCDF file")
+    with pytest.raises(ValueError, match="zz_not_netcdf") as foreign:
+        index_archive(d)  # under the compaction lock (none taken)
+    for err in (taken.value, foreign.value):
+        chain, seen = [], err
+        while seen is not None:
+            chain.append(seen)
+            seen = seen.__cause__ or seen.__context__
+        assert not any(isinstance(e, PermissionError) for e in chain), chain
+    monkeypatch.undo()
+    append_to_archive(_labelled(2), d)  # and the write itself goes on without the lock
+    (d / "zz_not_netcdf.nc").unlink()
+    assert open_archive(d).seed.values.tolist() == [0, 1, 2]

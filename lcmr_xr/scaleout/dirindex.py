@@ -699,21 +699,19 @@ def write_lock(directory: Path):
     whether its files exist) until its journal file lists its files, so two writers never
     take one order or replace each other's new file.  Where locks are not available it
     proceeds without one (see the module notes)."""
+    fd = _open_to_lock(Path(directory))
     try:
-        fd = os.open(Path(directory), os.O_RDONLY)
-    except OSError:
-        yield
-        return
-    try:
-        try:
-            import fcntl
+        if fd is not None:
+            try:
+                import fcntl
 
-            fcntl.flock(fd, fcntl.LOCK_EX)
-        except (ImportError, OSError):  # no locks here: proceed without
-            pass
-        yield
+                fcntl.flock(fd, fcntl.LOCK_EX)
+            except (ImportError, OSError):  # no locks here: proceed without
+                pass
+        yield  # outside any except clause: the writer's errors are not chained to the lock's
     finally:
-        os.close(fd)  # releases the lock
+        if fd is not None:
+            os.close(fd)  # releases the lock
 
 
 @contextlib.contextmanager
@@ -724,20 +722,29 @@ def compaction_lock(directory: Path, blocking: bool):
     journal = Path(directory) / JOURNAL_NAME
     try:
         journal.mkdir(exist_ok=True)
-        fd = os.open(journal, os.O_RDONLY)
     except OSError:
-        yield True
-        return
+        pass  # then no lock either (below)
+    fd, held = _open_to_lock(journal), True
     try:
-        try:
-            import fcntl
+        if fd is not None:
+            try:
+                import fcntl
 
-            fcntl.flock(fd, fcntl.LOCK_EX | (0 if blocking else fcntl.LOCK_NB))
-        except BlockingIOError:
-            yield False
-            return
-        except (ImportError, OSError):  # no locks here: proceed without
-            pass
-        yield True
+                fcntl.flock(fd, fcntl.LOCK_EX | (0 if blocking else fcntl.LOCK_NB))
+            except BlockingIOError:
+                held = False
+            except (ImportError, OSError):  # no locks here: proceed without
+                pass
+        yield held  # outside any except clause (see write_lock)
     finally:
-        os.close(fd)  # releases the lock
+        if fd is not None:
+            os.close(fd)  # releases the lock
+
+
+def _open_to_lock(directory: Path) -> int | None:
+    """A descriptor of ``directory`` to ``flock``, or None where it cannot be opened
+    (Windows, no permission): the lock is then not taken."""
+    try:
+        return os.open(directory, os.O_RDONLY)
+    except OSError:
+        return None
