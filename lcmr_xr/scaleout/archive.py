@@ -539,6 +539,10 @@ def append_to_archive(experiment, path) -> Path:
         The experiment is invalid, of another shape than the archive, carries other
         metadata, or its label is taken or of another kind than the archive's (integer
         vs text).
+    FileExistsError
+        Directory, where the write lock is not available (some network file systems):
+        another append took the same file name while this one was writing (nothing was
+        replaced; an append without a label gets the next one when it is appended again).
 
     Notes
     -----
