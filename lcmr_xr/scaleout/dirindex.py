@@ -34,7 +34,8 @@ leaves its size, times and inode as they were.  So the writers vouch only for en
 later change can hide (:func:`_written_after`): a compaction reads the header of a file
 changed in the tick of its read again once that tick is over (:func:`wait_past`), an
 append renames its file into place only after the tick of its write, and an entry
-without that guarantee (the clock did not pass in time) is written "racy" (not trusted).
+without that guarantee (the clock did not pass in time; a write of several files then does
+not wait again for its later ones) is written "racy" (not trusted).
 The journal is read before the base, so that a compaction running meanwhile costs at
 most header reads, never a wrong summary.  An index that cannot be read, or of another
 version, and a journal file that cannot be read or holds summaries of another version
