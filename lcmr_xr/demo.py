@@ -35,6 +35,29 @@ def find_bundled_experiment(name: str = BUNDLED) -> Path | None:
     return None
 
 
+def _check_frf_and_truth(frf, truth, func: str) -> None:
+    """An FRF dataset and a truth on exactly its frequencies: ``frf.P - truth`` aligns by
+    label, so a truth on other (or rounded) frequencies would silently drop bins from the
+    errors while the band counts still count them."""
+    if not isinstance(frf, xr.Dataset) or "P" not in frf.data_vars or cv.FREQUENCY not in frf.coords:
+        raise TypeError(f"{func} needs the FRF dataset of lcmr_xr.identify (variable P on "
+                        f"'frequency'), got {type(frf).__name__}"
+                        f"{' without P' if isinstance(frf, xr.Dataset) else ''}.")
+    if isinstance(truth, xr.DataArray) and cv.FREQUENCY in truth.dims:
+        f = np.asarray(frf[cv.FREQUENCY].values)
+        ft = np.asarray(truth[cv.FREQUENCY].values) if cv.FREQUENCY in truth.coords else None
+        if ft is None or ft.shape != f.shape or not np.array_equal(ft, f):
+            raise ValueError(
+                f"{func}: truth must be on the FRF's frequencies ({f.size} bins), but its "
+                f"'frequency' has {'no coordinate' if ft is None else f'{ft.size} other values'}; "
+                "evaluate it there, e.g. hdd.true_frf(frf.frequency[1:]).reindex("
+                "frequency=frf.frequency) (DC is inf for the VCM).")
+    elif not (isinstance(truth, np.ndarray) and truth.shape == frf.P.shape):
+        raise TypeError(f"{func} needs truth as a DataArray on the FRF's frequency, output and "
+                        f"input (or an array of P's shape {frf.P.shape}), got "
+                        f"{type(truth).__name__}{getattr(truth, 'shape', '')}.")
+
+
 def relative_error_table(frf: xr.Dataset, truth: xr.DataArray) -> xr.Dataset:
     """Median relative error ``|P_hat - P| / |P|`` per input, below and above the slow Nyquist frequency.
 
@@ -51,6 +74,7 @@ def relative_error_table(frf: xr.Dataset, truth: xr.DataArray) -> xr.Dataset:
         ``below`` and ``above`` (``output``, ``input``), dimensionless; DC and the fast
         Nyquist bin are left out.
     """
+    _check_frf_and_truth(frf, truth, "relative_error_table")
     f = frf[cv.FREQUENCY]
     interior = (f > 0) & (f < f.max())
     rel = (abs(frf.P - truth) / abs(truth)).where(interior)
@@ -114,6 +138,7 @@ def band_errors(frf: xr.Dataset, truth: xr.DataArray, low: float = 500.0) -> xr.
     xarray.DataArray
         Dimensionless medians on (``band``, ``input``, ...).
     """
+    _check_frf_and_truth(frf, truth, "band_errors")
     out = band_median(abs(frf.P - truth) / abs(truth), frf.attrs["slow_nyquist"], low)
     return out.assign_attrs(units="1", long_name="median relative error")
 
@@ -138,7 +163,26 @@ def band_table(frf: xr.Dataset, truth: xr.DataArray, bands=BANDS_HZ) -> xr.Datas
         ``|P_hat - P| <= sqrt(ln 20) P_std``; a bin flagged ``P_undetermined`` has an
         unbounded band and counts as covered), ``flagged`` (fraction flagged), all
         dimensionless.  DC and the fast Nyquist bin are left out.
+
+    Raises
+    ------
+    TypeError
+        ``frf`` not an FRF dataset, ``truth`` neither a DataArray nor an array of P's
+        shape, ``bands`` not pairs of numbers.
+    ValueError
+        ``truth`` on other frequencies than ``frf`` (the difference would align by label
+        and drop bins silently), or a band that is not ``0 <= f_lo < f_hi``.
     """
+    _check_frf_and_truth(frf, truth, "band_table")
+    try:
+        bands = [(float(lo), float(hi)) for lo, hi in bands]
+    except (TypeError, ValueError):
+        raise TypeError(f"bands must be pairs (f_lo, f_hi) in Hz, got {bands!r}; e.g. "
+                        f"bands=[(500, 5000)].") from None
+    wrong = [b for b in bands if not (0 <= b[0] < b[1])]
+    if wrong:
+        raise ValueError(f"bands {wrong} are not intervals 0 <= f_lo < f_hi in Hz (an empty band "
+                         f"gives NaN rows); e.g. bands=[(500, 5000)].")
     f = frf[cv.FREQUENCY]
     interior = (f > 0) & (f < f.max())
     err = abs(frf.P - truth)

@@ -17,6 +17,7 @@ settings validator of issue 17 (``lcmr_xr.settings``).
 
 from __future__ import annotations
 
+import importlib.util
 import os
 import shutil
 import signal
@@ -35,13 +36,18 @@ import pytest
 import xarray as xr
 
 import lcmr_xr
+import lcmr_xr.plot
 from lcmr_xr import cli, hdd
+from lcmr_xr.demo import band_table
 from lcmr_xr.experiment import experiment, validate_experiment
 from lcmr_xr.io import open_dataset, open_experiment, open_frf, save
 from lcmr_xr.io._atomic import stale_temporaries, temporary_prefix
-from lcmr_xr.scaleout import open_archive, save_archive, select_settings, sweep
+from lcmr_xr.scaleout import (consolidate_archive, open_archive, save_archive, select_settings, sweep,
+                              sweep_to_disk)
 
 TH = 1 / 100800
+_needs_control = pytest.mark.skipif(importlib.util.find_spec("control") is None,
+                                    reason="python-control (the [control] extra) is not installed")
 
 
 # ------------------------------------------------------------------------ environment
@@ -68,10 +74,13 @@ def template(tmp_path_factory, small, small_frf):
     (root / "notes.nc").write_text("hello, not a netCDF file\n")
     data = (root / "exp.nc").read_bytes()
     (root / "trunc.nc").write_bytes(data[: len(data) // 3])
+    (root / "damaged.nc").write_bytes(_damaged(root / "exp.nc", "r"))
     save_archive(xr.concat([small, hdd.simulate(n_samples=400, noise=False, seed=2)],
                            dim="experiment").assign_coords(experiment=["e0", "e1"]), root / "arc",
                  layout="files")
     save_archive(small, root / "arc1.nc")  # a consolidated archive (one file)
+    shutil.copytree(root / "arc", root / "damagedarc")  # its first file's values damaged
+    (root / "damagedarc" / "e0.nc").write_bytes(_damaged(root / "arc" / "e0.nc", "r"))
     (root / "junkarc").mkdir()
     shutil.copy2(root / "exp.nc", root / "junkarc" / "good.nc")
     (root / "junkarc" / "junk.nc").write_bytes(b"\x89HDF\r\n\x1a\n not really")
@@ -86,6 +95,27 @@ def template(tmp_path_factory, small, small_frf):
     (root / "demo").mkdir()
     save(small_frf, root / "demo" / "hdd_frf.nc")
     return root
+
+
+def _damaged(path: Path, name: str) -> bytes:
+    """The bytes of ``path`` with 64 bytes of variable ``name``'s stored values changed
+    (the header intact: what a bad sector or a bit flip on a disk does)."""
+    import h5py
+
+    with h5py.File(path, "r") as f:
+        dset = f[name].id
+        offset = dset.get_offset() if dset.get_offset() is not None else dset.get_chunk_info(0).byte_offset
+    data = bytearray(path.read_bytes())
+    data[offset + 64: offset + 128] = bytes(0xA5 ^ b for b in data[offset + 64: offset + 128])
+    return bytes(data)
+
+
+def _toy_loop():
+    """(plant, controller, filter) of a one-input loop with Th = 0.5 s and a controller at
+    1 s (F = 2, or F = 2.5 truncated)."""
+    from lcmr_xr.kernels.lti import static_gain, tf_q_inverse
+
+    return tf_q_inverse([0.0, 0.5], [1.0, -0.9], dt=0.5), static_gain(0.2, dt=1.0), None
 
 
 def snapshot(root: Path) -> dict:
@@ -306,7 +336,14 @@ API = [
     Case("uneven_time", lambda e: experiment(e.small.r.assign_coords(time=e.small.time * (1 + np.arange(400) * 1e-4)),
                                              e.small.u.drop_vars("time"), e.small.y.drop_vars("slow_time"), factor=2),
          ValueError, ("not evenly spaced",)),
+    Case("units_not_text", lambda e: e.build(output_units=5), TypeError, ("output_units", "unit string", "5")),
+    Case("units_list", lambda e: e.build(input_units=["V"]), TypeError, ("input_units", "['V']")),
+    Case("units_empty", lambda e: e.build(output_units=""), ValueError, ("output_units", "unit string")),
+    Case("arrays_empty", lambda e: e.build(r=e.r[:0], u=e.u[:0], y=e.y[:0]), ValueError, ("r", "no data"),
+         absent=("transposed",)),
     # --- validate_experiment(): datasets -------------------------------------------------
+    Case("validate_check_values_text", lambda e: validate_experiment(e.small, check_values="no"), TypeError,
+         ("check_values", "True or False")),
     Case("validate_dataarray", lambda e: validate_experiment(e.small.r), TypeError,
          ("xarray.Dataset", "lcmr_xr.experiment(r, u, y")),
     Case("conventions_missing", lambda e: validate_experiment(_drop_attr(e.small, "conventions")), ValueError,
@@ -331,6 +368,99 @@ API = [
          ValueError, ("slow_time", "spaced by", "spacing / time spacing = 3")),
     Case("time_not_starting_at_zero", lambda e: validate_experiment(e.small.assign_coords(time=e.small.time + 1.0)),
          ValueError, ("starts at",)),
+    # identify drops the first transient_periods by position: periods out of recording
+    # order kept the transient and dropped a steady period (P changed by 41 % of its peak)
+    Case("periods_reversed", lambda e: _identify12(
+        hdd.simulate(n_samples=400, noise=False, seed=1, periods=3).isel(period=[2, 1, 0]),
+        transient_periods=1), ValueError, ("'period' coordinate [2, 1, 0]", "sortby")),
+    Case("period_coordinate_text", lambda e: validate_experiment(
+        hdd.simulate(n_samples=400, noise=False, seed=1, periods=2).assign_coords(period=["a", "b"])),
+        ValueError, ("'period' coordinate ['a', 'b']", "increasing integers")),
+    Case("units_attribute_not_text", lambda e: validate_experiment(e.changed(y=e.small.y.assign_attrs(units=["m"]))),
+         ValueError, ("'y'", "units ['m']", "UDUNITS")),
+    # --- the HDD simulation and multisines: whole numbers and flags are not coerced ----------
+    Case("simulate_samples_fractional", lambda e: hdd.simulate(n_samples=400.5, noise=False), ValueError,
+         ("n_samples", "400.5", "not rounded")),
+    Case("simulate_samples_text", lambda e: hdd.simulate(n_samples="400", noise=False), TypeError,
+         ("n_samples", "'400'")),
+    Case("simulate_noise_text", lambda e: hdd.simulate(n_samples=400, noise="no"), TypeError,
+         ("noise", "True or False")),
+    Case("simulate_fast_output_text", lambda e: hdd.simulate(n_samples=400, noise=False, fast_output="yes"),
+         TypeError, ("fast_output", "True or False")),
+    Case("simulate_seed_negative", lambda e: hdd.simulate(n_samples=400, noise=False, seed=-1), ValueError,
+         ("seed", ">= 0")),
+    Case("simulate_seed_fractional", lambda e: hdd.simulate(n_samples=400, noise=False, seed=1.5), ValueError,
+         ("seed", "1.5", "not rounded")),
+    Case("simulate_seed_none", lambda e: hdd.simulate(n_samples=400, noise=False, seed=None), TypeError,
+         ("seed", "None")),
+    Case("multisine_samples_fractional", lambda e: lcmr_xr.multisine(400.5, sampling_period=TH, rms=1.0, seed=0),
+         ValueError, ("n_samples", "400.5", "not rounded")),
+    Case("multisine_periods_bool", lambda e: lcmr_xr.multisine(400, sampling_period=TH, rms=1.0, seed=0,
+                                                               periods=True),
+         TypeError, ("periods", "True")),
+    # --- transforms ------------------------------------------------------------------------
+    Case("unlift_reordered_phases", lambda e: lcmr_xr.unlift(lcmr_xr.lift(e.small.r, 2).sortby("lift_phase", ascending=False)),
+         ValueError, ("lift_phase", "[1, 0]", "sortby")),
+    Case("unlift_selected_phase", lambda e: lcmr_xr.unlift(lcmr_xr.lift(e.small.r.drop_vars("time"), 2).isel(lift_phase=[1])),
+         ValueError, ("lift_phase", "[1]")),
+    Case("dft_numpy", lambda e: lcmr_xr.dft(e.r), TypeError, ("dft", "xr.DataArray"), absent=("attribute",)),
+    Case("idft_numpy", lambda e: lcmr_xr.idft(np.fft.fft(e.r, axis=0)), TypeError, ("idft", "xr.DataArray"),
+         absent=("attribute",)),
+    Case("fast_spectrum_factor_fractional", lambda e: lcmr_xr.fast_spectrum_from_lifted(
+        lcmr_xr.dft(lcmr_xr.lift(e.small.r, 2), dim="slow_time"), factor=2.5), ValueError,
+        ("factor=2.5", "2 lifting phases")),
+    Case("dft_one_sided_text", lambda e: lcmr_xr.dft(e.small.r, one_sided="no"), TypeError,
+         ("one_sided", "True or False")),
+    # --- simulate_closed_loop: the factor was truncated (2.5 simulated F = 2), flags coerced ---
+    Case("simulate_closed_loop_factor_fractional", lambda e: lcmr_xr.simulate_closed_loop(
+        *_toy_loop(), 2.5, xr.DataArray(np.ones((8, 1)), dims=("time", "input"))), ValueError,
+        ("factor", "positive integer", "2.5")),
+    Case("simulate_closed_loop_fast_output_text", lambda e: lcmr_xr.simulate_closed_loop(
+        *_toy_loop(), 2, xr.DataArray(np.ones((8, 1)), dims=("time", "input")), fast_output="no"), TypeError,
+        ("fast_output", "True or False")),
+    Case("simulate_closed_loop_plant_none", lambda e: lcmr_xr.simulate_closed_loop(
+        None, _toy_loop()[1], None, 2, xr.DataArray(np.ones((8, 1)), dims=("time", "input"))), TypeError,
+        ("plant", "StateSpace"), absent=("attribute",)),
+    # --- exact lifted-system tools: labels checked, factors whole ------------------------------
+    Case("lifted_frf_factor_fractional", lambda e: lcmr_xr.lifted_frf(e.frf.P, 2.5, n_samples=400), ValueError,
+         ("factor", "2.5", "not rounded")),
+    Case("lifted_frf_factor_zero", lambda e: lcmr_xr.lifted_frf(e.frf.P, 0, n_samples=400), ValueError,
+         ("factor", ">= 1")),
+    Case("lifted_frf_n_samples_fractional", lambda e: lcmr_xr.lifted_frf(e.frf.P, 2, n_samples=400.5), ValueError,
+         ("n_samples", "400.5", "not rounded")),
+    Case("lifted_frf_numpy", lambda e: lcmr_xr.lifted_frf(e.frf.P.values, 2), TypeError,
+         ("lifted_frf", "xr.DataArray"), absent=("attribute",)),
+    Case("lifted_frf_dim_missing", lambda e: lcmr_xr.lifted_frf(e.frf.P.rename(frequency="f"), 2, n_samples=400),
+         ValueError, ("frequency", "rename"), absent=("KeyError",)),
+    Case("first_block_row_factor_fractional", lambda e: lcmr_xr.frf_from_first_block_row(e.frf.PS, 2.5), ValueError,
+         ("factor", "2.5", "not rounded")),
+    Case("first_block_row_numpy", lambda e: lcmr_xr.frf_from_first_block_row(e.frf.PS.values), TypeError,
+         ("frf_from_first_block_row", "xr.DataArray"), absent=("attribute",)),
+    # --- plots: flags are True or False ----------------------------------------------------
+    Case("bode_db_text", lambda e: lcmr_xr.plot.bode(e.frf, db="no"), TypeError, ("db", "True or False")),
+    Case("bode_unwrap_text", lambda e: lcmr_xr.plot.bode(e.frf, unwrap="yes"), TypeError, ("unwrap",)),
+    Case("bode_ax_text", lambda e: lcmr_xr.plot.bode(e.frf, ax="a"), TypeError, ("matplotlib Axes", "str"),
+         absent=("shape",)),
+    Case("lifted_db_text", lambda e: lcmr_xr.plot.lifted(e.frf, db="no"), TypeError, ("db", "True or False")),
+    # --- FRD export: python-control assumes increasing frequencies ----------------------------
+    Case("to_frd_frequencies_reversed", lambda e: lcmr_xr.to_frd(e.frf.isel(frequency=slice(None, None, -1))),
+         ValueError, ("increase strictly", "sortby"), marks=(_needs_control,)),
+    Case("to_frd_frequency_repeated", lambda e: lcmr_xr.to_frd(e.frf.isel(frequency=[1, 2, 2, 3])),
+         ValueError, ("increase strictly", "drop_duplicates"), marks=(_needs_control,)),
+    Case("from_frd_units_number", lambda e: lcmr_xr.from_frd(lcmr_xr.to_frd(e.frf.isel(frequency=slice(1, None))),
+                                                             units=5),
+         TypeError, ("units", "non-empty string", "5"), marks=(_needs_control,)),
+    Case("from_frd_long_name_number", lambda e: lcmr_xr.from_frd(lcmr_xr.to_frd(e.frf.isel(frequency=slice(1, None))),
+                                                                 long_name=5),
+         TypeError, ("long_name", "5"), marks=(_needs_control,)),
+    # --- the accuracy table of the README: frf.P - truth aligns by label ----------------------
+    Case("band_table_truth_on_other_frequencies", lambda e: band_table(
+        e.frf, hdd.true_frf(e.frf.frequency[1:] * (1 + 1e-12)).reindex(frequency=e.frf.frequency * (1 + 1e-12))),
+        ValueError, ("truth must be on the FRF's frequencies", "reindex")),
+    Case("band_table_band_reversed", lambda e: band_table(
+        e.frf, hdd.true_frf(e.frf.frequency[1:]).reindex(frequency=e.frf.frequency), bands=[(5000, 500)]),
+        ValueError, ("0 <= f_lo < f_hi",)),
+    Case("band_table_experiment", lambda e: band_table(e.small, e.frf.P), TypeError, ("FRF dataset", "without P")),
     # --- identify() ------------------------------------------------------------------------
     Case("identify_dataarray", lambda e: lcmr_xr.identify(e.small.r), TypeError, ("experiment xarray.Dataset",)),
     Case("method_unknown", lambda e: _identify12(e.small, method="lsq"), ValueError, ("method", "'lsq'")),
@@ -393,6 +523,13 @@ API = [
     Case("save_mixed_tuple_attribute", lambda e: save(_set_attr(e.small, settings=(1, "a")), "x.nc"), TypeError,
          ("mixed types",)),
     Case("open_missing", lambda e: open_experiment("nothing.nc"), FileNotFoundError, ("nothing.nc",)),
+    # damaged stored values (header intact) are refused, not read back as other numbers
+    Case("open_damaged_values", lambda e: open_experiment("damaged.nc"), ValueError, ("damaged.nc", "corrupt")),
+    # a bad chunks argument is not reported as a damaged file
+    Case("open_chunks_fractional", lambda e: open_frf("frf.nc", chunks={"frequency": 2.5}), ValueError,
+         ("chunks", "2.5", "whole number"), absent=("not a valid NetCDF",)),
+    Case("open_chunks_text", lambda e: open_dataset("frf.nc", chunks="x"), TypeError, ("chunks", "'x'"),
+         absent=("not a valid NetCDF",)),
     Case("open_text_file", lambda e: open_dataset("notes.nc"), ValueError, ("notes.nc", "not a valid NetCDF")),
     Case("open_truncated", lambda e: open_experiment("trunc.nc"), ValueError, ("trunc.nc", "truncated")),
     Case("open_foreign_netcdf", lambda e: open_experiment("cf.nc"), ValueError,
@@ -414,6 +551,8 @@ API = [
     Case("archive_consolidated_into_directory_layout", lambda e: save_archive(e.small, "arc1.nc", layout="files"),
          ValueError, ("arc1.nc", "is a file", "layout='files' is a directory")),
     Case("archive_empty", lambda e: open_archive("empty"), FileNotFoundError, ("holds no .nc",)),
+    Case("archive_first_file_damaged", lambda e: open_archive("damagedarc"), ValueError,
+         ("damagedarc/e0.nc", "damaged", "move it out")),
     Case("archive_with_junk_file", lambda e: open_archive("junkarc"), ValueError, ("junkarc/junk.nc", "not a readable NetCDF",
                                                                         "move it out")),
     Case("archive_with_foreign_file", lambda e: open_archive("forarc"), ValueError, ("cf.nc", "not an lcmr-xr-1 experiment")),
@@ -423,9 +562,25 @@ API = [
         layout="files"),
         ValueError, ("same file names",)),
     Case("save_archive_empty", lambda e: save_archive([], "newarc"), ValueError, ("empty",)),
+    # overwrite="no" is truthy: it replaced the archive / the file (data lost); the snapshot
+    # check of every case proves nothing changed
+    Case("save_archive_overwrite_text", lambda e: save_archive(e.small, "arc1.nc", overwrite="no"), TypeError,
+         ("overwrite", "True or False")),
+    Case("consolidate_overwrite_text", lambda e: consolidate_archive("arc", "exp.nc", overwrite="no"), TypeError,
+         ("overwrite", "True or False")),
+    Case("sweep_to_disk_overwrite_text", lambda e: sweep_to_disk(open_archive("arc1.nc"), "frf.nc", window=[12],
+                                                                 degrees=["2-2-2"], overwrite="no"),
+         TypeError, ("overwrite", "True or False")),
     Case("save_archive_not_datasets", lambda e: save_archive([e.small.r], "newarc"), TypeError, ("not an experiment Dataset",)),
     # --- sweep / select ------------------------------------------------------------------------
     Case("sweep_window_too_small", lambda e: sweep(e.small, window=[3]), ValueError, ("Use window >=",)),
+    # one number is one setting, judged by the settings' check (not "not a sequence")
+    Case("sweep_window_fractional_scalar", lambda e: sweep(e.small, window=12.5), ValueError,
+         ("window", "12.5", "not rounded")),
+    Case("sweep_window_whole_float", lambda e: sweep(e.small, window=12.0, degrees="2-2-2"),
+         check=lambda res, e: res.window.values.tolist() == [12] or pytest.fail(str(res.window.values))),
+    Case("sweep_pool_fractional", lambda e: sweep(xr.concat([e.small, e.small], "experiment"), window=12, pool=1.5),
+         ValueError, ("pool", "1.5", "not rounded")),
     Case("sweep_degrees_label", lambda e: sweep(e.small, window=[12], degrees=["3-3"]), ValueError,
          ("three non-negative", "'3-3'")),
     Case("sweep_pool_without_experiments", lambda e: sweep(e.small, window=[12], pool=2), ValueError,
@@ -479,6 +634,10 @@ CLI = [
     Case("simulate_output_directory_missing", cli=lambda e: ["simulate", "-o", "nodir/x.nc"], words=("does not exist",)),
     Case("simulate_samples_odd", cli=lambda e: ["simulate", "-o", "x.nc", "--samples", "5"],
          words=("n_samples", "multiple")),
+    Case("cli_simulate_seed_negative", cli=lambda e: ["simulate", "-o", "x.nc", "--seed", "-1"],
+         words=("seed", ">= 0")),
+    Case("identify_damaged_input", cli=lambda e: ["identify", "damaged.nc", "-o", "out.nc"],
+         words=("damaged.nc", "corrupt")),
     Case("simulate_case_unknown", cli=lambda e: ["simulate", "-o", "x.nc", "--case", "10"], argparse=True,
          words=("invalid choice",)),
     # sweep

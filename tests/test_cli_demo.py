@@ -84,6 +84,25 @@ def test_demo_writes_frf_and_pictures(tmp_path):
     assert float(result["bands"].flagged.sel(band="500-5000 Hz").max()) <= 0.1
 
 
+def test_cli_simulate_chooses_the_disturbances(tmp_path, capsys):
+    assert cli.DISTURBANCES == hdd.DISTURBANCES
+    path = tmp_path / "exp.nc"
+    assert cli.main(["simulate", "-o", str(path), "--samples", "400", "--seed", "4",
+                     "--disturbances", "fan", "runout"]) == 0
+    assert "disturbances: fan runout" in capsys.readouterr().out
+    got = lcmr_xr.open_experiment(path)
+    want = hdd.simulate(n_samples=400, seed=4, disturbances=["fan", "runout"])
+    np.testing.assert_array_equal(got.y.values, want.y.values)
+    assert got.attrs["disturbances"] == "fan runout"
+    assert cli.main(["simulate", "-o", str(tmp_path / "b.nc"), "--samples", "400", "--noiseless",
+                     "--disturbances", "fan"]) == 2
+    assert "--noiseless switches every disturbance off" in capsys.readouterr().err
+    assert not (tmp_path / "b.nc").exists()
+    with pytest.raises(SystemExit):
+        cli.main(["simulate", "-o", str(tmp_path / "c.nc"), "--disturbances", "wind"])
+    assert "invalid choice: 'wind'" in capsys.readouterr().err
+
+
 def test_cli_identify_and_plot(tmp_path, capsys):
     exp_path = tmp_path / "exp.nc"
     assert cli.main(["simulate", "-o", str(exp_path), "--samples", "1200", "--noiseless",

@@ -140,3 +140,22 @@ def test_archive_consolidate_help_states_its_defaults(capsys):
     text = " ".join(capsys.readouterr().out.split())
     assert "--overwrite" in text and "(default: refuse them)" in text
     assert "not inside the directory" in text
+
+
+def test_python_m_lcmr_xr_runs_the_command_line(tmp_path):
+    """``python -m lcmr_xr`` is the ``lcmr-xr`` console script (for a venv not on PATH)."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    import lcmr_xr
+
+    env = {**os.environ, "PYTHONPATH": str(Path(lcmr_xr.__file__).parent.parent)}
+    ok = subprocess.run([sys.executable, "-m", "lcmr_xr", "simulate", "--help"], capture_output=True,
+                        text=True, env=env, cwd=tmp_path)
+    assert ok.returncode == 0 and ok.stdout.startswith("usage: lcmr-xr simulate"), ok.stderr
+    bad = subprocess.run([sys.executable, "-m", "lcmr_xr", "simulate", "-o", "x.nc", "--seed", "-1"],
+                         capture_output=True, text=True, env=env, cwd=tmp_path)
+    assert bad.returncode == 2 and "lcmr-xr simulate: error: seed must be >= 0" in bad.stderr
+    assert list(tmp_path.iterdir()) == []

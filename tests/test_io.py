@@ -65,6 +65,41 @@ def test_complex_frf_round_trip_exact(tmp_path):
     assert back.attrs["degrees"] == (3, 3, 3)
 
 
+def test_every_array_is_checksummed_and_a_damaged_value_is_refused(tmp_path):
+    """HDF5 checks no stored values by default: a flipped byte read back as another number.
+    save stores a Fletcher-32 checksum per chunk; damage anywhere in the values is refused."""
+    import h5py
+
+    frf = _frf()
+    path = save(frf, tmp_path / "frf.nc")
+    with h5py.File(path, "r") as f:
+        arrays = [n for n, d in f.items() if isinstance(d, h5py.Dataset) and d.ndim]
+        assert arrays and all(f[n].fletcher32 for n in arrays), [n for n in arrays if not f[n].fletcher32]
+        offset = f["P"].id.get_chunk_info(0).byte_offset
+    data = bytearray(path.read_bytes())
+    data[offset + 8] ^= 0x01  # one bit of P's first value
+    (tmp_path / "bad.nc").write_bytes(bytes(data))
+    with pytest.raises(ValueError, match="bad.nc.*corrupt"):
+        open_frf(tmp_path / "bad.nc")
+    with pytest.raises(OSError, match="filter returned failure"):  # lazily: h5py's words, when read
+        open_dataset(tmp_path / "bad.nc", chunks={})["P"].values
+
+
+def test_file_without_checksums_opens_and_saves_with_them(tmp_path):
+    """Files written before the checksums (contiguous layout) still open, and saving what
+    was read from them drops the layout the checksum cannot use."""
+    frf = _frf()
+    frf.to_netcdf(tmp_path / "old.nc", engine="netcdf4", auto_complex=True,
+                  encoding={"P": {"contiguous": True}})
+    old = open_frf(tmp_path / "old.nc")
+    assert old["P"].encoding["contiguous"] is True
+    for lazy in (False, True):
+        src = open_dataset(tmp_path / "old.nc", chunks={}) if lazy else old
+        back = open_frf(save(src, tmp_path / f"new{lazy}.nc"))
+        xr.testing.assert_identical(back.drop_attrs(deep=False), frf.drop_attrs(deep=False))
+        np.testing.assert_array_equal(back["P"].values, frf["P"].values)
+
+
 def test_spectra_of_lifted_experiment_round_trip(tmp_path):
     spec = dft(lift(_experiment()), dim="slow_time")
     xr.testing.assert_identical(open_dataset(save(spec, tmp_path / "spec.nc")), spec)

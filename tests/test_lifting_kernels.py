@@ -136,3 +136,20 @@ def test_first_block_row_weights_reproduce_recovery():
 def test_first_block_row_refuses_wrong_column_count():
     with pytest.raises(ValueError, match="not a multiple of factor 2"):
         lk.frf_from_first_block_row(np.zeros((4, 1, 3)), 2)
+
+
+@pytest.mark.parametrize("bad", [2.5, "2", True, 0, float("nan")])
+def test_factor_must_be_a_whole_positive_number_never_truncated(bad):
+    """int(2.5) lifted by 2 without a word; every kernel refuses such a factor, and 2.0
+    (a whole float) still works like 2."""
+    x = np.arange(8.0)
+    calls = {
+        "lift": lambda f: lk.lift(x, f),
+        "lifted_spectrum_from_fast": lambda f: lk.lifted_spectrum_from_fast(x, f),
+        "lifted_frf": lambda f: lk.lifted_frf(np.ones((8, 1, 1)), f),
+        "frf_from_first_block_row": lambda f: lk.frf_from_first_block_row(np.ones((4, 1, 2)), f),
+    }
+    for name, call in calls.items():
+        with pytest.raises(ValueError, match="factor must be a positive integer"):
+            call(bad)
+        np.testing.assert_array_equal(call(2.0), call(2), err_msg=name)

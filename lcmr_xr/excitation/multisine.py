@@ -14,6 +14,7 @@ import xarray as xr
 
 from lcmr_xr.conventions import CHANNEL, EXPERIMENT, TIME, label_attrs, time_attrs
 from lcmr_xr.kernels import excitation as kernels
+from lcmr_xr.settings import as_integer
 
 __all__ = ["bins_for_band", "multisine", "orthogonal_multisines"]
 
@@ -79,12 +80,12 @@ def _channel_labels(channels, n_rms: int | None) -> list[str]:
 
 
 def _prepare(n_samples, sampling_period, rms, channels, band, bins, periods, seed):
-    n_samples = int(n_samples)
+    # whole numbers only: 1000.5 samples or 2.5 periods are refused, never truncated
+    n_samples = as_integer(n_samples, "n_samples", minimum=2, example=1000)
     ts = float(sampling_period)
     if not np.isfinite(ts) or ts <= 0:
         raise ValueError(f"sampling_period must be a positive time in s, got {sampling_period!r}.")
-    if int(periods) != periods or periods < 1:
-        raise ValueError(f"periods must be a positive integer, got {periods!r}.")
+    periods = as_integer(periods, "periods", minimum=1, example=1)
     rms_arr = np.asarray(rms, dtype=float)
     labels = _channel_labels(channels, rms_arr.size if rms_arr.ndim == 1 else None)
     if band is not None and bins is not None:

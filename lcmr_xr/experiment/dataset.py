@@ -25,6 +25,7 @@ from lcmr_xr.conventions import (
     label_attrs,
     time_attrs,
 )
+from lcmr_xr.settings import as_bool
 from lcmr_xr.transforms._coords import even_spacing
 
 __all__ = ["experiment", "validate_experiment"]
@@ -69,6 +70,11 @@ def _scalar(value, name: str, meaning: str):
 def _check_orientation(arr: np.ndarray, time_dim: str, chan_dim: str, what: str) -> None:
     """Refuse numpy data that are almost surely transposed: more channels than samples."""
     samples, channels = arr.shape[-2], arr.shape[-1]
+    if samples == 0 or channels == 0:  # no data at all: transposing would not help
+        raise ValueError(
+            f"{what} has shape {arr.shape}: {samples} sample(s) of {channels} channel(s), no "
+            f"data; pass the recorded signal, ({time_dim}, {chan_dim}) with at least 2 samples."
+        )
     if channels > samples:
         lead = "(experiment, " if arr.ndim == 3 else "("
         fix = f"np.swapaxes({what}, -1, -2)" if arr.ndim == 3 else f"{what}.T"
@@ -173,6 +179,15 @@ def experiment(
         ``units`` and ``long_name``; attributes ``factor`` and ``conventions="lcmr-xr-1"``.
         Dask-backed DataArrays stay lazy except for the finiteness check.
 
+    Raises
+    ------
+    TypeError
+        ``factor`` or ``sampling_period`` not a single number, labels not a sequence,
+        ``input_units``/``output_units`` not a string.
+    ValueError
+        Empty units; shapes, labels, time coordinates or values that break the contract (see
+        :func:`validate_experiment`).
+
     Examples
     --------
     >>> import numpy as np
@@ -203,6 +218,11 @@ def experiment(
         input_units = str(r_da.attrs.get("units", u_da.attrs.get("units", "1")))
     if output_units is None:
         output_units = str(y_da.attrs.get("units", "1"))
+    for what, units in (("input_units", input_units), ("output_units", output_units)):
+        if not isinstance(units, str) or not units.strip():
+            error = TypeError if not isinstance(units, str) else ValueError
+            raise error(f"{what} must be a unit string (UDUNITS, e.g. 'm' or 'V'; '1' if "
+                        f"dimensionless), got {units!r}.")
 
     # Labels are checked before the variables are combined: xarray would otherwise align
     # mismatched labels by an outer join and fill the gaps with NaN.
@@ -358,7 +378,9 @@ PERIODIC_RTOL = 1e-9
 
 
 def _check_period_dims(ds):
-    """``period`` (repeated periods of one excitation) must be on ``u`` and ``y`` together."""
+    """``period`` (repeated periods of one excitation) must be on ``u`` and ``y`` together,
+    its labels increasing: :func:`lcmr_xr.identify` drops the first ``transient_periods``
+    by position, so periods out of recording order would keep the transient."""
     missing = [name for name in ("u", "y") if PERIOD not in ds[name].dims]
     if missing:
         _fail(
@@ -366,6 +388,16 @@ def _check_period_dims(ds):
             f"the measured signals are recorded per period: give u and y the {PERIOD!r} dim "
             f"(time then counts within a period), or drop it from r.",
         )
+    if PERIOD in ds.coords:
+        labels = np.asarray(ds[PERIOD].values)
+        if labels.dtype.kind not in "iu" or (labels.size > 1 and not (np.diff(labels) > 0).all()):
+            shown = labels.tolist() if labels.size <= 8 else f"{labels[:7].tolist()} ..."
+            _fail(
+                f"the {PERIOD!r} coordinate {shown} is not increasing integers (the periods in "
+                "the order they were recorded, 0..P-1)",
+                f"sort them with ds.sortby({PERIOD!r}) (transient_periods drops the first ones "
+                "by position), or relabel them 0..P-1 in recording order.",
+            )
 
 
 def _check_periodic_excitation(r):
@@ -410,10 +442,11 @@ def validate_experiment(ds: xr.Dataset, *, check_values: bool = True) -> xr.Data
         ``input``, ``output`` coordinates; ``N`` not a multiple of ``F`` or
         ``N != M F``; uneven spacing; time not starting at 0; slow spacing not ``F`` times
         the fast one; complex, boolean or non-numeric data; NaN or inf; duplicate or empty
-        channel labels; a ``period`` dim missing on ``u`` or ``y``, or an ``r`` that does not
-        repeat over periods.
+        channel labels; ``units`` that are not a non-empty string; a ``period`` dim missing
+        on ``u`` or ``y``, a ``period`` coordinate that is not increasing integers, or an
+        ``r`` that does not repeat over periods.
     TypeError
-        If ``ds`` is not a Dataset.
+        If ``ds`` is not a Dataset, or ``check_values`` is not True or False.
 
     Notes
     -----
@@ -434,6 +467,7 @@ def validate_experiment(ds: xr.Dataset, *, check_values: bool = True) -> xr.Data
             f"an experiment must be an xarray.Dataset, got {type(ds).__name__}; build one with "
             "lcmr_xr.experiment(r, u, y, factor=F, sampling_period=Th)."
         )
+    check_values = as_bool(check_values, "check_values")  # "no" would read as True
     conv = ds.attrs.get("conventions")
     if conv is None:
         _fail("attribute 'conventions' is missing", f"set ds.attrs['conventions'] = {CONVENTIONS!r} after checking the contract.")
@@ -472,6 +506,12 @@ def validate_experiment(ds: xr.Dataset, *, check_values: bool = True) -> xr.Data
             _fail(f"{name!r} has non-numeric dtype {dt}", "convert it to float, e.g. ds[name].astype(float).")
         if "units" not in var.attrs or "long_name" not in var.attrs:
             _fail(f"{name!r} lacks the 'units' or 'long_name' attribute", "set both (units '1' if dimensionless).")
+        units = var.attrs["units"]
+        if not isinstance(units, str) or not units.strip():
+            # the FRF's units are built from these ("m/V"): 5 or ['V'] would make "5/['V']"
+            _fail(f"{name!r} has units {units!r}, not a unit string",
+                  f"set ds[{name!r}].attrs['units'] to a UDUNITS string such as 'm' or 'V' "
+                  "('1' if dimensionless).")
 
     for dim in (INPUT, OUTPUT):
         if dim not in ds.coords:

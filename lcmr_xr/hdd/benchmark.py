@@ -12,6 +12,7 @@ from lcmr_xr.hdd.disturbances import fan_vibration, repeatable_runout, rotationa
 from lcmr_xr.hdd.plants import FACTOR, FAST_PERIOD, INPUTS, OUTPUTS, check_case, plant, pzt_plant, vcm_plant
 from lcmr_xr.kernels.excitation import random_phase_multisine
 from lcmr_xr.kernels.lti import frequency_response, simulate_lti
+from lcmr_xr.settings import as_bool, as_integer
 from lcmr_xr.simulation import simulate_closed_loop
 
 BENCHMARK = "IEEJ dual-stage HDD benchmark (Atsumi 2022, MATLAB File Exchange 111515)"
@@ -141,6 +142,18 @@ def simulate(n_samples: int = 3600, case: int = 2, noise: bool = True, seed: int
         attributes ``benchmark``, ``case``, ``seed``, ``rms``, ``noise`` (1 on, 0 off) and,
         with ``periods``, ``periods``.
 
+    Raises
+    ------
+    TypeError
+        ``n_samples`` or ``seed`` not a number (or a bool), ``noise`` or ``fast_output``
+        not True/False (``"no"`` would read as True), ``rms`` not numbers,
+        ``disturbances`` a string or not a sequence.
+    ValueError
+        A fractional ``n_samples`` or ``seed`` (``3600.5`` is refused, never truncated),
+        ``n_samples`` odd or below 4, a negative ``seed``, ``case`` outside 1..9, ``rms``
+        not positive or not one value per input, ``periods`` not a positive integer,
+        unknown or repeated ``disturbances`` (or some chosen with ``noise=False``).
+
     Examples
     --------
     >>> ds = simulate(n_samples=400, noise=False)
@@ -152,12 +165,21 @@ def simulate(n_samples: int = 3600, case: int = 2, noise: bool = True, seed: int
     'rotational'
     """
     case = check_case(case)
+    # whole numbers only (3600.5 is refused, never truncated), flags only True/False
+    # (bool("no") is True): a wrong type gets this library's message, not numpy's
+    n_samples = as_integer(n_samples, "n_samples", example=3600)
+    noise = as_bool(noise, "noise")
     chosen = _check_disturbances(disturbances, noise)
-    n_samples = int(n_samples)
     if n_samples < 2 * FACTOR or n_samples % FACTOR:
         raise ValueError(f"n_samples must be a multiple of the factor {FACTOR} and at least "
                          f"{2 * FACTOR}, got {n_samples}.")
-    rms = np.asarray(rms, dtype=float)
+    seed = as_integer(seed, "seed", minimum=0, example=0)
+    fast_output = as_bool(fast_output, "fast_output")
+    try:
+        rms = np.asarray(rms, dtype=float)
+    except (TypeError, ValueError):
+        raise TypeError(f"rms must be numbers (the rms of the vcm and pzt excitation in input "
+                        f"units), got {rms!r}; pass e.g. rms={PAPER_RMS}.") from None
     excitation_rng, fan_rng, rotation_rng, runout_rng = (
         np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(4))
     bins = np.arange(1, n_samples // 2 + 1)

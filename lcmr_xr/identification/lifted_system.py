@@ -15,6 +15,21 @@ import xarray as xr
 
 from lcmr_xr import conventions as cv
 from lcmr_xr.kernels import lifting as kl
+from lcmr_xr.settings import as_integer
+
+
+def _require(da, dims: tuple, func: str, what: str) -> None:
+    """``da`` is a DataArray with ``dims`` (plus leading dims): labels are checked here,
+    before numpy or xarray would fail on them with their own words."""
+    if not isinstance(da, xr.DataArray):
+        raise TypeError(f"{func} needs {what} as an xarray DataArray with dims (..., "
+                        f"{', '.join(dims)}), got {type(da).__name__}; label a numpy array with "
+                        f"xr.DataArray(x, dims=(..., {', '.join(repr(d) for d in dims)})).")
+    missing = [d for d in dims if d not in da.dims]
+    if missing:
+        raise ValueError(f"{func} needs {what} with dims (..., {', '.join(dims)}), but it has "
+                         f"{da.dims}, without {missing}; rename its dims, e.g. "
+                         f"x.rename({{'old': {missing[0]!r}}}).")
 
 def _full_circle(frf: xr.DataArray, n_samples: int | None) -> tuple[xr.DataArray, int]:
     """The FRF on all ``N`` fast bins, completing a one-sided FRF by conjugate symmetry."""
@@ -61,6 +76,14 @@ def lifted_frf(frf: xr.DataArray, factor: int, *, n_samples: int | None = None) 
         block ``[i, j]`` maps input phase ``j`` to output phase ``i``, equal to
         ``1/F sum_f P(k_f) exp(2j pi k_f (i - j) / N)``, ``k_f = m + f M``.
 
+    Raises
+    ------
+    TypeError
+        ``frf`` not a DataArray; ``factor`` or ``n_samples`` not a whole number.
+    ValueError
+        A missing dim, a fractional ``factor`` (never truncated), or ``N`` not a multiple
+        of ``F`` or not matching the frequency grid.
+
     Examples
     --------
     >>> import numpy as np, xarray as xr
@@ -69,8 +92,11 @@ def lifted_frf(frf: xr.DataArray, factor: int, *, n_samples: int | None = None) 
     >>> lifted_frf(P, 2).sizes["slow_frequency"]
     4
     """
+    _require(frf, (cv.FREQUENCY, cv.OUTPUT, cv.INPUT), "lifted_frf", "the FRF")
+    f_ = as_integer(factor, "factor", minimum=1, example=2)  # 2.5 is refused, not truncated
+    if n_samples is not None:
+        n_samples = as_integer(n_samples, "n_samples", minimum=1, example=3600)
     full, n = _full_circle(frf, n_samples)
-    f_ = int(factor)
     m = n // f_ if n % f_ == 0 else None
     if m is None:
         raise ValueError(f"N = {n} is not a multiple of factor {f_}; lifting needs N = M F.")
@@ -112,10 +138,31 @@ def frf_from_first_block_row(first_row: xr.DataArray, factor: int | None = None)
     xarray.DataArray
         ``P(k) = sum_j exp(2j pi k j / N) P1_j(k mod M)`` on ``frequency`` = ``k / (N Th)``,
         ``k = 0..N/2``, dims (..., ``frequency``, ``output``, ``input``).
+
+    Raises
+    ------
+    TypeError
+        ``first_row`` not a DataArray; ``factor`` not a whole number.
+    ValueError
+        A missing dim, a fractional ``factor`` (never truncated), or ``factor`` other than
+        the size of ``lift_phase2``.
+
+    Examples
+    --------
+    >>> import numpy as np, xarray as xr
+    >>> P = xr.DataArray(np.arange(1.0, 6.0).astype(complex)[:, None, None],
+    ...                  dims=("frequency", "output", "input"),
+    ...                  coords={"frequency": np.arange(5) / 8.0})  # k = 0..N/2, N = 8
+    >>> row = lifted_frf(P, 2, n_samples=8).isel(lift_phase=0)
+    >>> bool(np.allclose(frf_from_first_block_row(row).values, P.values))
+    True
     """
-    in_dim = cv.INPUT if cv.INPUT in first_row.dims else cv.INPUT2
+    in_dim = cv.INPUT2 if isinstance(first_row, xr.DataArray) and cv.INPUT2 in first_row.dims \
+        and cv.INPUT not in first_row.dims else cv.INPUT
+    _require(first_row, (cv.SLOW_FREQUENCY, cv.OUTPUT, cv.LIFT_PHASE2, in_dim),
+             "frf_from_first_block_row", "the first block row")
     n_phases = first_row.sizes[cv.LIFT_PHASE2]
-    f_ = int(factor) if factor is not None else n_phases
+    f_ = as_integer(factor, "factor", minimum=1, example=n_phases) if factor is not None else n_phases
     if n_phases != f_:
         raise ValueError(f"lift_phase2 has {n_phases} entries but factor is {f_}.")
     arr = first_row.transpose(..., cv.SLOW_FREQUENCY, cv.OUTPUT, cv.LIFT_PHASE2, in_dim)

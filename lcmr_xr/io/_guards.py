@@ -11,6 +11,7 @@ import os
 from pathlib import Path
 
 from lcmr_xr.io._atomic import check_writable_target
+from lcmr_xr.settings import as_bool
 
 
 def _resolved(path: Path) -> Path:
@@ -56,7 +57,11 @@ def check_outputs(outputs: dict, *, inputs=(), overwrite: bool = False,
         An existing output without ``overwrite``.
     FileNotFoundError, IsADirectoryError, PermissionError
         A missing or unwritable directory, or an output that is a directory.
+    TypeError
+        ``overwrite`` not True or False.
     """
+    # only True/False: overwrite="no" is truthy and would replace the user's files
+    overwrite = as_bool(overwrite, "overwrite")
     seen = {}
     for what, (path, suffixes) in outputs.items():
         if path is None:

@@ -122,8 +122,9 @@ def to_frd(frf, variable: str = P, *, sampling_period=None):
     ImportError
         If python-control is not installed (``pip install "lcmr_xr[control]"``).
     ValueError
-        If the variable is missing, has other dims or a frequency outside ``[0, 1/(2 Th)]``,
-        or the sampling period is missing or contradicts the attribute.
+        If the variable is missing, has other dims, a frequency outside ``[0, 1/(2 Th)]`` or
+        frequencies that do not increase strictly, or the sampling period is missing or
+        contradicts the attribute.
     TypeError
         If ``frf`` is neither a Dataset nor a DataArray.
 
@@ -154,6 +155,17 @@ def to_frd(frf, variable: str = P, *, sampling_period=None):
         raise ValueError(
             f"the frequencies of {variable} ({hz.min():g}..{hz.max():g} Hz) must lie in "
             f"[0, {nyquist:g}] Hz, the Nyquist band of dt = {dt:g} s; check sampling_period."
+        )
+    steps = np.diff(hz)
+    if (steps <= 0).any():
+        # python-control takes omega as given, but its margins, interpolation and plots
+        # assume increasing frequencies: stability_margins fails with 'Invalid inputs'
+        k = int(np.argmax(steps <= 0))
+        raise ValueError(
+            f"the frequency coordinate of {variable} must increase strictly, but bin {k + 1} "
+            f"({hz[k + 1]:g} Hz) follows {hz[k]:g} Hz; python-control's functions assume "
+            "sorted, distinct frequencies. Sort with frf.sortby('frequency') and drop repeated "
+            "bins with frf.drop_duplicates('frequency') first."
         )
     values = np.moveaxis(np.asarray(da.values), 0, -1)  # (output, input, frequency)
     return control.FrequencyResponseData(
@@ -191,7 +203,8 @@ def from_frd(frd, *, units=None, long_name=None) -> xr.DataArray:
     ImportError
         If python-control is not installed.
     TypeError
-        If ``frd`` is not a ``FrequencyResponseData``.
+        If ``frd`` is not a ``FrequencyResponseData``, or ``units``/``long_name`` is not a
+        non-empty string.
 
     See Also
     --------
@@ -211,9 +224,13 @@ def from_frd(frd, *, units=None, long_name=None) -> xr.DataArray:
             f"from_frd needs a control.FrequencyResponseData, got {type(frd).__name__}; for "
             "a transfer function or state space use control.frd(sys, omega) first."
         )
+    for what, text in (("units", units), ("long_name", long_name)):
+        if text is not None and (not isinstance(text, str) or not text.strip()):
+            raise TypeError(f"{what} must be a non-empty string (e.g. units='m', long_name='plant "
+                            f"FRF'), got {text!r}; the plots label axes 'long_name [units]'.")
     attrs = {"long_name": long_name if long_name is not None else "frequency response"}
     if units is not None:
-        attrs["units"] = str(units)
+        attrs["units"] = units
     # dt: None or 0 is continuous time, True a discrete time of unspecified period
     if not isinstance(frd.dt, bool) and frd.dt:
         attrs[SAMPLING_PERIOD] = float(frd.dt)

@@ -9,6 +9,7 @@ types recorded in a JSON attribute ``lcmr_attr_types`` on the same object, so th
 from __future__ import annotations
 
 import json
+import warnings
 from numbers import Number
 from pathlib import Path
 
@@ -145,6 +146,9 @@ def save(ds: xr.Dataset, path) -> Path:
 
     Notes
     -----
+    Every array is stored with HDF5's Fletcher-32 checksum, so that a file whose stored
+    bytes were damaged later is refused when read (:func:`open_dataset`) instead of
+    returning other numbers.
     The data are written to a temporary file in the same directory, flushed to disk, and
     moved over ``path`` with :func:`os.replace` (atomic on POSIX), so a failure mid-write
     never leaves a half-written file and never destroys an existing one.  The temporary is
@@ -170,8 +174,23 @@ def save(ds: xr.Dataset, path) -> Path:
     check_not_own_source(ds, path)
     if is_mat_path(path):
         return save_mat(ds, path)
-    flat = _map_attrs(ds, _flatten_attrs)
+    flat = _checksummed(_map_attrs(ds, _flatten_attrs))
     return atomic_write(path, lambda tmp: flat.to_netcdf(tmp, engine=_ENGINE, auto_complex=True))
+
+
+def _checksummed(ds: xr.Dataset) -> xr.Dataset:
+    """``ds`` (a shallow copy of the caller's) with a Fletcher-32 checksum on every array.
+
+    HDF5 checks no data by default: bytes flipped in a stored array read back as other
+    numbers without a word.  With the checksum such a file is refused when read (HDF5
+    verifies each chunk), as a truncated one is.  The filter needs chunked storage, so
+    a ``contiguous`` layout carried over from a file read earlier is dropped.
+    """
+    for var in ds.variables.values():
+        if var.ndim:
+            encoding = {k: v for k, v in var.encoding.items() if k != "contiguous"}
+            var.encoding = {**encoding, "fletcher32": True}
+    return ds
 
 
 def open_dataset(path, chunks=None) -> xr.Dataset:
@@ -195,7 +214,10 @@ def open_dataset(path, chunks=None) -> xr.Dataset:
     FileNotFoundError
         If the file does not exist.
     ValueError
-        If it is not a readable NetCDF file (truncated, corrupt or another format).
+        If it is not a readable NetCDF file (truncated, corrupt or another format), or a
+        chunk size is not a whole number, ``"auto"`` or None.
+    TypeError
+        If ``chunks`` is neither None, ``"auto"``, an int nor a dict.
 
     Examples
     --------
@@ -206,6 +228,7 @@ def open_dataset(path, chunks=None) -> xr.Dataset:
     [1.0, 2.0]
     """
     path = Path(path)
+    _check_chunks(chunks)  # before the read: a bad argument is not a corrupt file
     if path.is_dir():
         raise IsADirectoryError(
             f"{path} is a directory, not a NetCDF file; for an archive directory use "
@@ -221,12 +244,18 @@ def open_dataset(path, chunks=None) -> xr.Dataset:
             options = {"engine": _ENGINE, "auto_complex": True}
         else:
             options = {"engine": _LAZY_ENGINE}
-        ds = xr.open_dataset(
-            path,
-            chunks=chunks,
-            decode_timedelta=False,  # 's' time coordinates are plain floats in seconds
-            **options,
-        )
+        with warnings.catch_warnings():
+            # save stores each array in checksummed chunks (netCDF's default sizes, often the
+            # whole array): dask chunks across them read a chunk more than once, which is
+            # cheap at these sizes and no reason to warn on every lazy open
+            warnings.filterwarnings("ignore", message="The specified chunks separate the stored",
+                                    category=UserWarning)
+            ds = xr.open_dataset(
+                path,
+                chunks=chunks,
+                decode_timedelta=False,  # 's' time coordinates are plain floats in seconds
+                **options,
+            )
         if chunks is None:
             ds.load()
             ds.close()
@@ -238,6 +267,46 @@ def open_dataset(path, chunks=None) -> xr.Dataset:
     out = _map_attrs(ds, lambda owner, attrs: _restore_attrs(attrs))
     out.set_close(ds.close)  # the copy's close() releases the file (lazy reads keep it open)
     return out
+
+
+def _is_chunk_size(value) -> bool:
+    if isinstance(value, str):  # "auto" or a size in bytes as dask reads it ("64MiB")
+        if value == "auto":
+            return True
+        from dask.utils import parse_bytes
+
+        try:
+            parse_bytes(value)
+        except (ValueError, TypeError):
+            return False
+        return True
+    return isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_))
+
+
+def _check_chunks(chunks) -> None:
+    """``chunks`` as dask takes it: None, ``"auto"``, an int, or a dict of dim -> size
+    (int, ``"auto"``, a byte size such as ``"64MiB"``, None, or a tuple of ints); anything
+    else is refused here, before xarray's own ValueError would be reported as an
+    unreadable file."""
+    if chunks is None or (isinstance(chunks, str) and chunks == "auto") or (
+            _is_chunk_size(chunks) and not isinstance(chunks, str)):
+        return
+    if isinstance(chunks, dict):
+        bad = {k: v for k, v in chunks.items()
+               if not (v is None or _is_chunk_size(v)
+                       or (isinstance(v, tuple) and v and all(_is_chunk_size(c) and not isinstance(c, str)
+                                                              for c in v)))}
+        if not bad:
+            return
+        raise ValueError(
+            f"chunks {bad!r}: a chunk size must be a whole number of elements, 'auto', a size "
+            "in bytes ('64MiB'), -1 (the whole dim) or None; pass e.g. "
+            "chunks={'frequency': 100} or chunks={}."
+        )
+    raise TypeError(
+        f"chunks must be None (load into memory), 'auto', an int or a dict of dim -> size, got "
+        f"{chunks!r} ({type(chunks).__name__}); pass e.g. chunks={{}} (one chunk per variable)."
+    )
 
 
 def _check_conventions(ds: xr.Dataset, path, kind: str) -> None:

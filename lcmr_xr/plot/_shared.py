@@ -171,6 +171,13 @@ def prepare_axes(ax, shape: tuple[int, int], *, sharex: bool):
     axes = np.asarray(ax, dtype=object)
     if axes.ndim == 0:
         axes = axes.reshape(1)
+    # the type first: ax="a" is no grid of the wrong shape
+    for a in axes.flat:
+        if not isinstance(a, Axes):
+            raise TypeError(
+                f"ax must hold matplotlib Axes, found {type(a).__name__}; pass the array "
+                "returned by plt.subplots or a previous plot's result.axes."
+            )
     # plt.subplots squeezes single rows/columns: accept any array whose non-unit
     # dimensions match the grid.
     squeezed = tuple(n for n in axes.shape if n != 1)
@@ -181,12 +188,6 @@ def prepare_axes(ax, shape: tuple[int, int], *, sharex: bool):
             "squeeze=False) or pass ax=None."
         )
     axes = axes.reshape(shape)
-    for a in axes.flat:
-        if not isinstance(a, Axes):
-            raise TypeError(
-                f"ax must hold matplotlib Axes, found {type(a).__name__}; pass the array "
-                "returned by plt.subplots or a previous plot's result.axes."
-            )
     return axes[0, 0].figure, axes
 
 

@@ -11,6 +11,7 @@ import xarray as xr
 
 from lcmr_xr import conventions as cv
 from lcmr_xr.conventions import FACTOR, FREQUENCY, INPUT, OUTPUT
+from lcmr_xr.settings import as_bool
 from lcmr_xr.plot._shared import (
     confidence_radius,
     draw_band,
@@ -151,7 +152,8 @@ def bode(
         wrong shape, ``band``, ``nyquist`` or ``xlim`` are out of range, or ``truth``
         lacks a channel of the estimate.
     TypeError
-        If ``frf``, ``truth`` or ``ax`` have the wrong type.
+        If ``frf``, ``truth`` or ``ax`` have the wrong type, or ``db``, ``hz``, ``phase``
+        or ``unwrap`` is not True or False.
 
     Examples
     --------
@@ -173,6 +175,9 @@ def bode(
     >>> import matplotlib.pyplot as plt
     >>> plt.close(result.figure)
     """
+    # flags only as True/False: bool("no") is True, so a string would draw the opposite
+    db, hz, phase, unwrap = (as_bool(v, n) for v, n in ((db, "db"), (hz, "hz"), (phase, "phase"),
+                                                        (unwrap, "unwrap")))
     estimate, std, attrs = _frf_parts(frf)
     band_factor = confidence_radius(band)  # validated even when there is no P_std to draw
     if std is None:

@@ -14,6 +14,7 @@ import xarray as xr
 
 from lcmr_xr import conventions as cv
 from lcmr_xr.conventions import INPUT, LIFT_PHASE, OUTPUT, SLOW_FREQUENCY
+from lcmr_xr.settings import as_bool
 from lcmr_xr.plot._shared import (
     check_xlim,
     confidence_radius,
@@ -122,7 +123,7 @@ def lifted(frf, *, ax=None, which="S", db=True, band=0.95, color=None, xlim=None
         If ``which`` is not ``"S"``/``"PS"``, the variable is missing or has other dims,
         or ``ax``, ``band`` or ``xlim`` are wrong.
     TypeError
-        If ``frf`` is not a Dataset.
+        If ``frf`` is not a Dataset, or ``db`` is not True or False.
 
     Examples
     --------
@@ -143,8 +144,9 @@ def lifted(frf, *, ax=None, which="S", db=True, band=0.95, color=None, xlim=None
     >>> import matplotlib.pyplot as plt
     >>> plt.close(result.figure)
     """
-    if which not in _ROW_DIMS:
+    if not isinstance(which, str) or which not in _ROW_DIMS:
         raise ValueError(f"which must be one of {sorted(_ROW_DIMS)}, got {which!r}.")
+    db = as_bool(db, "db")  # bool("no") is True: a string would draw the opposite
     _require_dataset(frf, which)
     if which not in frf.data_vars:
         raise ValueError(

@@ -47,6 +47,7 @@ from lcmr_xr import conventions as cv
 from lcmr_xr.scaleout import consolidated as con
 from lcmr_xr.scaleout import dirindex
 from lcmr_xr.scaleout import directory as dirx
+from lcmr_xr.settings import as_bool
 from lcmr_xr.transforms._coords import even_spacing
 
 __all__ = ["save_archive", "open_archive", "append_to_archive", "consolidate_archive", "index_archive",
@@ -401,6 +402,7 @@ def save_archive(experiments, path, *, overwrite: bool = False, layout: str | No
     overwrite : bool, default False
         Consolidated: replace an existing archive file instead of appending to it.
         Files: replace existing files even when their content has a different shape.
+        True or False only (a string such as ``"no"`` is refused, not read as True).
         Without it an existing file is only replaced by an experiment of the same shape
         (length, factor, sample time, channel labels), e.g. a re-measurement.
     layout : {"consolidated", "files"}, optional
@@ -460,6 +462,7 @@ def save_archive(experiments, path, *, overwrite: bool = False, layout: str | No
     ['0.nc', '1.nc']
     """
     path = Path(path)
+    overwrite = as_bool(overwrite, "overwrite")  # "no" must not replace an archive
     layout = _layout(path, layout)
     items, first = _validated(experiments)
     if layout == "files":
@@ -607,7 +610,8 @@ def consolidate_archive(directory, path, *, overwrite: bool = False, progress=No
     path : str or os.PathLike
         The consolidated archive to write (atomically: temporary file, then rename).
     overwrite : bool, default False
-        Replace ``path`` if it exists (otherwise an existing ``path`` is refused).
+        Replace ``path`` if it exists (otherwise an existing ``path`` is refused).  True or
+        False only.
     progress : callable, optional
         Called as ``progress(done, total)`` after each batch of experiments.
 
@@ -642,6 +646,7 @@ def consolidate_archive(directory, path, *, overwrite: bool = False, progress=No
     from lcmr_xr.io._atomic import atomic_write
 
     directory, path = Path(directory), Path(path)
+    overwrite = as_bool(overwrite, "overwrite")  # "no" must not replace a file
     if path.exists() and not overwrite:
         raise FileExistsError(f"{path} exists; pass overwrite=True (--overwrite) to replace it, "
                               "or choose another path.")
@@ -862,10 +867,10 @@ def _write_checked(ds: xr.Dataset, path: Path, ref, label,
     Without ``replace`` an existing ``path`` is never replaced (``FileExistsError``)."""
     from lcmr_xr.io._atomic import atomic_write
     from lcmr_xr.io._guards import check_not_own_source
-    from lcmr_xr.io.netcdf import _ENGINE, _flatten_attrs, _map_attrs
+    from lcmr_xr.io.netcdf import _ENGINE, _checksummed, _flatten_attrs, _map_attrs
 
     check_not_own_source(ds, path)
-    flat = _map_attrs(ds, _flatten_attrs)
+    flat = _checksummed(_map_attrs(ds, _flatten_attrs))  # the layout save writes
     got = []
 
     def write(tmp):
@@ -1405,7 +1410,13 @@ def _template(path: Path) -> xr.Dataset:
 
     # the engine of lcmr_xr.io.open_dataset's lazy reads, so the encodings are the same
     with xr.open_dataset(path, engine=_LAZY_ENGINE, decode_timedelta=False) as raw:
-        loaded = _map_attrs(raw.load(), lambda owner, attrs: _restore_attrs(attrs))
+        try:
+            loaded = _map_attrs(raw.load(), lambda owner, attrs: _restore_attrs(attrs))
+        except OSError as err:  # its header read, its values not: damaged (checksum) or cut
+            raise ValueError(
+                f"{path}: its stored values cannot be read ({err}): the file is damaged (a "
+                "checksum failed) or truncated; move it out of the archive directory, or "
+                "restore it, and open the archive again.") from err
     return _as_part(loaded, path)
 
 

@@ -495,7 +495,7 @@ def sweep_to_disk(experiments: xr.Dataset, output, *, window=(30,), degrees=None
         a callable is called as ``progress(done, total, experiments_per_second)`` after
         every task (``done`` counts experiment-settings, parts of a previous run included).
     overwrite : bool, default False
-        Replace an existing ``output`` (otherwise it is refused).
+        Replace an existing ``output`` (otherwise it is refused).  True or False only.
     variables : sequence of str, optional
         Keep only these variables of the result (``experiment_error`` is always kept),
         e.g. ``["P", "P_std", "P_flag"]``: about 90 kB per HDD experiment (N = 3600) instead of

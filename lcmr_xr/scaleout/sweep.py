@@ -20,6 +20,7 @@ output structure is derived from the layout of :func:`lcmr_xr.identify`'s result
 from __future__ import annotations
 
 import itertools
+import numbers
 from collections.abc import Iterable
 
 import dask.array as dsa
@@ -53,7 +54,9 @@ _PER_SETTING_ATTRS = ("method", "window", "window_bins", "degrees", "parameters_
 
 
 def _as_list(value, what: str) -> list:
-    if isinstance(value, (str, int, np.integer)):
+    # any scalar is one setting, for the setting's own check to judge (window=30.0 is 30,
+    # window=12.5 is refused as fractional), not a "sequence" error
+    if isinstance(value, (str, numbers.Number, np.generic)):
         return [value]
     if not isinstance(value, Iterable):
         raise TypeError(f"{what} must be a value or a sequence of values, got {type(value).__name__}.")

@@ -15,6 +15,7 @@ import xarray as xr
 from lcmr_xr.conventions import INPUT, OUTPUT, PERIOD, SLOW_TIME, TIME
 from lcmr_xr.experiment import experiment
 from lcmr_xr.kernels.lti import StateSpace, multirate_closed_loop, simulate_multirate
+from lcmr_xr.settings import as_bool
 
 __all__ = ["simulate_closed_loop"]
 
@@ -160,7 +161,11 @@ def simulate_closed_loop(
     Raises
     ------
     ValueError
-        Unstable loop, wrong dims or sizes, or a time coordinate not spaced by ``Th``.
+        Unstable loop, a ``factor`` that is not a positive whole number (never truncated),
+        wrong dims or sizes, or a time coordinate not spaced by ``Th``.
+    TypeError
+        A system that is not a StateSpace, a signal that is not a DataArray, or
+        ``fast_output`` not True or False.
 
     Examples
     --------
@@ -172,6 +177,7 @@ def simulate_closed_loop(
     >>> ds.sizes["time"], ds.sizes["slow_time"]
     (8, 4)
     """
+    fast_output = as_bool(fast_output, "fast_output")  # "no" would read as True
     loop = multirate_closed_loop(plant, controller, filter, factor)
     F, ny, th = loop.factor, plant.n_outputs, plant.dt
     given = {"r": r, "d_u": d_u, "d_y": d_y, "reference": reference}

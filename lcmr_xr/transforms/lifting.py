@@ -186,6 +186,15 @@ def unlift(x, *, dim: str = "slow_time"):
         ``unlift(lift(x))`` is identical to ``x`` (values, coordinates, attributes).  The
         fast dim takes the place of ``dim`` in each variable.  Dask stays lazy.
 
+    Raises
+    ------
+    ValueError
+        If ``dim`` or ``lift_phase`` is missing, the fast dim already exists, a variable has
+        ``lift_phase`` without ``dim``, or the ``lift_phase`` coordinate is not ``0..F-1`` in
+        order (reordered or selected phases would come out scrambled).
+    TypeError
+        If ``x`` is not a DataArray or Dataset.
+
     Examples
     --------
     >>> import numpy as np, xarray as xr
@@ -208,6 +217,18 @@ def unlift(x, *, dim: str = "slow_time"):
         )
     factor = ds.sizes[LIFT_PHASE]
     m = ds.sizes[dim]
+    if LIFT_PHASE in ds.coords:
+        # the reshape puts position j at time l F + j: the labels must be 0..F-1 in order,
+        # or a reordered (sortby, isel) or partial selection would come out scrambled
+        phases = np.asarray(ds[LIFT_PHASE].values)
+        if phases.shape != (factor,) or not np.array_equal(phases, np.arange(factor)):
+            shown = phases.tolist() if phases.size <= 8 else f"{phases[:8].tolist()[:-1]} ..."
+            raise ValueError(
+                f"cannot unlift: the {LIFT_PHASE!r} coordinate is {shown}, but unlift needs every "
+                f"phase 0..{factor - 1} in order (element [l, j] is the fast sample l F + j). "
+                f"Sort it with x.sortby({LIFT_PHASE!r}), or unlift the whole lifted signal "
+                f"and select time samples afterwards."
+            )
 
     variables = {}
     for var_name, var in ds.variables.items():

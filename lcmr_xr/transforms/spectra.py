@@ -22,6 +22,7 @@ from lcmr_xr.conventions import (
     frequency_dim_for,
 )
 from lcmr_xr.kernels import lifting as lifting_kernels
+from lcmr_xr.settings import as_bool
 from lcmr_xr.transforms._coords import even_spacing, rebuild_time, time_inverse_attrs
 
 __all__ = ["dft", "idft", "fast_spectrum_from_lifted"]
@@ -48,6 +49,16 @@ def _pick_dim(x, candidates, what: str) -> str:
         f"no {what} dimension found (looked for {list(candidates)}, dims are {list(x.dims)}); "
         "pass dim=<name>."
     )
+
+
+def _require_xarray(x, func: str, coordinate: str) -> None:
+    """Refuse anything but a DataArray or Dataset before its dims are looked at."""
+    if not isinstance(x, (xr.DataArray, xr.Dataset)):
+        raise TypeError(
+            f"{func} needs an xarray DataArray or Dataset with a {coordinate} coordinate, got "
+            f"{type(x).__name__}; wrap a numpy array with xr.DataArray(x, dims=..., "
+            f"coords=...), or use numpy.fft for plain arrays."
+        )
 
 
 def _map_vars(x, dim: str, func):
@@ -156,6 +167,8 @@ def dft(x, dim: str | None = None, *, one_sided: bool = False):
     ValueError
         Missing, unevenly spaced, non-increasing or single-sample coordinate; ``dim``
         chunked by dask; ``one_sided`` on complex data.
+    TypeError
+        ``x`` not a DataArray or Dataset; ``one_sided`` not True or False.
 
     Examples
     --------
@@ -168,11 +181,13 @@ def dft(x, dim: str | None = None, *, one_sided: bool = False):
     >>> bool(np.allclose(idft(X), x))
     True
     """
+    _require_xarray(x, "dft", "time (s)")
+    one_sided = as_bool(one_sided, "one_sided")  # bool("no") is True: strings are refused
     if dim is None:
         dim = _pick_dim(x, (TIME, SLOW_TIME), "time")
     if dim not in x.dims:
         raise ValueError(f"cannot take the DFT along {dim!r}: not a dimension of {list(x.dims)}.")
-    return _map_vars(x, dim, lambda da: _dft_dataarray(da, dim, bool(one_sided)))
+    return _map_vars(x, dim, lambda da: _dft_dataarray(da, dim, one_sided))
 
 
 def _idft_dataarray(da: xr.DataArray, fdim: str) -> xr.DataArray:
@@ -241,6 +256,14 @@ def idft(x, dim: str | None = None):
         The signal, real if the transformed signal was real; the time coordinate is rebuilt
         bit for bit, so ``idft(dft(x))`` equals ``x`` up to FFT rounding (~1e-16 relative).
 
+    Raises
+    ------
+    TypeError
+        ``x`` not a DataArray or Dataset.
+    ValueError
+        No frequency dim, or a frequency coordinate without the attributes :func:`dft`
+        sets, or a sliced spectrum.
+
     Examples
     --------
     >>> import numpy as np, xarray as xr
@@ -248,6 +271,7 @@ def idft(x, dim: str | None = None):
     >>> bool(np.allclose(idft(dft(x, one_sided=True)), x))
     True
     """
+    _require_xarray(x, "idft", "frequency (Hz, from dft)")
     if dim is None:
         dim = _pick_dim(x, (FREQUENCY, SLOW_FREQUENCY), "frequency")
     if dim not in x.dims:
@@ -298,7 +322,7 @@ def fast_spectrum_from_lifted(X, dim: str = SLOW_FREQUENCY, factor: int | None =
             "dft(lift(x), dim='slow_time')."
         )
     f_ = X.sizes[LIFT_PHASE]
-    if factor is not None and int(factor) != f_:
+    if factor is not None and (isinstance(factor, (bool, np.bool_)) or factor != f_):  # 2.5 != 2
         raise ValueError(
             f"factor={factor} does not match the {f_} lifting phases of the input; omit factor."
         )

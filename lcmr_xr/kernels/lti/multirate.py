@@ -104,8 +104,11 @@ def multirate_closed_loop(plant: StateSpace, controller: StateSpace, filter: Sta
     Raises
     ------
     ValueError
-        On mismatched sizes or periods, an ill-posed algebraic loop
-        (``I + D_P D_Fi D_C`` singular at phase 0) or an unstable loop.
+        On a factor that is not a positive whole number, mismatched sizes or periods, an
+        ill-posed algebraic loop (``I + D_P D_Fi D_C`` singular at phase 0) or an unstable
+        loop.
+    TypeError
+        If ``plant``, ``controller`` or ``filter`` (unless None) is not a StateSpace.
 
     Notes
     -----
@@ -124,9 +127,16 @@ def multirate_closed_loop(plant: StateSpace, controller: StateSpace, filter: Sta
     >>> loop.system.n_inputs, loop.system.n_outputs   # [r(2), d_u(2), d_y(2), ref(1)], [u(2), y_l, y(2)]
     (7, 5)
     """
+    # 2.5 is refused, never truncated to 2 (a controller at 2 Th would then pass the check)
+    if isinstance(factor, (bool, np.bool_)) or not isinstance(factor, (int, np.integer, float, np.floating)) \
+            or not np.isfinite(factor) or int(factor) != factor or factor < 1:
+        raise ValueError(f"factor must be a positive integer, got {factor!r}.")
     F = int(factor)
-    if F < 1:
-        raise ValueError(f"factor must be a positive integer, got {factor}.")
+    for name, sys in (("plant", plant), ("controller", controller), ("filter", filter)):
+        if not isinstance(sys, StateSpace) and not (name == "filter" and sys is None):
+            raise TypeError(f"the {name} must be a StateSpace (lcmr_xr.kernels.lti), got "
+                            f"{type(sys).__name__}; build it with tf_q_inverse, modal_zoh or "
+                            f"static_gain.")
     nu, ny = plant.n_inputs, plant.n_outputs
     th = plant.dt
     if filter is None:
