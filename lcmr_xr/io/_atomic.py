@@ -1,4 +1,5 @@
-"""Write files atomically: a temporary file in the target's directory, then ``os.replace``.
+"""Write files atomically: a temporary file in the target's directory, then ``os.replace``
+(or, with ``overwrite=False``, a hard link that never replaces an existing file).
 
 Readers never see a half-written file, a failed write leaves neither a partial file nor
 the temporary one, and an existing file is replaced only once the new one is complete.

@@ -542,6 +542,10 @@ def append_to_archive(experiment, path) -> Path:
         The experiment is invalid, of another shape than the archive, carries other
         metadata, or its label is taken or of another kind than the archive's (integer
         vs text).
+    FileExistsError
+        Directory, where the write lock is not available (some network file systems):
+        another append took the same file name while this one was writing (nothing was
+        replaced; an append without a label gets the next one when it is appended again).
 
     Notes
     -----
@@ -764,6 +768,7 @@ def _save_files(items, first, directory: Path, overwrite: bool, add_only: bool =
                            f"archive {directory} and the new experiments")
     start = _next_order(journal, facts, directory)
     written, rows, unsettled = _Written(), [], set()
+    wait = True  # for the clock to pass each file's tick; not again once it did not in time
     for i, ((label, ds), name) in enumerate(zip(items, names)):
         out = ds.copy(deep=False)
         if cv.EXPERIMENT not in out.coords:
@@ -774,7 +779,8 @@ def _save_files(items, first, directory: Path, overwrite: bool, add_only: bool =
         # an append never replaces a file, not even one another writer put there meanwhile
         # (where the write lock is not available)
         path, header, ident, settled = _write_checked(out, directory / name, ref, label,
-                                                      replace=not add_only)
+                                                      replace=not add_only, wait=wait)
+        wait = wait and settled  # a coarse clock (1-2 s ticks): one wait per write, not per file
         written.append(path)
         if ref is None:  # the next ones must agree with the first one written
             ref = (path, header)
@@ -847,7 +853,7 @@ def _positions(experiment: xr.Dataset, start: int, text: bool) -> xr.Dataset:
 
 
 def _write_checked(ds: xr.Dataset, path: Path, ref, label,
-                   replace: bool = True) -> tuple[Path, dict, tuple, bool]:
+                   replace: bool = True, wait: bool = True) -> tuple[Path, dict, tuple, bool]:
     """Write ``ds`` to ``path`` atomically as :func:`lcmr_xr.io.save` does, unless the
     header of what was written (read back before it is moved into place) fails the test
     the directory's open applies against ``ref`` (``(path, header)`` of a file of the
@@ -856,7 +862,8 @@ def _write_checked(ds: xr.Dataset, path: Path, ref, label,
     is the header's only if the file at ``path`` still has them) and whether the file
     system's clock had passed that modification time before the rename (so that any
     later change of the file changes it; :func:`lcmr_xr.scaleout.dirindex.wait_past`,
-    at most one tick of coarse file times: without it the entry is written "racy").
+    at most one tick of coarse file times: without it the entry is written "racy"; not
+    waited for without ``wait``: False).
     Without ``replace`` an existing ``path`` is never replaced (``FileExistsError``)."""
     from lcmr_xr.io._atomic import atomic_write
     from lcmr_xr.io._guards import check_not_own_source
@@ -874,7 +881,7 @@ def _write_checked(ds: xr.Dataset, path: Path, ref, label,
             _check_units(header, ref, label)
         st = os.stat(tmp)
         got.extend([header, (st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns),
-                     dirindex.wait_past(path.parent, st.st_mtime_ns)])
+                     wait and dirindex.wait_past(path.parent, st.st_mtime_ns)])
 
     return atomic_write(path, write, overwrite=replace), *got
 

@@ -34,7 +34,8 @@ leaves its size, times and inode as they were.  So the writers vouch only for en
 later change can hide (:func:`_written_after`): a compaction reads the header of a file
 changed in the tick of its read again once that tick is over (:func:`wait_past`), an
 append renames its file into place only after the tick of its write, and an entry
-without that guarantee (the clock did not pass in time) is written "racy" (not trusted).
+without that guarantee (the clock did not pass in time; a write of several files then does
+not wait again for its later ones) is written "racy" (not trusted).
 The journal is read before the base, so that a compaction running meanwhile costs at
 most header reads, never a wrong summary.  An index that cannot be read, or of another
 version, and a journal file that cannot be read or holds summaries of another version
@@ -699,21 +700,19 @@ def write_lock(directory: Path):
     whether its files exist) until its journal file lists its files, so two writers never
     take one order or replace each other's new file.  Where locks are not available it
     proceeds without one (see the module notes)."""
+    fd = _open_to_lock(Path(directory))
     try:
-        fd = os.open(Path(directory), os.O_RDONLY)
-    except OSError:
-        yield
-        return
-    try:
-        try:
-            import fcntl
+        if fd is not None:
+            try:
+                import fcntl
 
-            fcntl.flock(fd, fcntl.LOCK_EX)
-        except (ImportError, OSError):  # no locks here: proceed without
-            pass
-        yield
+                fcntl.flock(fd, fcntl.LOCK_EX)
+            except (ImportError, OSError):  # no locks here: proceed without
+                pass
+        yield  # outside any except clause: the writer's errors are not chained to the lock's
     finally:
-        os.close(fd)  # releases the lock
+        if fd is not None:
+            os.close(fd)  # releases the lock
 
 
 @contextlib.contextmanager
@@ -724,20 +723,29 @@ def compaction_lock(directory: Path, blocking: bool):
     journal = Path(directory) / JOURNAL_NAME
     try:
         journal.mkdir(exist_ok=True)
-        fd = os.open(journal, os.O_RDONLY)
     except OSError:
-        yield True
-        return
+        pass  # then no lock either (below)
+    fd, held = _open_to_lock(journal), True
     try:
-        try:
-            import fcntl
+        if fd is not None:
+            try:
+                import fcntl
 
-            fcntl.flock(fd, fcntl.LOCK_EX | (0 if blocking else fcntl.LOCK_NB))
-        except BlockingIOError:
-            yield False
-            return
-        except (ImportError, OSError):  # no locks here: proceed without
-            pass
-        yield True
+                fcntl.flock(fd, fcntl.LOCK_EX | (0 if blocking else fcntl.LOCK_NB))
+            except BlockingIOError:
+                held = False
+            except (ImportError, OSError):  # no locks here: proceed without
+                pass
+        yield held  # outside any except clause (see write_lock)
     finally:
-        os.close(fd)  # releases the lock
+        if fd is not None:
+            os.close(fd)  # releases the lock
+
+
+def _open_to_lock(directory: Path) -> int | None:
+    """A descriptor of ``directory`` to ``flock``, or None where it cannot be opened
+    (Windows, no permission): the lock is then not taken."""
+    try:
+        return os.open(directory, os.O_RDONLY)
+    except OSError:
+        return None
