@@ -284,8 +284,10 @@ def test_simulate_refuses_bad_disturbances():
         hdd.simulate(n_samples=400, disturbances=["fan", "fan"])
     with pytest.raises(ValueError, match="noise=False switches them all off"):
         hdd.simulate(n_samples=400, noise=False, disturbances=["fan"])
-    quiet = hdd.simulate(n_samples=400, noise=False, disturbances=[])
-    xr.testing.assert_identical(quiet, hdd.simulate(n_samples=400, noise=False))
+    quiet = hdd.simulate(n_samples=400, noise=False)
+    for same in (dict(noise=False, disturbances=[]), dict(disturbances=[]),
+                 dict(noise=False, disturbances=["runout", "rotational", "fan"])):
+        xr.testing.assert_identical(hdd.simulate(n_samples=400, **same), quiet)
 
 
 def test_simulate_refuses_bad_settings():

@@ -36,7 +36,7 @@ def _check_disturbances(disturbances, noise) -> tuple[str, ...]:
     if len(set(names)) != len(names):
         raise ValueError(f"disturbances names one twice: {names!r}; list each once.")
     if not noise:
-        if names and tuple(names) != DISTURBANCES:
+        if names and set(names) != set(DISTURBANCES):
             raise ValueError("disturbances were chosen but noise=False switches them all off; "
                              "pass noise=True (the default) with the subset, or disturbances=[].")
         return ()
@@ -115,7 +115,8 @@ def simulate(n_samples: int = 3600, case: int = 2, noise: bool = True, seed: int
         draws from its own stream, so a subset gets the same realisations as the full
         benchmark (the loop is linear: the responses add up), which shows what each
         disturbance costs the estimate.  The dataset's ``disturbances`` attribute lists
-        them (space-separated) when ``noise`` is on.
+        them (space-separated) when any acts; with none, the experiment is the noiseless one
+        (``noise`` attribute 0).
     seed : int, optional
         Seed of everything random; default 0.  Excitation and each disturbance draw from
         their own child stream (``numpy.random.SeedSequence(seed).spawn``), so switching
@@ -211,8 +212,8 @@ def simulate(n_samples: int = 3600, case: int = 2, noise: bool = True, seed: int
         disturbances["reference"] = shaped(
             repeatable_runout(n_total // FACTOR, runout_rng)[:, None], (SLOW_TIME, OUTPUT))
     attrs = {"benchmark": BENCHMARK, "case": case, "seed": int(seed), "rms": rms,
-             "noise": int(bool(noise)), "excitation": "random-phase multisine, bins 1..N/2"}
-    if noise:
+             "noise": int(bool(chosen)), "excitation": "random-phase multisine, bins 1..N/2"}
+    if chosen:  # (noise=True with no disturbance is the noiseless experiment, attrs too)
         attrs["disturbances"] = " ".join(chosen)
     if periods is not None:
         attrs["periods"] = n_periods
