@@ -901,3 +901,26 @@ def test_a_write_of_many_files_waits_for_a_coarse_clock_once_not_per_file(tmp_pa
     headers = _calls(monkeypatch, dirx, "read_header")
     _assert_same_as_oracle(d)  # right: the new files from their headers (no entry trusted)
     assert sorted(p.name for p in headers) == [f"run{i}.nc" for i in range(2, 7)]
+
+
+def test_an_index_not_written_warns_that_the_next_write_may_take_the_same_order(tmp_path, monkeypatch):
+    """Where the journal cannot be written, the append itself is complete but the next
+    writer does not see its order: the warning says so and names index_archive, which
+    restores the orders (the next unlabelled append then gets the next position)."""
+    d = tmp_path / "d"
+    save_archive([_labelled(i).assign_coords(experiment=i) for i in range(2)], d, layout="files")
+
+    def fail(*args, **kwargs):
+        raise PermissionError(13, "Permission denied")
+
+    monkeypatch.setattr(dirindex, "append_journal", fail)
+    with pytest.warns(RuntimeWarning, match=r"not written .*Permission denied.*may take it "
+                                            r"again.*index_archive\(directory\)"):
+        append_to_archive(_labelled(2).drop_vars("experiment"), d)
+    monkeypatch.undo()
+    with pytest.raises(ValueError, match="experiment 2 is already in"):
+        append_to_archive(_labelled(3).drop_vars("experiment"), d)
+    index_archive(d)
+    append_to_archive(_labelled(3).drop_vars("experiment"), d)
+    got = open_archive(d)
+    assert got.experiment.values.tolist() == [0, 1, 2, 3] and got.seed.values.tolist() == [0, 1, 2, 3]

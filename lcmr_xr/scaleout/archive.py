@@ -951,7 +951,10 @@ def _index_new_files(directory: Path, rows: list, known, journal: int, unsettled
 
 def _index_not_written(directory: Path, err) -> None:
     warnings.warn(f"the archive index of {directory} was not written ({err}); the archive "
-                  "is complete but opens from the headers of the new files (slower) until "
+                  "is complete but opens from the headers of the new files (slower), and the "
+                  "next write does not see their archive order (it may take it again: an "
+                  "unlabelled append is then refused as 'already in', labelled files share "
+                  "an order and are ordered by name) until "
                   "lcmr_xr.scaleout.index_archive(directory) writes it.", RuntimeWarning,
                   stacklevel=5)
 
