@@ -34,7 +34,7 @@ from __future__ import annotations
 import numpy as np
 
 
-def _whole_factor(factor) -> int:
+def whole_factor(factor) -> int:
     """``factor`` as an int if it is a whole positive number: int(2.5) would lift by 2."""
     try:
         whole = not isinstance(factor, (bool, np.bool_)) and int(factor) == factor and factor >= 1
@@ -46,7 +46,7 @@ def _whole_factor(factor) -> int:
 
 
 def _check_factor(n_samples: int, factor: int) -> int:
-    factor = _whole_factor(factor)
+    factor = whole_factor(factor)
     if n_samples % factor:
         raise ValueError(
             f"{n_samples} samples cannot be lifted by factor {factor}: the number of fast "
@@ -184,7 +184,7 @@ def frf_from_first_block_row(first_row: np.ndarray, factor: int) -> np.ndarray:
     """
     p1 = np.asarray(first_row)
     m, ny, fnu = p1.shape[-3:]
-    f_ = _whole_factor(factor)
+    f_ = whole_factor(factor)
     if fnu % f_:
         raise ValueError(
             f"the first block row has {fnu} columns, which is not a multiple of factor {f_}."

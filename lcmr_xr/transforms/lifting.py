@@ -18,6 +18,7 @@ import numpy as np
 import xarray as xr
 
 from lcmr_xr.conventions import FACTOR, LIFT_PHASE, TIME
+from lcmr_xr.kernels.lifting import whole_factor
 from lcmr_xr.transforms._coords import slow_dim_for
 
 __all__ = ["lift", "unlift"]
@@ -54,9 +55,7 @@ def _resolve_factor(x, factor) -> int:
                 f"x.attrs[{FACTOR!r}] = F."
             )
         factor = x.attrs[FACTOR]
-    if isinstance(factor, (bool, np.bool_)) or int(factor) != factor or int(factor) < 1:
-        raise ValueError(f"factor must be a positive integer, got {factor!r}.")
-    return int(factor)
+    return whole_factor(factor)
 
 
 def lift(x, factor: int | None = None, *, dim: str = TIME):

@@ -13,6 +13,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from lcmr_xr.kernels.lifting import whole_factor
 from lcmr_xr.kernels.lti.lifted import lift_statespace
 from lcmr_xr.kernels.lti.simulate import simulate_lti
 from lcmr_xr.kernels.lti.statespace import (StateSpace, check_stable, same_period,
@@ -128,10 +129,7 @@ def multirate_closed_loop(plant: StateSpace, controller: StateSpace, filter: Sta
     (7, 5)
     """
     # 2.5 is refused, never truncated to 2 (a controller at 2 Th would then pass the check)
-    if isinstance(factor, (bool, np.bool_)) or not isinstance(factor, (int, np.integer, float, np.floating)) \
-            or not np.isfinite(factor) or int(factor) != factor or factor < 1:
-        raise ValueError(f"factor must be a positive integer, got {factor!r}.")
-    F = int(factor)
+    F = whole_factor(factor)
     for name, sys in (("plant", plant), ("controller", controller), ("filter", filter)):
         if not isinstance(sys, StateSpace) and not (name == "filter" and sys is None):
             raise TypeError(f"the {name} must be a StateSpace (lcmr_xr.kernels.lti), got "
