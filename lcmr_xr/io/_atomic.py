@@ -234,17 +234,16 @@ def _place_new(tmp: str, path: Path) -> None:
     where hard links work: ``link`` fails on an existing name, ``rename`` would replace it)."""
     try:
         os.link(tmp, path)
+        exists = False
     except FileExistsError:
+        exists = True
+    except OSError:  # no hard links on this file system: check, then rename (a small race)
+        exists = os.path.lexists(path)
+        if not exists:
+            os.replace(tmp, path)
+            return
+    if exists:
         raise FileExistsError(
             f"cannot write {path}: the file exists (another process wrote it while this one "
-            "was writing); nothing was replaced: choose another name or write again."
-        ) from None
-    except OSError:  # no hard links on this file system: check, then rename (a small race)
-        if os.path.lexists(path):
-            raise FileExistsError(
-                f"cannot write {path}: the file exists (another process wrote it while this "
-                "one was writing); nothing was replaced: choose another name or write again."
-            ) from None
-        os.replace(tmp, path)
-        return
+            "was writing); nothing was replaced: choose another name or write again.")
     os.remove(tmp)
