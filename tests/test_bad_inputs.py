@@ -38,7 +38,7 @@ import xarray as xr
 import lcmr_xr
 import lcmr_xr.plot
 from lcmr_xr import cli, hdd
-from lcmr_xr.demo import band_table
+from lcmr_xr.demo import band_table, resonance_peaks
 from lcmr_xr.experiment import experiment, validate_experiment
 from lcmr_xr.io import open_dataset, open_experiment, open_frf, save
 from lcmr_xr.io._atomic import stale_temporaries, temporary_prefix
@@ -411,6 +411,14 @@ API = [
         ("factor=2.5", "2 lifting phases")),
     Case("dft_one_sided_text", lambda e: lcmr_xr.dft(e.small.r, one_sided="no"), TypeError,
          ("one_sided", "True or False")),
+    # NaN made every bin of the spectrum NaN, silently
+    Case("dft_nan_in_r", lambda e: lcmr_xr.dft(_with_nan(e.small, "r", (7, 1)).r), ValueError,
+         ("r contains 1 NaN or inf", "input='pzt'", "time = 6.94444e-05 s", "interpolate_na")),
+    Case("dft_inf_in_dataset", lambda e: lcmr_xr.dft(_with_nan(e.small, "y", (20, 0)).assign(
+        y=lambda d: d.y.where(d.y.notnull(), np.inf)), dim="slow_time"), ValueError,
+         ("y contains 1 NaN or inf", "output='position'", "indices 20..20")),
+    Case("dft_nan_lazy", lambda e: lcmr_xr.dft(_with_nan(e.small, "u", (30, 0), {"input": 1}).u).compute(),
+         ValueError, ("u contains 1 NaN or inf", "dask block", "indices 30..30", "interpolate_na")),
     # --- simulate_closed_loop: the factor was truncated (2.5 simulated F = 2), flags coerced ---
     Case("simulate_closed_loop_factor_fractional", lambda e: lcmr_xr.simulate_closed_loop(
         *_toy_loop(), 2.5, xr.DataArray(np.ones((8, 1)), dims=("time", "input"))), ValueError,
@@ -461,6 +469,15 @@ API = [
         e.frf, hdd.true_frf(e.frf.frequency[1:]).reindex(frequency=e.frf.frequency), bands=[(5000, 500)]),
         ValueError, ("0 <= f_lo < f_hi",)),
     Case("band_table_experiment", lambda e: band_table(e.small, e.frf.P), TypeError, ("FRF dataset", "without P")),
+    # 2.5 peaks failed inside Python's slicing ("slice indices must be integers")
+    Case("resonance_peaks_count_fractional", lambda e: resonance_peaks(
+        e.frf, hdd.true_frf(e.frf.frequency[1:]).reindex(frequency=e.frf.frequency), count=2.5),
+        ValueError, ("count", "2.5", "not rounded")),
+    Case("resonance_peaks_search_bins_text", lambda e: resonance_peaks(
+        e.frf, hdd.true_frf(e.frf.frequency[1:]).reindex(frequency=e.frf.frequency), search_bins="3"),
+        TypeError, ("search_bins", "'3'")),
+    Case("true_frf_frequency_nan", lambda e: hdd.true_frf([1000.0, np.nan]), ValueError,
+         ("frequency", "NaN or inf", "drop them")),
     # --- identify() ------------------------------------------------------------------------
     Case("identify_dataarray", lambda e: lcmr_xr.identify(e.small.r), TypeError, ("experiment xarray.Dataset",)),
     Case("method_unknown", lambda e: _identify12(e.small, method="lsq"), ValueError, ("method", "'lsq'")),
