@@ -81,6 +81,8 @@ def template(tmp_path_factory, small, small_frf):
     save_archive(small, root / "arc1.nc")  # a consolidated archive (one file)
     shutil.copytree(root / "arc", root / "damagedarc")  # its first file's values damaged
     (root / "damagedarc" / "e0.nc").write_bytes(_damaged(root / "arc" / "e0.nc", "r"))
+    shutil.copytree(root / "arc", root / "damagedarc2")  # its second file's values damaged
+    (root / "damagedarc2" / "e1.nc").write_bytes(_damaged(root / "arc" / "e1.nc", "r"))
     (root / "junkarc").mkdir()
     shutil.copy2(root / "exp.nc", root / "junkarc" / "good.nc")
     (root / "junkarc" / "junk.nc").write_bytes(b"\x89HDF\r\n\x1a\n not really")
@@ -570,6 +572,18 @@ API = [
     Case("archive_empty", lambda e: open_archive("empty"), FileNotFoundError, ("holds no .nc",)),
     Case("archive_first_file_damaged", lambda e: open_archive("damagedarc"), ValueError,
          ("damagedarc/e0.nc", "damaged", "move it out")),
+    # a later file's damaged values failed at compute time with h5py's message (no file
+    # name), and aborted a sweep: now the file is named with the remedy, a sweep flags it
+    Case("archive_second_file_damaged_compute", lambda e: open_archive("damagedarc2").compute(), ValueError,
+         ("damagedarc2/e1.nc is damaged", "cannot be read", "Restore it from a copy", "move it out")),
+    Case("archive_second_file_damaged_lazy", lambda e: open_archive("damagedarc2", chunks={"experiment": 1}).r.values,
+         ValueError, ("damagedarc2/e1.nc is damaged", "Restore it from a copy")),
+    Case("archive_second_file_damaged_consolidate", lambda e: consolidate_archive("damagedarc2", "all.nc"),
+         ValueError, ("damagedarc2/e1.nc is damaged",)),
+    Case("archive_second_file_damaged_sweep", lambda e: sweep(open_archive("damagedarc2"), window=[12],
+                                                              degrees=["2-2-2"]).compute(),
+         check=_flagged_experiment(1, ("experiment 'e1' (file damagedarc2/e1.nc)", "is damaged",
+                                       "Restore it from a copy"))),
     Case("archive_with_junk_file", lambda e: open_archive("junkarc"), ValueError, ("junkarc/junk.nc", "not a readable NetCDF",
                                                                         "move it out")),
     Case("archive_with_foreign_file", lambda e: open_archive("forarc"), ValueError, ("cf.nc", "not an lcmr-xr-1 experiment")),
@@ -787,6 +801,19 @@ def test_catalogue_size():
     """The catalogue covers the issue's ~90 bad inputs (API, CLI and files)."""
     assert len(API) + len(CLI) >= 90
     assert len({c.id for c in API + CLI}) == len(API) + len(CLI)
+
+
+def test_sweep_to_disk_flags_a_damaged_file_and_goes_on(workdir, small):
+    """A task reading a damaged file failed, and with it ``sweep_to_disk`` (the command
+    line's sweep): now that experiment is NaN and flagged, naming the file, the others
+    identified; the archive is left as it was."""
+    before = snapshot(workdir / "damagedarc2")
+    sweep_to_disk(open_archive("damagedarc2"), "out.nc", window=[12], degrees=["2-2-2"],
+                  experiments_per_task=2)
+    result = open_dataset("out.nc")
+    _flagged_experiment(1, ("damagedarc2/e1.nc is damaged", "Restore it from a copy"))(
+        result, Env(small, None, {}, None))
+    assert snapshot(workdir / "damagedarc2") == before
 
 
 # ----------------------------------------------------------- interrupted writes (15.5)
