@@ -416,38 +416,38 @@ def _identify_or_flag(one: xr.Dataset, source, settings) -> xr.Dataset:
     return res.assign({ERROR_VAR: (tuple(lead), np.full(shape, message, dtype=object), ERROR_ATTRS)})
 
 
-def _where(one: xr.Dataset, source) -> str:
-    """'experiment 'e7' of archive.nc' (the file itself for a directory archive)."""
+def _label_and_file(one: xr.Dataset, source):
+    """The label of experiment ``one`` (None: no single label) and its file in the archive
+    directory ``source`` (None: no such file)."""
     label = (one[cv.EXPERIMENT].values.ravel()[0].item() if cv.EXPERIMENT in one.coords
              and one[cv.EXPERIMENT].size == 1 else None)
+    if label is None or not source:
+        return label, None
+    from pathlib import Path
+
+    from lcmr_xr.scaleout.archive import SUFFIX, _file_stem
+
+    file = Path(source) / (_file_stem(label) + SUFFIX)
+    return label, (file if Path(source).is_dir() and file.is_file() else None)
+
+
+def _where(one: xr.Dataset, source) -> str:
+    """'experiment 'e7' of archive.nc' (the file itself for a directory archive)."""
+    label, file = _label_and_file(one, source)
     if label is None:
         return "experiment"
-    if source:
-        from pathlib import Path
-
-        from lcmr_xr.scaleout.archive import SUFFIX, _file_stem
-
-        file = Path(source) / (_file_stem(label) + SUFFIX)
-        if Path(source).is_dir() and file.is_file():
-            return f"experiment {label!r} (file {file})"
-        return f"experiment {label!r} of {source}"
-    return f"experiment {label!r}"
+    if file is not None:
+        return f"experiment {label!r} (file {file})"
+    return f"experiment {label!r} of {source}" if source else f"experiment {label!r}"
 
 
 def _damage(one: xr.Dataset, source) -> str | None:
     """Why the file of experiment ``one`` of a directory archive cannot be read (None: it
     can, or there is none): its NaN then came from the damaged file (:func:`_chunked`)."""
-    label = (one[cv.EXPERIMENT].values.ravel()[0].item() if cv.EXPERIMENT in one.coords
-             and one[cv.EXPERIMENT].size == 1 else None)
-    if label is None or not source:
-        return None
-    from pathlib import Path
-
-    from lcmr_xr.scaleout.archive import SUFFIX, _file_stem
     from lcmr_xr.scaleout.directory import damage
 
-    file = Path(source) / (_file_stem(label) + SUFFIX)
-    return damage(file) if Path(source).is_dir() and file.is_file() else None
+    file = _label_and_file(one, source)[1]
+    return None if file is None else damage(file)
 
 
 def _failed_result(one: xr.Dataset, settings) -> xr.Dataset:
