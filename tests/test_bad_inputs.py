@@ -544,6 +544,11 @@ API = [
     Case("open_missing", lambda e: open_experiment("nothing.nc"), FileNotFoundError, ("nothing.nc",)),
     # damaged stored values (header intact) are refused, not read back as other numbers
     Case("open_damaged_values", lambda e: open_experiment("damaged.nc"), ValueError, ("damaged.nc", "corrupt")),
+    # lazily: h5py's message at compute time, without the file's name
+    Case("open_lazy_damaged_values", lambda e: open_dataset("damaged.nc", chunks={"time": 100}).r.values,
+         ValueError, ("cannot read damaged.nc", "corrupt", "Restore it from a copy")),
+    Case("open_experiment_lazy_damaged_values", lambda e: open_experiment("damaged.nc", chunks={}), ValueError,
+         ("cannot read damaged.nc", "corrupt"), absent=("damaged.nc: cannot",)),
     # a bad chunks argument is not reported as a damaged file
     Case("open_chunks_fractional", lambda e: open_frf("frf.nc", chunks={"frequency": 2.5}), ValueError,
          ("chunks", "2.5", "whole number"), absent=("not a valid NetCDF",)),
