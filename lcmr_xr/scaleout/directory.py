@@ -542,8 +542,14 @@ def read_files(paths: tuple, specs: dict, damaged: str = "raise") -> dict:
 
 def reading_damaged_as_nan(array):
     """``array`` (dask) whose reads of archive files (:func:`read_files`) give NaN for a
-    damaged file instead of failing: the same keys, so only for a computation that treats
-    NaN as a failed experiment and says why (the sweep, :func:`damage`)."""
+    damaged file instead of failing: for a computation that treats NaN as a failed
+    experiment and says why (the sweep, :func:`damage`).
+
+    The keys are the same (a renamed read layer would need every layer above it renamed):
+    computed in ONE ``dask.compute`` with other uses of the same lazy data, a damaged file
+    may be read either way for both (an error naming it, or NaN).  Undamaged files read
+    the same values either way.
+    """
     from dask.highlevelgraph import HighLevelGraph, MaterializedLayer
 
     graph = array.__dask_graph__()
