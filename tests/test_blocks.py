@@ -155,13 +155,13 @@ def _old_auto(R, Z, windows, **kw):
     twin = None  # the least-squares denominator's bias from the widest window's IV fit
     n_exp = ki._n_experiments(R, Z, kw.get("experiment_axis"))
     if ki.checks_denominator_bias(kw.get("denominator", "ls"), kw["degrees"],
-                                  kw.get("closed_loop", "indirect"), n_exp):
+                                  kw.get("closed_loop", "indirect"), n_exp,
+                                  known_noise=kw.get("noise_covariance") is not None):
         zhat = ki.denominator_instruments(R, Z, degrees=kw["degrees"], half_width=windows[-1])
         iv = ki._fit_and_finish(R, Z, half_width=windows[-1], covariance=True, n_exp=n_exp,
                                 ny=Z.shape[-1] - R.shape[-1], denominator="iv",
                                 instruments=zhat, experiment_axis=kw.get("experiment_axis"),
-                                noise_covariance=kw.get("noise_covariance"),
-                                closed_loop="indirect",
+                                noise_covariance=None, closed_loop="indirect",
                                 **{k: kw[k] for k in ("degrees", "n_fast", "factor", "nu")})
         twin = denominator_bias(outs[-1]["P"], iv["P"], outs[-1]["P_var_linear"],
                                 iv["P_var_linear"])

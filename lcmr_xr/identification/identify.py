@@ -90,7 +90,7 @@ def identify(experiment: xr.Dataset, *, method: str = "lrm", window=DEFAULT_WIND
         (model error against noise; see ``docs/uncertainty.md`` and
         :mod:`lcmr_xr.kernels.adaptive`); the choice is returned as ``local_window`` and
         the estimated model error is part of ``P_std``.  With a least-squares LRM
-        denominator (one record or averaged periods, the default) the widest window is
+        denominator (one record, the default) the widest window is
         also fitted by instrumental variables with its own prediction as instruments, and
         the two estimates' difference (a Hausman comparison) adds least squares'
         errors-in-variables bias to ``P_bias`` where that window is chosen.  ``"auto"``
@@ -513,7 +513,8 @@ def _estimate(r: xr.DataArray, u: xr.DataArray, y: xr.DataArray, s, *, factor: i
         # window="auto" with a least-squares denominator: the widest window's IV twin
         # (kernels.adaptive.denominator_bias), whose instruments come from that window
         twin = auto and checks_denominator_bias(_kernel_denominator(s), s.degrees,
-                                                s.closed_loop, n_exp)
+                                                s.closed_loop, n_exp,
+                                                known_noise=noise is not None)
         halo = max(windows) + (max(windows) if twin else _first_fit_halo(s, factor * nu))
         if halo > s.frequency_chunks:
             what = (f"the widest candidate window of window='auto' ({max(windows)} bins"
@@ -535,8 +536,7 @@ def _estimate(r: xr.DataArray, u: xr.DataArray, y: xr.DataArray, s, *, factor: i
                            + ([_fit_frequency_chunked(r, u, y, s._replace(window=max(windows),
                                                                           denominator="iv"),
                                                       factor=factor, check_rank=False,
-                                                      noise=noise, pooled=pooled,
-                                                      first_window=max(windows))]
+                                                      pooled=pooled, first_window=max(windows))]
                               if twin else []), "_candidate")
         nz_, nr_ = packed.attrs["nz"], packed.attrs["nr"]
         shape = dict(nz=nz_, nr=nr_, n_fast=n, factor=factor, nu=nu, ny=ny,

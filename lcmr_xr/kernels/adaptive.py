@@ -23,6 +23,10 @@ Two questions the first-order covariance of ``P = PS_1 S^-1`` does not answer:
    for an understated local-model covariance, docs/uncertainty.md).  Where ``k rho`` exceeds :data:`UNDETERMINED_LIMIT` the
    higher-order terms are as large as the first-order one: the first-order band is
    meaningless, the bin is flagged *undetermined* and its band is unbounded.
+   With ``window="auto"`` and a least-squares LRM denominator (one record) the band uses
+   the second-order factor (:func:`second_order_factor`) and adds the denominator's bias
+   estimated from an IV fit of the widest window (:func:`denominator_bias`) instead: the
+   bound form had been covering that bias, 2.9x too wide at 500-5000 Hz.
 
 2. **Which window?**  Per slow bin the window is chosen among a ladder of half-widths by a
    local mean-squared-error criterion (Lepski's method, in the form of the "intersection of
@@ -252,7 +256,7 @@ def second_order_factor(rho, limit: float = UNDETERMINED_LIMIT):
     (Isserlis' theorem for circular Gaussian ``alpha``, ``u^H dS v``; the cross moment at
     most equals the product of the second moments), and the geometric tail of
     ``(I - dS S^-1)^-1`` divides it by ``(1 - K95 rho)^2`` as in the exact form
-    (:func:`second_order_variance`, which on the HDD benchmark is 0.1-1x ``rho^2
+    (:func:`second_order_variance`, which on the HDD benchmark is 0.1-1.1x ``rho^2
     var_lin``).  Used where the bias of a least-squares denominator is estimated
     (:func:`denominator_bias`): the bound form ``1 + K95 rho_v / (1 - K95 rho)`` is not the
     size of the ``S^-1`` correction (its ``rho_v`` counts the noise of ``S`` in every

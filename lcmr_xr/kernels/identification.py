@@ -49,14 +49,17 @@ def check_denominator(denominator: str, degrees) -> bool:
 
 
 def checks_denominator_bias(denominator: str, degrees, closed_loop: str = "indirect",
-                            n_exp=None) -> bool:
+                            n_exp=None, known_noise: bool = False) -> bool:
     """Whether ``window="auto"`` estimates the bias of a least-squares denominator by the
-    Hausman comparison (:func:`lcmr_xr.kernels.adaptive.denominator_bias`): one record (or
-    averaged periods) of the indirect method, least squares, a denominator (``Rd > 0``).
-    Pooled experiments (IV by default, their band calibrated by split halves), IV, the LPM
-    and the direct method keep the bound form of the nonlinearity factor."""
+    Hausman comparison (:func:`lcmr_xr.kernels.adaptive.denominator_bias`): one record of
+    the indirect method with the residual noise estimate, least squares, a denominator
+    (``Rd > 0``).  Pooled experiments (IV by default, their band calibrated by split
+    halves), averaged periods (``known_noise``: the noise covariance from the periods,
+    whose few degrees of freedom the bound form was also covering: with 2 steady periods
+    the comparison's band covered 0.82-0.89 at 500-5000 Hz), IV, the LPM and the direct
+    method keep the bound form of the nonlinearity factor."""
     return (denominator == "ls" and tuple(degrees)[2] > 0 and closed_loop == "indirect"
-            and n_exp is None)
+            and n_exp is None and not known_noise)
 
 
 def first_fit_window(nr: int, degrees) -> int:
@@ -880,13 +883,14 @@ def identify_spectra_auto(R, Z, *, n_fast: int, factor: int, nu: int, windows,
     choice, bias2 = select_windows(fast["P"], fast["P_var"], fast["P_var_linear"], m)
     fast_choice = np.take(choice, np.arange(bias2.shape[-3]) % m, axis=-1)
     twin = None
-    if checks_denominator_bias(denominator, degrees, closed_loop, n_exp):
+    if checks_denominator_bias(denominator, degrees, closed_loop, n_exp,
+                               known_noise=noise_covariance is not None):
         # least squares' errors-in-variables bias at the widest window, by its IV twin
         # whose instruments are that window's own least-squares prediction
         zhat = denominator_instruments(R, Z, degrees=degrees, half_width=windows[-1])
         iv = _fit_and_finish(R, Z, half_width=windows[-1], covariance=True, n_fast=n_fast,
                              factor=factor, nu=nu, ny=ny, n_exp=n_exp, degrees=degrees,
-                             noise_covariance=noise_covariance, experiment_axis=experiment_axis,
+                             noise_covariance=None, experiment_axis=experiment_axis,
                              closed_loop=closed_loop, denominator="iv", instruments=zhat)
         twin = denominator_bias(fast["P"][-1], iv["P"], fast["P_var_linear"][-1],
                                 iv["P_var_linear"])
