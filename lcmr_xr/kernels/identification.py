@@ -827,7 +827,12 @@ def identify_spectra_auto(R, Z, *, n_fast: int, factor: int, nu: int, windows,
     calibrated variance recovered, and :func:`lcmr_xr.kernels.adaptive.select_windows`
     picks one per slow bin; every returned array is then the chosen window's, bin by bin
     (a fast bin ``k`` from the choice at slow bin ``k mod M``).  The squared model-error
-    estimate of the chosen window is added to ``P_var``.
+    estimate of the chosen window is added to ``P_var``.  Where
+    :func:`checks_denominator_bias` (one least-squares LRM record), the widest window is
+    also fitted by IV with its own least-squares prediction as instruments, and the
+    Hausman estimate of least squares' bias (:func:`lcmr_xr.kernels.adaptive.
+    denominator_bias`) joins the model error where that window is chosen, with the
+    second-order nonlinearity factor (:func:`_finish_choice`).
 
     Memory (issue 18): of the candidates fitted before the widest, only what the choice
     reads is kept (``P``, ``P_var``, ``P_var_linear`` on the fast bins, and the pooled
