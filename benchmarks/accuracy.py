@@ -598,6 +598,9 @@ def print_cost(best, repeats):
             k = best["fits", d]
             print(f"  of which the local-model fits auto needs (candidates with covariance, "
                   f"the widest by IV) alone: {k[0] / f[0]:.2f}x CPU ({k[0] * 1e3:.0f} ms)")
+    if ("auto", "iv") in best and ("auto", "ls") in best:
+        print(f"  denominator iv / ls: window 30 {best[30, 'iv'][0] / best[30, 'ls'][0]:.2f}x, "
+              f"auto {best['auto', 'iv'][0] / best['auto', 'ls'][0]:.2f}x CPU")
     print(f"  load average {os.getloadavg()[0]:.1f} (2 cores shared: compare within the run)")
 
 
