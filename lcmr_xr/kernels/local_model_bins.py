@@ -768,7 +768,7 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
             c += 1
     rho_pow, shift, lead = _recurrence(n, p1)
     # inverse of the transient basis Gram sum_r rho^(c+c') (every experiment, every bin)
-    tinv = np.zeros((qt, qt))
+    tinv = np.empty((qt, qt))  # (written below when pooled; read only then)
     if pool is not None and qt > 0:
         tg = np.zeros((qt, 2 * qt), dtype=np.complex128)
         for t1 in range(qt):
@@ -803,8 +803,8 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
     wn = 2 * n + 1  # one experiment's window
     nan_c = complex(np.nan, np.nan)
     m = np.empty((q, q + nxw), dtype=np.complex128)
-    mr = np.zeros((q, q + nxw))  # m's real and imaginary planes for the Cholesky
-    mi = np.zeros((q, q + nxw))
+    mr = np.empty((q, q + nxw))  # m's real and imaginary planes for the Cholesky
+    mi = np.empty((q, q + nxw))
     piv_a = np.empty(q)
     rb_c = np.empty((4, q + nxw))
     # Y = L^-1 A~^H X transposed (nx, q) and v_i = Y_i delta_i (nz, q), real and imaginary
@@ -817,13 +817,13 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
     upow = np.empty((nz, rd1), dtype=np.complex128)
     ds = np.empty(q)
     xx = np.empty((nz, nz, rd1, rd1), dtype=np.complex128)
-    delta = np.zeros((nz, rd1), dtype=np.complex128)
+    delta = np.empty((nz, rd1), dtype=np.complex128)
     v = np.empty((nz, q), dtype=np.complex128)
     schur = np.empty((max(rd, 1), max(rd, 1)), dtype=np.complex128)
-    low = np.zeros((nz, max(rd, 1), max(rd, 1)), dtype=np.complex128)
-    perm = np.zeros((nz, max(rd, 1)), dtype=np.int64)
+    low = np.empty((nz, max(rd, 1), max(rd, 1)), dtype=np.complex128)
+    perm = np.empty((nz, max(rd, 1)), dtype=np.int64)
     spiv = np.empty(max(rd, 1))
-    rank = np.zeros(nz, dtype=np.int64)
+    rank = np.empty(nz, dtype=np.int64)
     tsc = np.empty((nz, max(rd, 1)))
     rhs = np.empty(max(rd, 1), dtype=np.complex128)
     dsol = np.empty(max(rd, 1), dtype=np.complex128)
@@ -1096,7 +1096,7 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
                 continue
 
         # ---- residual cross products e_i^H e_j = delta_i^H X_i^H X_j delta_j - v_i^H v_j
-        _gram_rows(vpr, vpi, 0, vv)
+        _gram_rows(vpr, vpi, np.int64(0), vv)  # (not the literal 0: one compiled _gram_rows)
         for i in range(nz):
             for j in range(i, nz):
                 acc = 0j
@@ -1138,40 +1138,49 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
         # elements interleave them, and the loops over the window then do not vectorise
         # (measured about 2x on these loops).
         # qh = Q_A^H = L^-1 A~^H (q, W) and the leverages lev(r) = ||Q_A(r, :)||^2
+        # (the loops over r read and write row views: an element of a view is one index,
+        # of the 2-D or 3-D array one per dimension, and numba's code for each index is
+        # what the first call compiles: less code, the same arithmetic)
         for a in range(q):
             sc = ds[a]
             pw = a_pow[a]
+            har = qhr[a]
+            hai = qhi[a]
             if pool is not None:  # stacked windows, each projected off its experiment's transient
                 _pooled_columns(rt, b, k, a_base[a], pw, sh[a], sc, rho_pow, tpow, wtx,
                                 crow)
                 for r in range(width):
-                    qhr[a, r] = crow[r].real
-                    qhi[a, r] = crow[r].imag
+                    har[r] = crow[r].real
+                    hai[r] = crow[r].imag
             elif a_base[a] < nr:
                 col = a_base[a]
                 for r in range(width):
                     w = sc * rho_pow[r, pw]
-                    qhr[a, r] = rt[b, k + r, col].real * w
-                    qhi[a, r] = -rt[b, k + r, col].imag * w
+                    har[r] = rt[b, k + r, col].real * w
+                    hai[r] = -rt[b, k + r, col].imag * w
             else:
                 for r in range(width):
-                    qhr[a, r] = sc * rho_pow[r, pw]
-                    qhi[a, r] = 0.0
+                    har[r] = sc * rho_pow[r, pw]
+                    hai[r] = 0.0
             for c in range(a):  # qh[a] -= conj(m[c, a]) qh[c]
                 fr = m[c, a].real
                 fi = -m[c, a].imag
+                hcr = qhr[c]
+                hci = qhi[c]
                 for r in range(width):
-                    qhr[a, r] -= fr * qhr[c, r] - fi * qhi[c, r]
-                    qhi[a, r] -= fr * qhi[c, r] + fi * qhr[c, r]
+                    har[r] -= fr * hcr[r] - fi * hci[r]
+                    hai[r] -= fr * hci[r] + fi * hcr[r]
             inv = 1.0 / m[a, a].real
             for r in range(width):
-                qhr[a, r] *= inv
-                qhi[a, r] *= inv
+                har[r] *= inv
+                hai[r] *= inv
         for r in range(width):
             lev[r] = 0.0
         for a in range(q):
+            har = qhr[a]
+            hai = qhi[a]
             for r in range(width):
-                lev[r] += qhr[a, r] ** 2 + qhi[a, r] ** 2
+                lev[r] += har[r] ** 2 + hai[r] ** 2
         if pool is not None:  # the eliminated transient columns' leverage, the same in every window
             for r in range(wn):
                 lt = 0.0
@@ -1181,12 +1190,14 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
                 for e in range(n_exp):
                     lev[e * wn + r] += lt
         for i in range(nz):
+            dr_i = dwr[i]
+            di_i = dwi[i]
             for r in range(width):
                 acc = delta[i, 0]
                 for s in range(1, rd1):
                     acc += delta[i, s] * rho_pow[r % wn, s]
-                dwr[i, r] = acc.real
-                dwi[i, r] = acc.imag
+                dr_i[r] = acc.real
+                di_i[r] = acc.imag
             rk = rank[i]
             c0 = i * rd1
             if iv is not None:
@@ -1204,33 +1215,39 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
             for j in range(rk):
                 s = perm[i, j]
                 f = -tsc[i, s]
+                ujr = umr[i, j]
+                uji = umi[i, j]
                 if pool is not None:
                     _pooled_d_column(zt, b, k, i, s + 1, q_all + c0 + s + 1, f, rho_pow,
                                      tpow, wtx, crow)
                     for r in range(width):
-                        umr[i, j, r] = crow[r].real
-                        umi[i, j, r] = crow[r].imag
+                        ujr[r] = crow[r].real
+                        uji[r] = crow[r].imag
                 else:
                     for r in range(width):
                         w = f * rho_pow[r, s + 1]
-                        umr[i, j, r] = w * zt[b, k + r, i].real
-                        umi[i, j, r] = w * zt[b, k + r, i].imag
+                        ujr[r] = w * zt[b, k + r, i].real
+                        uji[r] = w * zt[b, k + r, i].imag
                 for a in range(q):  # - Q_A Y~_B: Q_A(r, a) = conj(qh[a, r])
                     yr = ybk[a, j].real
                     yi = ybk[a, j].imag
+                    har = qhr[a]
+                    hai = qhi[a]
                     for r in range(width):
-                        umr[i, j, r] -= qhr[a, r] * yr + qhi[a, r] * yi
-                        umi[i, j, r] -= qhr[a, r] * yi - qhi[a, r] * yr
+                        ujr[r] -= har[r] * yr + hai[r] * yi
+                        uji[r] -= har[r] * yi - hai[r] * yr
                 for c in range(j):  # um[j] -= um[c] conj(low[j, c])
                     fr = low[i, j, c].real
                     fi = -low[i, j, c].imag
+                    ucr = umr[i, c]
+                    uci = umi[i, c]
                     for r in range(width):
-                        umr[i, j, r] -= umr[i, c, r] * fr - umi[i, c, r] * fi
-                        umi[i, j, r] -= umr[i, c, r] * fi + umi[i, c, r] * fr
+                        ujr[r] -= ucr[r] * fr - uci[r] * fi
+                        uji[r] -= ucr[r] * fi + uci[r] * fr
                 inv = 1.0 / low[i, j, j].real
                 for r in range(width):
-                    umr[i, j, r] *= inv
-                    umi[i, j, r] *= inv
+                    ujr[r] *= inv
+                    uji[r] *= inv
             # G rows of K_i^+: w_A = L^-1 e_g (non-zero on the trailing nr entries only),
             # w_B = -L_s^-1 Y~_B^H w_A; gain g~(r) = conj(Q_A w_A + U_i w_B)(r)
             for p in range(nr):
@@ -1244,12 +1261,16 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
                     for c in range(j):
                         acc -= low[i, j, c] * wb[c]
                     wb[j] = acc / low[i, j, j].real
+                hxr = hgr[x]
+                hxi = hgi[x]
                 for j in range(rk):  # += conj(um[j]) conj(wb[j])
                     fr = wb[j].real
                     fi = -wb[j].imag
+                    ujr = umr[i, j]
+                    uji = umi[i, j]
                     for r in range(width):
-                        hgr[x, r] += umr[i, j, r] * fr + umi[i, j, r] * fi
-                        hgi[x, r] += umr[i, j, r] * fi - umi[i, j, r] * fr
+                        hxr[r] += ujr[r] * fr + uji[r] * fi
+                        hxi[r] += ujr[r] * fi - uji[r] * fr
                 _gain_scale(hgr, hgi, x, ds[g], dwr[i], dwi[i])
         if iv is not None:  # the oblique residual projector's tau (_iv_tau)
             _iv_tau(rank, lev, dwr, dwi, umr, umi, ymr, ymi, ncr, nci, vmr, vmi, ehe, tau,
@@ -1258,23 +1279,36 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
         # weights 1 - lev - nu_i, and V_i = U_i conj(d_i), so that the trace term's
         # U_i^H diag(d_i conj(d_j)) U_j is V_i^H V_j
         for i in range(nz if iv is None else 0):
+            nu_i = nuv[i]
+            dr_i = dwr[i]
+            di_i = dwi[i]
             for r in range(width):
-                nuv[i, r] = 0.0
+                nu_i[r] = 0.0
             for s in range(rank[i]):
+                usr = umr[i, s]
+                usi = umi[i, s]
+                vsr = vmr[i, s]
+                vsi = vmi[i, s]
                 for r in range(width):
-                    ur = umr[i, s, r]
-                    ui = umi[i, s, r]
-                    nuv[i, r] += ur * ur + ui * ui
-                    vmr[i, s, r] = ur * dwr[i, r] + ui * dwi[i, r]
-                    vmi[i, s, r] = ui * dwr[i, r] - ur * dwi[i, r]
+                    ur = usr[r]
+                    ui = usi[r]
+                    nu_i[r] += ur * ur + ui * ui
+                    vsr[r] = ur * dr_i[r] + ui * di_i[r]
+                    vsi[r] = ui * dr_i[r] - ur * di_i[r]
         for i in range(nz if iv is None else 0):
+            nu_i = nuv[i]
+            dr_i = dwr[i]
+            di_i = dwi[i]
             for j in range(i, nz):
                 accr = 0.0
                 acci = 0.0
+                nu_j = nuv[j]
+                dr_j = dwr[j]
+                di_j = dwi[j]
                 for r in range(width):  # d_i conj(d_j) (1 - lev - nu_i - nu_j)
-                    wgt = 1.0 - lev[r] - nuv[i, r] - nuv[j, r]
-                    accr += (dwr[i, r] * dwr[j, r] + dwi[i, r] * dwi[j, r]) * wgt
-                    acci += (dwi[i, r] * dwr[j, r] - dwr[i, r] * dwi[j, r]) * wgt
+                    wgt = 1.0 - lev[r] - nu_i[r] - nu_j[r]
+                    accr += (dr_i[r] * dr_j[r] + di_i[r] * di_j[r]) * wgt
+                    acci += (di_i[r] * dr_j[r] - dr_i[r] * di_j[r]) * wgt
                 _tau_trace(complex(accr, acci), i, j, rank, umr, umi, vmr, vmi, ehe, tau,
                            scov)
         for i in range(nz):
@@ -1285,18 +1319,24 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
                 for p in range(nr):
                     acc_v = 0.0
                     x = i * nr + p
+                    hxr = hgr[x]
+                    hxi = hgi[x]
                     for r in range(width):
-                        acc_v += hgr[x, r] ** 2 + hgi[x, r] ** 2
+                        acc_v += hxr[r] ** 2 + hxi[r] ** 2
                     out_gvar[o, i, p] = acc_v * scov[i, i].real
             continue
         ng = nz * nr
         for x in range(ng):
+            hxr = hgr[x]
+            hxi = hgi[x]
             for y in range(x, ng):
                 accr = 0.0  # h_x conj(h_y)
                 acci = 0.0
+                hyr = hgr[y]
+                hyi = hgi[y]
                 for r in range(width):
-                    accr += hgr[x, r] * hgr[y, r] + hgi[x, r] * hgi[y, r]
-                    acci += hgi[x, r] * hgr[y, r] - hgr[x, r] * hgi[y, r]
+                    accr += hxr[r] * hyr[r] + hxi[r] * hyi[r]
+                    acci += hxi[r] * hyr[r] - hxr[r] * hyi[r]
                 acc = complex(accr, acci) * scov[x // nr, y // nr]
                 out_gcov[o, x, y] = acc
                 out_gcov[o, y, x] = acc.conjugate()
