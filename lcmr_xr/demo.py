@@ -16,7 +16,7 @@ import numpy as np
 import xarray as xr
 
 from lcmr_xr import conventions as cv
-from lcmr_xr.settings import DEFAULT_WINDOW
+from lcmr_xr.settings import DEFAULT_WINDOW, as_integer
 
 BUNDLED = "hdd_case2_N3600.nc"
 #: Files :func:`run_demo` writes into its output directory: the FRF, then the two plots.
@@ -214,6 +214,8 @@ def resonance_peaks(frf: xr.Dataset, truth: xr.DataArray, *, input: str = "pzt",
     Returns a list of ``(true_hz, estimated_hz)``: the estimate's peak is the largest
     ``|P_hat|`` within ``search_bins`` bins of the true peak.
     """
+    count = as_integer(count, "count", minimum=1, example=4)  # 2.5 is refused, not truncated
+    search_bins = as_integer(search_bins, "search_bins", minimum=0, example=3)
     f = frf[cv.FREQUENCY].values
     t = np.abs(truth.sel(input=input).isel(output=0).values)
     e = np.abs(frf.P.sel(input=input).isel(output=0).values)

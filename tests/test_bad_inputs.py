@@ -38,7 +38,7 @@ import xarray as xr
 import lcmr_xr
 import lcmr_xr.plot
 from lcmr_xr import cli, hdd
-from lcmr_xr.demo import band_table
+from lcmr_xr.demo import band_table, resonance_peaks
 from lcmr_xr.experiment import experiment, validate_experiment
 from lcmr_xr.io import open_dataset, open_experiment, open_frf, save
 from lcmr_xr.io._atomic import stale_temporaries, temporary_prefix
@@ -81,6 +81,8 @@ def template(tmp_path_factory, small, small_frf):
     save_archive(small, root / "arc1.nc")  # a consolidated archive (one file)
     shutil.copytree(root / "arc", root / "damagedarc")  # its first file's values damaged
     (root / "damagedarc" / "e0.nc").write_bytes(_damaged(root / "arc" / "e0.nc", "r"))
+    shutil.copytree(root / "arc", root / "damagedarc2")  # its second file's values damaged
+    (root / "damagedarc2" / "e1.nc").write_bytes(_damaged(root / "arc" / "e1.nc", "r"))
     (root / "junkarc").mkdir()
     shutil.copy2(root / "exp.nc", root / "junkarc" / "good.nc")
     (root / "junkarc" / "junk.nc").write_bytes(b"\x89HDF\r\n\x1a\n not really")
@@ -411,6 +413,14 @@ API = [
         ("factor=2.5", "2 lifting phases")),
     Case("dft_one_sided_text", lambda e: lcmr_xr.dft(e.small.r, one_sided="no"), TypeError,
          ("one_sided", "True or False")),
+    # NaN made every bin of the spectrum NaN, silently
+    Case("dft_nan_in_r", lambda e: lcmr_xr.dft(_with_nan(e.small, "r", (7, 1)).r), ValueError,
+         ("r contains 1 NaN or inf", "input='pzt'", "time = 6.94444e-05 s", "interpolate_na")),
+    Case("dft_inf_in_dataset", lambda e: lcmr_xr.dft(_with_nan(e.small, "y", (20, 0)).assign(
+        y=lambda d: d.y.where(d.y.notnull(), np.inf)), dim="slow_time"), ValueError,
+         ("y contains 1 NaN or inf", "output='position'", "indices 20..20")),
+    Case("dft_nan_lazy", lambda e: lcmr_xr.dft(_with_nan(e.small, "u", (30, 0), {"input": 1}).u).compute(),
+         ValueError, ("u contains 1 NaN or inf", "dask block", "indices 30..30", "interpolate_na")),
     # --- simulate_closed_loop: the factor was truncated (2.5 simulated F = 2), flags coerced ---
     Case("simulate_closed_loop_factor_fractional", lambda e: lcmr_xr.simulate_closed_loop(
         *_toy_loop(), 2.5, xr.DataArray(np.ones((8, 1)), dims=("time", "input"))), ValueError,
@@ -461,6 +471,15 @@ API = [
         e.frf, hdd.true_frf(e.frf.frequency[1:]).reindex(frequency=e.frf.frequency), bands=[(5000, 500)]),
         ValueError, ("0 <= f_lo < f_hi",)),
     Case("band_table_experiment", lambda e: band_table(e.small, e.frf.P), TypeError, ("FRF dataset", "without P")),
+    # 2.5 peaks failed inside Python's slicing ("slice indices must be integers")
+    Case("resonance_peaks_count_fractional", lambda e: resonance_peaks(
+        e.frf, hdd.true_frf(e.frf.frequency[1:]).reindex(frequency=e.frf.frequency), count=2.5),
+        ValueError, ("count", "2.5", "not rounded")),
+    Case("resonance_peaks_search_bins_text", lambda e: resonance_peaks(
+        e.frf, hdd.true_frf(e.frf.frequency[1:]).reindex(frequency=e.frf.frequency), search_bins="3"),
+        TypeError, ("search_bins", "'3'")),
+    Case("true_frf_frequency_nan", lambda e: hdd.true_frf([1000.0, np.nan]), ValueError,
+         ("frequency", "NaN or inf", "drop them")),
     # --- identify() ------------------------------------------------------------------------
     Case("identify_dataarray", lambda e: lcmr_xr.identify(e.small.r), TypeError, ("experiment xarray.Dataset",)),
     Case("method_unknown", lambda e: _identify12(e.small, method="lsq"), ValueError, ("method", "'lsq'")),
@@ -525,6 +544,11 @@ API = [
     Case("open_missing", lambda e: open_experiment("nothing.nc"), FileNotFoundError, ("nothing.nc",)),
     # damaged stored values (header intact) are refused, not read back as other numbers
     Case("open_damaged_values", lambda e: open_experiment("damaged.nc"), ValueError, ("damaged.nc", "corrupt")),
+    # lazily: h5py's message at compute time, without the file's name
+    Case("open_lazy_damaged_values", lambda e: open_dataset("damaged.nc", chunks={"time": 100}).r.values,
+         ValueError, ("cannot read damaged.nc", "corrupt", "Restore it from a copy")),
+    Case("open_experiment_lazy_damaged_values", lambda e: open_experiment("damaged.nc", chunks={}), ValueError,
+         ("cannot read damaged.nc", "corrupt"), absent=("damaged.nc: cannot",)),
     # a bad chunks argument is not reported as a damaged file
     Case("open_chunks_fractional", lambda e: open_frf("frf.nc", chunks={"frequency": 2.5}), ValueError,
          ("chunks", "2.5", "whole number"), absent=("not a valid NetCDF",)),
@@ -553,6 +577,18 @@ API = [
     Case("archive_empty", lambda e: open_archive("empty"), FileNotFoundError, ("holds no .nc",)),
     Case("archive_first_file_damaged", lambda e: open_archive("damagedarc"), ValueError,
          ("damagedarc/e0.nc", "damaged", "move it out")),
+    # a later file's damaged values failed at compute time with h5py's message (no file
+    # name), and aborted a sweep: now the file is named with the remedy, a sweep flags it
+    Case("archive_second_file_damaged_compute", lambda e: open_archive("damagedarc2").compute(), ValueError,
+         ("damagedarc2/e1.nc is damaged", "cannot be read", "Restore it from a copy", "move it out")),
+    Case("archive_second_file_damaged_lazy", lambda e: open_archive("damagedarc2", chunks={"experiment": 1}).r.values,
+         ValueError, ("damagedarc2/e1.nc is damaged", "Restore it from a copy")),
+    Case("archive_second_file_damaged_consolidate", lambda e: consolidate_archive("damagedarc2", "all.nc"),
+         ValueError, ("damagedarc2/e1.nc is damaged",)),
+    Case("archive_second_file_damaged_sweep", lambda e: sweep(open_archive("damagedarc2"), window=[12],
+                                                              degrees=["2-2-2"]).compute(),
+         check=_flagged_experiment(1, ("experiment 'e1' (file damagedarc2/e1.nc)", "is damaged",
+                                       "Restore it from a copy"))),
     Case("archive_with_junk_file", lambda e: open_archive("junkarc"), ValueError, ("junkarc/junk.nc", "not a readable NetCDF",
                                                                         "move it out")),
     Case("archive_with_foreign_file", lambda e: open_archive("forarc"), ValueError, ("cf.nc", "not an lcmr-xr-1 experiment")),
@@ -770,6 +806,19 @@ def test_catalogue_size():
     """The catalogue covers the issue's ~90 bad inputs (API, CLI and files)."""
     assert len(API) + len(CLI) >= 90
     assert len({c.id for c in API + CLI}) == len(API) + len(CLI)
+
+
+def test_sweep_to_disk_flags_a_damaged_file_and_goes_on(workdir, small):
+    """A task reading a damaged file failed, and with it ``sweep_to_disk`` (the command
+    line's sweep): now that experiment is NaN and flagged, naming the file, the others
+    identified; the archive is left as it was."""
+    before = snapshot(workdir / "damagedarc2")
+    sweep_to_disk(open_archive("damagedarc2"), "out.nc", window=[12], degrees=["2-2-2"],
+                  experiments_per_task=2)
+    result = open_dataset("out.nc")
+    _flagged_experiment(1, ("damagedarc2/e1.nc is damaged", "Restore it from a copy"))(
+        result, Env(small, None, {}, None))
+    assert snapshot(workdir / "damagedarc2") == before
 
 
 # ----------------------------------------------------------- interrupted writes (15.5)

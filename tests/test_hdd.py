@@ -110,6 +110,33 @@ def test_true_frf_labels_and_units():
         hdd.true_frf([0.0], case=10)
 
 
+def test_true_frf_at_negative_and_aliased_frequencies():
+    """A real system: P(-f) = conj(P(f)), and P(f + 1/Th) = P(f) (the discrete-time FRF is
+    periodic); both against C (zI - A)^-1 B + D solved directly at z = exp(2j pi f Th)."""
+    f = np.array([-44400.0, -1000.0, -20.0, 20.0, 1000.0, 44400.0, 1 / TH - 1000.0])
+    P = hdd.true_frf(f).values
+    np.testing.assert_allclose(P[:3], np.conj(P[[5, 4, 3]]), rtol=1e-12)
+    np.testing.assert_allclose(P[-1], P[1], rtol=1e-9)
+    for column, sys in enumerate((hdd.vcm_plant(), hdd.pzt_plant())):
+        for i, fi in enumerate(f):
+            z = np.exp(2j * np.pi * fi * TH)
+            want = sys.C @ np.linalg.solve(z * np.eye(sys.A.shape[0]) - sys.A, sys.B) + sys.D
+            np.testing.assert_allclose(P[i, :, column], want[:, 0], rtol=1e-9)
+
+
+@pytest.mark.parametrize("bad, error, words", [
+    ([1000.0, np.nan], ValueError, ("1 NaN or inf value(s) of 2", "index 1", "drop them")),
+    (xr.DataArray([np.inf, 1.0], dims="frequency"), ValueError, ("NaN or inf", "index 0")),
+    (["1000"], TypeError, ("real numbers in Hz",)),
+    ([1000j], TypeError, ("real numbers in Hz",)),
+])
+def test_true_frf_refuses_nan_and_non_numbers(bad, error, words):
+    with pytest.raises(error) as info:
+        hdd.true_frf(bad)
+    for word in words:
+        assert word in str(info.value), str(info.value)
+
+
 # ----------------------------------------------------------------------------- control
 
 

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import reprlib
+
 import numpy as np
 import xarray as xr
 
@@ -43,6 +45,26 @@ def _check_disturbances(disturbances, noise) -> tuple[str, ...]:
     return tuple(d for d in DISTURBANCES if d in names)
 
 
+def _frequencies(frequency) -> np.ndarray:
+    """``frequency`` (array_like or DataArray, Hz) as a flat float array; NaN, inf, text refused."""
+    values = frequency.values if isinstance(frequency, xr.DataArray) else frequency
+    try:
+        f = np.asarray(values)
+        if f.dtype.kind not in "iuf":
+            raise TypeError
+        f = f.astype(float).ravel()
+    except (TypeError, ValueError):
+        raise TypeError(f"frequency must be real numbers in Hz, got {reprlib.repr(values)}; pass e.g. "
+                        f"frf.frequency or np.linspace(0, 50400, 100).") from None
+    bad = ~np.isfinite(f)
+    if bad.any():
+        raise ValueError(f"frequency holds {int(bad.sum())} NaN or inf value(s) of {f.size} (first at "
+                         f"index {int(np.flatnonzero(bad)[0])}); the FRF is only defined at finite "
+                         f"frequencies: drop them first, e.g. f[np.isfinite(f)] or "
+                         f"frequency.dropna('frequency').")
+    return f
+
+
 def true_frf(frequency, case: int = 2) -> xr.DataArray:
     """Exact fast-rate FRF of the ZOH-discretised HDD plant ``[Pv, Pp]`` at given frequencies.
 
@@ -59,7 +81,15 @@ def true_frf(frequency, case: int = 2) -> xr.DataArray:
         Complex, dims (``frequency``, ``output``, ``input``), inputs ``"vcm"``, ``"pzt"``,
         output ``"position"``, units ``"m"`` per input unit; evaluated at
         ``z = exp(2j pi f Th)`` from the state space.  The VCM column is ``inf`` at 0 Hz
-        (rigid-body double integrator).
+        (rigid-body double integrator).  Negative frequencies give the complex conjugates
+        (a real system), frequencies beyond the Nyquist frequency those ``1 / Th`` lower.
+
+    Raises
+    ------
+    TypeError
+        ``frequency`` is not real numbers (text, complex).
+    ValueError
+        ``frequency`` holds NaN or inf; ``case`` is not one of 1..9.
 
     Examples
     --------
@@ -67,8 +97,7 @@ def true_frf(frequency, case: int = 2) -> xr.DataArray:
     >>> round(float(P.sel(input="pzt").real[0, 0]), 12)
     1.05
     """
-    f = np.asarray(frequency.values if isinstance(frequency, xr.DataArray) else frequency,
-                   dtype=float).ravel()
+    f = _frequencies(frequency)
     case = check_case(case)
     # one column per actuator, so the VCM's pole at DC (inf) leaves the PZT column finite
     values = np.concatenate([frequency_response(vcm_plant(case), f),

@@ -265,8 +265,63 @@ def open_dataset(path, chunks=None) -> xr.Dataset:
             f"format): {err}. Re-create it with lcmr_xr.save."
         ) from err
     out = _map_attrs(ds, lambda owner, attrs: _restore_attrs(attrs))
+    if chunks is not None:
+        out = _named_reads(out, path)
     out.set_close(ds.close)  # the copy's close() releases the file (lazy reads keep it open)
     return out
+
+
+class _Corrupt(ValueError):
+    """Stored values of a file that cannot be read (the message names the file)."""
+
+
+class _NamedRead:
+    """The array a lazy variable's dask tasks read (``array[key]``), whose read errors name
+    the file: HDF5's own message (a failed checksum) does not."""
+
+    __slots__ = ("array", "path")
+
+    def __init__(self, array, path):
+        self.array, self.path = array, path
+
+    shape = property(lambda self: self.array.shape)
+    dtype = property(lambda self: self.array.dtype)
+    ndim = property(lambda self: self.array.ndim)
+
+    def __getitem__(self, key):
+        try:
+            return np.asarray(self.array[key])
+        except OSError as err:
+            raise _Corrupt(
+                f"cannot read {self.path}: its stored values are corrupt (HDF5: {err}; a bad sector, "
+                "a bit flip, an incomplete copy). Restore it from a copy, or re-create it with "
+                "lcmr_xr.save.") from err
+
+
+def _named_reads(ds: xr.Dataset, path) -> xr.Dataset:
+    """``ds`` (lazy) whose reads of ``path`` name the file when they fail: the array each
+    variable's graph reads from (dask's ``original-`` layer of ``from_array``) wrapped in
+    :class:`_NamedRead`; the keys and values are the same."""
+    from dask.highlevelgraph import HighLevelGraph, MaterializedLayer
+
+    out = {}
+    for name, var in ds.variables.items():
+        if var.chunks is None:
+            continue
+        graph = var.data.__dask_graph__()
+        layers = dict(graph.layers)
+        for key, layer in graph.layers.items():
+            if key.startswith("original-") and len(layer) == 1:
+                (k, array), = layer.items()
+                if hasattr(array, "shape") and hasattr(array, "__getitem__"):
+                    layers[key] = MaterializedLayer({k: _NamedRead(array, path)})
+        if layers != dict(graph.layers):
+            import dask.array as da
+
+            data = da.Array(HighLevelGraph(layers, graph.dependencies), var.data.name,
+                            var.data.chunks, meta=var.data._meta)
+            out[name] = var.copy(data=data)
+    return ds.assign(out) if out else ds
 
 
 def _is_chunk_size(value) -> bool:
@@ -372,6 +427,8 @@ def open_experiment(path, chunks=None, **mat_options) -> xr.Dataset:
     _check_conventions(ds, path, "experiment")
     try:
         return validate_experiment(ds)
+    except _Corrupt:  # lazy data read by the check: named already
+        raise
     except ValueError as err:
         raise ValueError(f"{path}: {err}") from err
 

@@ -700,7 +700,10 @@ def _save_files(items, first, directory: Path, overwrite: bool, add_only: bool =
     directory's open refuses the archive unless every file agrees with it), the files
     replaced are checked themselves, and the next order index comes from the index
     (:mod:`lcmr_xr.scaleout.dirindex`: the base's order column and the journal's file
-    names), whose journal gets one file for the new ones.
+    names), whose journal gets one file for the new ones; only when the directory changed
+    after the journal (a writer died between its file and its journal file; the first
+    write after a compaction) are its names listed, for the orders of the files the
+    index does not list (:func:`_unindexed_orders`).
     Without an index (or with one of an older version) the index is built first, as
     :func:`index_archive` does (reading the headers of the files it does not list).
     """
@@ -793,7 +796,8 @@ def _save_files(items, first, directory: Path, overwrite: bool, add_only: bool =
         rows.append((name, dirindex.stamp(st), dirindex.summary_text(_summary(header)), start + i))
         if not settled:
             unsettled.add(name)
-    written.due = _index_new_files(directory, rows, facts, len(journal), unsettled)
+    written.due = _index_new_files(directory, rows, facts, dirindex.journal_count(journal, facts),
+                                   unsettled)
     return written
 
 
@@ -822,12 +826,47 @@ def _warn_newer(directory: Path, version) -> None:
 
 def _next_order(journal, facts, directory: Path) -> int:
     """The order index of the next experiment written into the directory: after the
-    largest of the base's and the journal's (read under the directory's write lock)."""
+    largest of the base's and the journal's (read under the directory's write lock), and
+    of the files the index does not list when the directory changed after the index was
+    last written (:func:`_unindexed_orders`)."""
     orders = [o for o in (facts.top, dirindex.journal_max_order(journal)) if o is not None]
     if facts.newer is not None and not facts.ordered:  # a newer base without orders we know
         orders += [o for o in (dirx.order_index(directory / n, directory)
                                for n in _nc_names(directory)) if o is not None]
+    else:
+        orders += _unindexed_orders(directory)
     return max(orders) + 1 if orders else 0
+
+
+def _unindexed_orders(directory: Path) -> list[int]:
+    """The orders of the directory's files that its index does not list: a writer that
+    died after moving its file into place and before writing its journal file left one
+    (the next write must not take its order again), as may another tool.
+
+    Looked for only when the directory changed after the journal directory did (its
+    modification time not older: a file moved in, or the index's base rewritten, after
+    the last journal file was written or removed); every complete write of this library
+    ends in the journal directory, so an append after a complete one costs two ``stat``
+    calls; otherwise the names are listed, the index read and the order attribute of the
+    files it does not list read.  A file whose order cannot be read is left to the
+    checks of the write and of the open."""
+    try:
+        if os.stat(directory).st_mtime_ns < os.stat(directory / dirindex.JOURNAL_NAME).st_mtime_ns:
+            return []
+    except OSError:
+        pass
+    index = dirindex.read_index(directory, warn=False) or {}
+    orders = []
+    for name in _nc_names(directory):
+        if name in index:
+            continue
+        try:
+            order = dirx.order_index(directory / name, directory)
+        except (OSError, ValueError):
+            continue
+        if order is not None:
+            orders.append(order)
+    return orders
 
 
 def _next_position(directory: Path) -> tuple[int, bool]:
@@ -951,10 +990,8 @@ def _index_new_files(directory: Path, rows: list, known, journal: int, unsettled
 
 def _index_not_written(directory: Path, err) -> None:
     warnings.warn(f"the archive index of {directory} was not written ({err}); the archive "
-                  "is complete but opens from the headers of the new files (slower), and the "
-                  "next write does not see their archive order (it may take it again: an "
-                  "unlabelled append is then refused as 'already in', labelled files share "
-                  "an order and are ordered by name) until "
+                  "is complete but opens from the headers of the new files, and the next "
+                  "write reads their archive order from them (slower), until "
                   "lcmr_xr.scaleout.index_archive(directory) writes it.", RuntimeWarning,
                   stacklevel=5)
 
@@ -1017,7 +1054,8 @@ def _compact(directory: Path, blocking: bool, verify: bool = False,
                     hot.append(len(rows))  # changed in the tick of its read: read again
             rows.append((name, dirindex.stamp(st), text, dirx.order_value(order, directory / name)))
         unsettled = _settle(directory, rows, hot)
-        out = dirindex.write_index(directory, rows, unsettled)
+        left = set(journal) - set(report["folded"]) - set(report["damaged"])
+        out = dirindex.write_index(directory, rows, unsettled, kept=left)
         dirindex.remove_journal(directory, report["folded"])
         dirindex.set_aside(directory, report["damaged"])
         return out

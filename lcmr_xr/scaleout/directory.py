@@ -15,7 +15,10 @@ for all its variables), decoded like
 xarray decodes them.  The first file (opened once with xarray) is the template of names,
 coordinates, attributes and encodings; the header pass refuses a file that differs from
 it in variables, shapes or on-disk types, and a task refuses, naming the file, one that
-changed after the archive was opened (another variable, shape, type, dims or encoding).
+changed after the archive was opened (another variable, shape, type, dims or encoding),
+and one whose values HDF5 cannot read (:class:`DamagedFile`: a checksum or filter fails;
+the header pass reads only headers).  A sweep reads instead NaN for such a file
+(:func:`reading_damaged_as_nan`) and flags its experiment, saying why (:func:`damage`).
 
 Attribute values are converted as h5netcdf and xarray convert them (fixed-length strings
 decoded, one-element arrays unwrapped, bytes decoded) and then restored as
@@ -36,7 +39,7 @@ import xarray as xr
 from lcmr_xr import conventions as cv
 
 # The functions below serve lcmr_xr.scaleout.archive (the public API); only these are public.
-__all__ = ["StructureError", "read_header", "read_files"]
+__all__ = ["StructureError", "DamagedFile", "read_header", "read_files", "damage"]
 
 #: Attributes that the netCDF library keeps for itself (h5netcdf hides them too).
 _HIDDEN = frozenset(["REFERENCE_LIST", "CLASS", "DIMENSION_LIST", "NAME", "_Netcdf4Dimid",
@@ -50,6 +53,44 @@ _DIMS = (cv.TIME, cv.SLOW_TIME, cv.INPUT, cv.OUTPUT)
 
 class StructureError(ValueError):
     """A file of a directory archive differs in structure from the archive's first file."""
+
+
+class DamagedFile(ValueError):
+    """The stored values of a file of a directory archive cannot be read (its header can)."""
+
+
+def _damaged_message(path, err) -> str:
+    return (f"{path} is damaged: its stored values cannot be read (HDF5: {err}; a bad sector, "
+            "a bit flip, an incomplete copy). Restore it from a copy, or move it out of the "
+            "archive directory and reopen the archive (a sweep flags its experiment in "
+            "experiment_error and goes on).")
+
+
+def damage(path) -> str | None:
+    """Why the stored values of a file cannot be read: what a sweep says of an experiment
+    whose file a task could not read.
+
+    Parameters
+    ----------
+    path : pathlib.Path or str
+        A file of an archive directory.
+
+    Returns
+    -------
+    str or None
+        The message (the file, HDF5's reason, what to do), or None when every variable
+        of the file reads.
+    """
+    import h5py
+
+    try:
+        with _open(path) as f:
+            for obj in f.values():
+                if isinstance(obj, h5py.Dataset):
+                    _read(obj.id)
+    except OSError as err:
+        return _damaged_message(path, err)
+    return None
 
 
 # ------------------------------------------------------------------ low-level reads
@@ -434,7 +475,11 @@ def _read_from(fid, path, name: str, spec: dict) -> np.ndarray:
     return out
 
 
-def read_files(paths: tuple, specs: dict) -> dict:
+#: Name prefix of the dask layer whose tasks call :func:`read_files` (see :func:`lazy_signals`).
+READ_LAYER = "archive-read-"
+
+
+def read_files(paths: tuple, specs: dict, damaged: str = "raise") -> dict:
     """The variables of several files, each stacked along a new leading axis (one dask task).
 
     Each file is opened once for all its variables.
@@ -447,6 +492,10 @@ def read_files(paths: tuple, specs: dict) -> dict:
         ``{name: spec}``: what each variable must be like (from the archive's first file,
         see :func:`lazy_signals`): ``shape``, ``raw_dtype``, ``dims``, ``encoding`` (the
         attributes that decide the decoding), ``dtype`` (decoded), ``first`` (its path).
+    damaged : {"raise", "nan"}, default "raise"
+        A file whose values cannot be read (damaged: HDF5's checksum or filter fails):
+        :class:`DamagedFile` naming it, or (``"nan"``, the sweep's reads) its floating-point
+        variables NaN, for the sweep to flag its experiment (:func:`damage` says why).
 
     Returns
     -------
@@ -459,17 +508,67 @@ def read_files(paths: tuple, specs: dict) -> dict:
     StructureError
         A file lacks a variable or stores it otherwise (type, shape, dims, encoding) than
         the first file did when the archive was opened; the message names the file.
+    DamagedFile
+        A file's values cannot be read (with ``damaged="nan"``: only a variable that is not
+        floating point); the message names the file and what to do.
     """
     out = {name: np.empty((len(paths),) + tuple(spec["shape"]), dtype=spec["dtype"])
            for name, spec in specs.items()}
+
+    def unreadable(name, i, path, err):
+        if damaged == "raise" or out[name].dtype.kind not in "fc":
+            raise DamagedFile(_damaged_message(path, err)) from err
+        out[name][i] = np.nan
+
     for i, path in enumerate(paths):
-        fid = _open_for_reading(path)
+        try:
+            fid = _open_for_reading(path)
+        except StructureError as err:  # no longer a readable HDF5 file at all
+            if damaged == "raise":
+                raise
+            for name in specs:
+                unreadable(name, i, path, err.__cause__ or err)
+            continue
         try:
             for name, spec in specs.items():
-                out[name][i] = _read_from(fid, path, name, spec)
+                try:
+                    out[name][i] = _read_from(fid, path, name, spec)
+                except OSError as err:  # HDF5 cannot read the stored values (checksum, filter)
+                    unreadable(name, i, path, err)
         finally:
             fid.close()
     return out
+
+
+def reading_damaged_as_nan(array):
+    """``array`` (dask) whose reads of archive files (:func:`read_files`) give NaN for a
+    damaged file instead of failing: for a computation that treats NaN as a failed
+    experiment and says why (the sweep, :func:`damage`).
+
+    The keys are the same (a renamed read layer would need every layer above it renamed):
+    computed in ONE ``dask.compute`` with other uses of the same lazy data, a damaged file
+    may be read either way for both (an error naming it, or NaN).  Undamaged files read
+    the same values either way.
+    """
+    from dask.highlevelgraph import HighLevelGraph, MaterializedLayer
+
+    graph = array.__dask_graph__()
+    layers, changed = dict(graph.layers), False
+    for name, layer in graph.layers.items():
+        if not name.startswith(READ_LAYER):
+            continue
+        tasks = dict(layer)
+        for key, task in tasks.items():
+            if type(task) is tuple and len(task) == 3 and task[0] is read_files:
+                tasks[key] = (read_files, task[1], task[2], "nan")
+                changed = True
+        layers[name] = MaterializedLayer(tasks)
+    if not changed:
+        return array
+    import dask.array as da
+
+    return da.Array(HighLevelGraph(layers, graph.dependencies), array.name, array.chunks,
+                    meta=array._meta)
 
 
 def variable_spec(first: Path, name: str, template: xr.Variable) -> dict:
@@ -507,7 +606,7 @@ def lazy_signals(files: list[Path], template: xr.Dataset, per_chunk: int, stamps
         stamps = [stamp(os.stat(p)) for p in files]
     specs = {name: variable_spec(files[0], name, var.variable) for name, var in template.data_vars.items()}
     token = tokenize(groups, sorted((n, s["shape"], str(s["dtype"])) for n, s in specs.items()), stamps)
-    load = f"archive-read-{token}"  # one task per group of files reads all their variables
+    load = f"{READ_LAYER}{token}"  # one task per group of files reads all their variables
     loads = {(load, g): (read_files, paths, specs) for g, paths in enumerate(groups)}
     out = {}
     for name, var in template.data_vars.items():

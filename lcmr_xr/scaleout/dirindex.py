@@ -21,7 +21,9 @@ journal (:data:`JOURNAL_NAME`)
     holds.  A compaction folds the journal files it read into a new base and then
     removes them; one holding more than :func:`compaction_due` allows triggers one.  It
     never removes a journal file it could not read: one of a newer version is left as
-    it is, a damaged one set aside (:func:`set_aside`, renamed ``NAME.json.unreadable``).
+    it is (named in the base's :data:`KEPT_ATTR`: it does not count towards the next
+    compaction), a damaged one set aside (:func:`set_aside`, renamed
+    ``NAME.json.unreadable``: no longer a journal file).
 
 Opening lists and stats the files; a file whose name, size, times and inode match an
 entry (of the journal or of the base) takes its summary from it, any other file (added by
@@ -68,6 +70,7 @@ import contextlib
 import hashlib
 import json
 import os
+import threading
 import time
 import warnings
 from pathlib import Path
@@ -94,6 +97,10 @@ JOURNAL_UNVERSIONED = 3
 JOURNAL_FILES = 128
 #: A write of this many files or more compacts at once (the base takes them in one go).
 BULK_ROWS = 64
+#: Base attribute: JSON list of the journal files that the compaction which wrote the base
+#: listed and left (of a newer version, or unreadable for a reason of the file system):
+#: they do not count towards the next compaction (:func:`journal_count`).
+KEPT_ATTR = "lcmr_archive_index_journal_kept"
 #: File attribute marking an index, and its version (an index of another version is ignored).
 INDEX_ATTR = cv.ARCHIVE_INDEX_VERSION_ATTR
 #: Raise it whenever what a summary holds or how it is computed changes (digests included):
@@ -359,9 +366,10 @@ def _integers(values, column: str) -> np.ndarray:
 class BaseFacts:
     """What a writer needs of the base (see :func:`base_facts`)."""
 
-    def __init__(self, base=False, ordered=False, base_rows=0, top=None, first=None, newer=None):
+    def __init__(self, base=False, ordered=False, base_rows=0, top=None, first=None, newer=None,
+                 kept=frozenset()):
         self.base, self.ordered, self.base_rows, self.top = base, ordered, base_rows, top
-        self.first, self.newer = first, newer
+        self.first, self.newer, self.kept = first, newer, kept
 
 
 def newer(version) -> bool:
@@ -417,12 +425,32 @@ def base_facts(directory: Path) -> BaseFacts:
                 return BaseFacts(True, False, rows)
             orders = _integers(f["order"][()], "order")
             first = f["name"].asstr()[0] if rows else None
+            kept = _kept(f.attrs.get(KEPT_ATTR))
     except (OSError, KeyError, ValueError, TypeError):
         return BaseFacts()
     if first is not None and not plain_name(first):  # never a file outside the directory
         first = None
     top = int(orders.max()) if orders.size and orders.max() >= 0 else None
-    return BaseFacts(True, True, rows, top, first)
+    return BaseFacts(True, True, rows, top, first, kept=kept)
+
+
+def _kept(value) -> frozenset:
+    """The journal file names of a base's :data:`KEPT_ATTR` (none when absent or malformed:
+    they then count, as before the attribute was written)."""
+    if isinstance(value, bytes):
+        value = value.decode("utf-8", "replace")
+    try:
+        names = json.loads(value) if isinstance(value, str) else []
+    except ValueError:
+        return frozenset()
+    return frozenset(n for n in names if type(n) is str) if type(names) is list else frozenset()
+
+
+def journal_count(journal: list[str], facts: BaseFacts) -> int:
+    """How many of the journal files ``journal`` a compaction would fold in: those that the
+    compaction which wrote the base left (``facts.kept``: of a newer version) do not count,
+    or with more than :data:`JOURNAL_FILES` of them every write would compact."""
+    return len(journal) - len(facts.kept.intersection(journal)) if facts.kept else len(journal)
 
 
 def _newer_facts(f, version) -> BaseFacts:
@@ -532,10 +560,12 @@ def _written_after(tmp: str, rows, unsettled=()) -> None:
         os.utime(tmp)
 
 
-def write_index(directory: Path, rows: list[tuple[str, tuple, str, int]], unsettled=()) -> Path:
+def write_index(directory: Path, rows: list[tuple[str, tuple, str, int]], unsettled=(),
+                kept=()) -> Path:
     """Write the base of the index of ``directory`` atomically from
     ``[(name, stamp, summary text, order)]`` (order -1: the file has none; ``unsettled``:
-    the names whose entries must not be trusted, see :func:`_written_after`)."""
+    the names whose entries must not be trusted, see :func:`_written_after`; ``kept``: the
+    journal files the compaction leaves, :data:`KEPT_ATTR`)."""
     import h5netcdf
     import h5py
 
@@ -547,6 +577,8 @@ def write_index(directory: Path, rows: list[tuple[str, tuple, str, int]], unsett
     def write(tmp):
         with h5netcdf.File(tmp, "w") as f:
             f.attrs[INDEX_ATTR] = np.int64(VERSION)
+            if kept:
+                f.attrs[KEPT_ATTR] = json.dumps(sorted(kept))
             f.attrs["title"] = ("header index of an lcmr-xr archive directory (lcmr_xr.scaleout."
                                 "dirindex); safe to delete, rebuilt by the library's writers")
             f.dimensions = {"file": len(rows)}
@@ -683,14 +715,18 @@ def set_aside(directory: Path, names: list[str]) -> None:
 
 
 def compaction_due(index: Index | BaseFacts | None, journal: int, new_rows: int) -> bool:
-    """Whether a write that added ``new_rows`` entries, with ``journal`` journal files now,
-    compacts: no base of this version, a base without the orders, a bulk write, or a
-    journal grown past :data:`JOURNAL_FILES` (or a sixteenth of the base's entries)."""
+    """Whether a write that added ``new_rows`` entries, with ``journal`` journal files now
+    (that a compaction would fold in: :func:`journal_count`), compacts: no base of this
+    version, a base without the orders, a bulk write, or a journal grown past
+    :data:`JOURNAL_FILES` (or a sixteenth of the base's entries)."""
     if getattr(index, "newer", None) is not None:  # never rewritten by this version
         return False
     if index is None or not index.base or not index.ordered:
         return True
     return new_rows >= BULK_ROWS or journal > max(JOURNAL_FILES, index.base_rows // 16)
+
+
+_held = threading.local()  # {(st_dev, st_ino) of a directory: depth} of this thread's write locks
 
 
 @contextlib.contextmanager
@@ -699,8 +735,31 @@ def write_lock(directory: Path):
     itself), waiting for it: a writer holds it from reading the next archive order (and
     whether its files exist) until its journal file lists its files, so two writers never
     take one order or replace each other's new file.  Where locks are not available it
-    proceeds without one (see the module notes)."""
+    proceeds without one (see the module notes).
+
+    Re-entrant within a thread: a thread that holds the lock of a directory (the same
+    directory however spelled: its device and inode) and takes it again, e.g. a tool
+    that calls :func:`lcmr_xr.scaleout.save_archive` inside ``write_lock``, goes on
+    holding it (a second ``flock`` of the same process on another descriptor would wait
+    for itself forever); the lock is released when the outermost ``with`` ends.  Other
+    threads and processes wait for it as before.
+    """
+    try:
+        st = os.stat(directory)
+        key = (st.st_dev, st.st_ino)
+    except OSError:
+        key = None
+    depths = _held.__dict__.setdefault("depths", {})
+    if key is not None and depths.get(key):
+        depths[key] += 1
+        try:
+            yield
+        finally:
+            depths[key] -= 1
+        return
     fd = _open_to_lock(Path(directory))
+    if key is not None:
+        depths[key] = 1
     try:
         if fd is not None:
             try:
@@ -711,6 +770,8 @@ def write_lock(directory: Path):
                 pass
         yield  # outside any except clause: the writer's errors are not chained to the lock's
     finally:
+        if key is not None:
+            depths.pop(key, None)
         if fd is not None:
             os.close(fd)  # releases the lock
 

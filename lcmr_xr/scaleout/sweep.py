@@ -117,7 +117,18 @@ def _chunked(ds: xr.Dataset, per_task: int | None = None) -> xr.Dataset:
             chunks[d] = -1
         else:  # spelled out, so that numpy coords along d (metadata) get the same chunks
             chunks[d] = ds["r"].chunks[ds["r"].get_axis_num(d)]
-    return ds.chunk(chunks)
+    return _damaged_files_flagged(ds.chunk(chunks))
+
+
+def _damaged_files_flagged(ds: xr.Dataset) -> xr.Dataset:
+    """``ds`` whose reads of a directory archive's files give NaN for a damaged file (one
+    whose values HDF5 cannot read), so that its experiment is flagged with the reason
+    (:func:`_identify_or_flag`) instead of the task failing and the sweep with it."""
+    from lcmr_xr.scaleout.directory import reading_damaged_as_nan
+
+    out = {name: var.copy(data=reading_damaged_as_nan(var.data)) for name, var in ds.data_vars.items()
+           if var.chunks is not None}
+    return ds.assign(out) if out else ds
 
 
 def _pools(pool, ds: xr.Dataset):
@@ -400,27 +411,43 @@ def _identify_or_flag(one: xr.Dataset, source, settings) -> xr.Dataset:
         res = identify(one, errors="ignore", **settings)
         message = ""
     except ValueError as err:
-        message = f"{_where(one, source)}: {err}"
+        message = f"{_where(one, source)}: {_damage(one, source) or err}"
         res = _failed_result(one, settings)
     return res.assign({ERROR_VAR: (tuple(lead), np.full(shape, message, dtype=object), ERROR_ATTRS)})
 
 
-def _where(one: xr.Dataset, source) -> str:
-    """'experiment 'e7' of archive.nc' (the file itself for a directory archive)."""
+def _label_and_file(one: xr.Dataset, source):
+    """The label of experiment ``one`` (None: no single label) and its file in the archive
+    directory ``source`` (None: no such file)."""
     label = (one[cv.EXPERIMENT].values.ravel()[0].item() if cv.EXPERIMENT in one.coords
              and one[cv.EXPERIMENT].size == 1 else None)
+    if label is None or not source:
+        return label, None
+    from pathlib import Path
+
+    from lcmr_xr.scaleout.archive import SUFFIX, _file_stem
+
+    file = Path(source) / (_file_stem(label) + SUFFIX)
+    return label, (file if Path(source).is_dir() and file.is_file() else None)
+
+
+def _where(one: xr.Dataset, source) -> str:
+    """'experiment 'e7' of archive.nc' (the file itself for a directory archive)."""
+    label, file = _label_and_file(one, source)
     if label is None:
         return "experiment"
-    if source:
-        from pathlib import Path
+    if file is not None:
+        return f"experiment {label!r} (file {file})"
+    return f"experiment {label!r} of {source}" if source else f"experiment {label!r}"
 
-        from lcmr_xr.scaleout.archive import SUFFIX, _file_stem
 
-        file = Path(source) / (_file_stem(label) + SUFFIX)
-        if Path(source).is_dir() and file.is_file():
-            return f"experiment {label!r} (file {file})"
-        return f"experiment {label!r} of {source}"
-    return f"experiment {label!r}"
+def _damage(one: xr.Dataset, source) -> str | None:
+    """Why the file of experiment ``one`` of a directory archive cannot be read (None: it
+    can, or there is none): its NaN then came from the damaged file (:func:`_chunked`)."""
+    from lcmr_xr.scaleout.directory import damage
+
+    file = _label_and_file(one, source)[1]
+    return None if file is None else damage(file)
 
 
 def _failed_result(one: xr.Dataset, settings) -> xr.Dataset:
@@ -581,7 +608,8 @@ def sweep(experiments: xr.Dataset, *, window=(30,), degrees=None, method=("lrm",
         Bins that cannot be estimated are NaN with the flags ``P_flag``, ``s_singular``,
         ``ill_posed`` (``identify(..., errors="ignore")``): a failed bin is data.  An
         experiment whose data cannot be identified (NaN or inf, an excitation that does
-        not excite every lifted channel) is NaN with every flag set, and
+        not excite every lifted channel, a file of an archive directory whose values
+        cannot be read: damaged) is NaN with every flag set, and
         ``experiment_error`` (str; ``""`` for the others) says which experiment (its
         archive file) and why: the rest of the sweep is unaffected.
 

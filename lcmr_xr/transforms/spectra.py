@@ -96,6 +96,50 @@ def _signal_attrs(attrs: dict) -> dict:
     return out
 
 
+def _non_finite_message(name, dim: str, bad: np.ndarray, t: np.ndarray, where: str) -> str:
+    """What :func:`dft` says of NaN/inf: ``bad`` is the mask with ``dim`` last, ``t`` its times."""
+    rows = np.flatnonzero(bad.reshape(-1, bad.shape[-1]).any(axis=0))
+    return (
+        f"{name or 'the input'} contains {int(bad.sum())} NaN or inf value(s){where} at "
+        f"{rows.size} of its {bad.shape[-1]} {dim} samples, from {dim} = {t[rows[0]]:.6g} s to "
+        f"{t[rows[-1]]:.6g} s (indices {rows[0]}..{rows[-1]}); a DFT would spread them over "
+        f"every frequency bin (all NaN).  Remove or interpolate the bad samples first (e.g. "
+        f"x.interpolate_na({dim!r})), or drop the channels or records that hold them."
+    )
+
+
+def _check_finite(da: xr.DataArray, dim: str) -> None:
+    """Refuse NaN/inf in in-memory data, naming the variable, channels and time range.
+
+    Lazy data are checked block by block when computed (:func:`_finite_kernel`), as
+    ``identify`` checks its lazy data.
+    """
+    if da.dtype.kind not in "fc" or da.chunks is not None:
+        return
+    bad = ~np.isfinite(da.transpose(..., dim).values)
+    if not bad.any():
+        return
+    others = [d for d in da.dims if d != dim]
+    where = []
+    for i, d in enumerate(others):
+        hit = np.flatnonzero(bad.any(axis=tuple(j for j in range(bad.ndim) if j != i)))
+        labels = da[d].values[hit].tolist() if d in da.coords else hit.tolist()
+        where.append(f"{d}={labels[0]!r}" if len(labels) == 1 else f"{d} in {labels}")
+    where = f" ({', '.join(where)})" if where else ""
+    raise ValueError(_non_finite_message(da.name, dim, bad, np.asarray(da[dim].values), where))
+
+
+def _finite_kernel(kernel, name, dim: str, t: np.ndarray):
+    """``kernel`` on blocks of lazy data, refusing a block that holds NaN/inf."""
+    def checked(a, axis):
+        bad = ~np.isfinite(a)
+        if bad.any():
+            raise ValueError(_non_finite_message(name, dim, bad, t, " (in one dask block; lazy "
+                                                 "data are checked when computed)"))
+        return kernel(a, axis=axis)
+    return checked
+
+
 def _dft_dataarray(da: xr.DataArray, dim: str, one_sided: bool) -> xr.DataArray:
     if dim not in da.coords:
         raise ValueError(
@@ -110,9 +154,12 @@ def _dft_dataarray(da: xr.DataArray, dim: str, one_sided: bool) -> xr.DataArray:
             "use the default two-sided DFT."
         )
     _require_single_chunk(da, dim)
+    _check_finite(da, dim)
     fdim = frequency_dim_for(dim)
     n_out = n // 2 + 1 if one_sided else n
     kernel = np.fft.rfft if one_sided else np.fft.fft
+    if da.chunks is not None and da.dtype.kind in "fc":
+        kernel = _finite_kernel(kernel, da.name, dim, np.asarray(da[dim].values))
     out_dtype = np.result_type(da.dtype, np.complex64)
     spec = xr.apply_ufunc(
         kernel,
@@ -166,7 +213,9 @@ def dft(x, dim: str | None = None, *, one_sided: bool = False):
     ------
     ValueError
         Missing, unevenly spaced, non-increasing or single-sample coordinate; ``dim``
-        chunked by dask; ``one_sided`` on complex data.
+        chunked by dask; ``one_sided`` on complex data; NaN or inf in the data (they would
+        make every bin NaN; the message names the variable, channels and time range; lazy
+        data are checked when computed).
     TypeError
         ``x`` not a DataArray or Dataset; ``one_sided`` not True or False.
 
