@@ -1138,49 +1138,40 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
         # elements interleave them, and the loops over the window then do not vectorise
         # (measured about 2x on these loops).
         # qh = Q_A^H = L^-1 A~^H (q, W) and the leverages lev(r) = ||Q_A(r, :)||^2
-        # (the loops over r read and write row views: an element of a view is one index,
-        # of the 2-D or 3-D array one per dimension, and numba's code for each index is
-        # what the first call compiles: less code, the same arithmetic)
         for a in range(q):
             sc = ds[a]
             pw = a_pow[a]
-            har = qhr[a]
-            hai = qhi[a]
             if pool is not None:  # stacked windows, each projected off its experiment's transient
                 _pooled_columns(rt, b, k, a_base[a], pw, sh[a], sc, rho_pow, tpow, wtx,
                                 crow)
                 for r in range(width):
-                    har[r] = crow[r].real
-                    hai[r] = crow[r].imag
+                    qhr[a, r] = crow[r].real
+                    qhi[a, r] = crow[r].imag
             elif a_base[a] < nr:
                 col = a_base[a]
                 for r in range(width):
                     w = sc * rho_pow[r, pw]
-                    har[r] = rt[b, k + r, col].real * w
-                    hai[r] = -rt[b, k + r, col].imag * w
+                    qhr[a, r] = rt[b, k + r, col].real * w
+                    qhi[a, r] = -rt[b, k + r, col].imag * w
             else:
                 for r in range(width):
-                    har[r] = sc * rho_pow[r, pw]
-                    hai[r] = 0.0
+                    qhr[a, r] = sc * rho_pow[r, pw]
+                    qhi[a, r] = 0.0
             for c in range(a):  # qh[a] -= conj(m[c, a]) qh[c]
                 fr = m[c, a].real
                 fi = -m[c, a].imag
-                hcr = qhr[c]
-                hci = qhi[c]
                 for r in range(width):
-                    har[r] -= fr * hcr[r] - fi * hci[r]
-                    hai[r] -= fr * hci[r] + fi * hcr[r]
+                    qhr[a, r] -= fr * qhr[c, r] - fi * qhi[c, r]
+                    qhi[a, r] -= fr * qhi[c, r] + fi * qhr[c, r]
             inv = 1.0 / m[a, a].real
             for r in range(width):
-                har[r] *= inv
-                hai[r] *= inv
+                qhr[a, r] *= inv
+                qhi[a, r] *= inv
         for r in range(width):
             lev[r] = 0.0
         for a in range(q):
-            har = qhr[a]
-            hai = qhi[a]
             for r in range(width):
-                lev[r] += har[r] ** 2 + hai[r] ** 2
+                lev[r] += qhr[a, r] ** 2 + qhi[a, r] ** 2
         if pool is not None:  # the eliminated transient columns' leverage, the same in every window
             for r in range(wn):
                 lt = 0.0
@@ -1190,14 +1181,12 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
                 for e in range(n_exp):
                     lev[e * wn + r] += lt
         for i in range(nz):
-            dr_i = dwr[i]
-            di_i = dwi[i]
             for r in range(width):
                 acc = delta[i, 0]
                 for s in range(1, rd1):
                     acc += delta[i, s] * rho_pow[r % wn, s]
-                dr_i[r] = acc.real
-                di_i[r] = acc.imag
+                dwr[i, r] = acc.real
+                dwi[i, r] = acc.imag
             rk = rank[i]
             c0 = i * rd1
             if iv is not None:
@@ -1215,39 +1204,33 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
             for j in range(rk):
                 s = perm[i, j]
                 f = -tsc[i, s]
-                ujr = umr[i, j]
-                uji = umi[i, j]
                 if pool is not None:
                     _pooled_d_column(zt, b, k, i, s + 1, q_all + c0 + s + 1, f, rho_pow,
                                      tpow, wtx, crow)
                     for r in range(width):
-                        ujr[r] = crow[r].real
-                        uji[r] = crow[r].imag
+                        umr[i, j, r] = crow[r].real
+                        umi[i, j, r] = crow[r].imag
                 else:
                     for r in range(width):
                         w = f * rho_pow[r, s + 1]
-                        ujr[r] = w * zt[b, k + r, i].real
-                        uji[r] = w * zt[b, k + r, i].imag
+                        umr[i, j, r] = w * zt[b, k + r, i].real
+                        umi[i, j, r] = w * zt[b, k + r, i].imag
                 for a in range(q):  # - Q_A Y~_B: Q_A(r, a) = conj(qh[a, r])
                     yr = ybk[a, j].real
                     yi = ybk[a, j].imag
-                    har = qhr[a]
-                    hai = qhi[a]
                     for r in range(width):
-                        ujr[r] -= har[r] * yr + hai[r] * yi
-                        uji[r] -= har[r] * yi - hai[r] * yr
+                        umr[i, j, r] -= qhr[a, r] * yr + qhi[a, r] * yi
+                        umi[i, j, r] -= qhr[a, r] * yi - qhi[a, r] * yr
                 for c in range(j):  # um[j] -= um[c] conj(low[j, c])
                     fr = low[i, j, c].real
                     fi = -low[i, j, c].imag
-                    ucr = umr[i, c]
-                    uci = umi[i, c]
                     for r in range(width):
-                        ujr[r] -= ucr[r] * fr - uci[r] * fi
-                        uji[r] -= ucr[r] * fi + uci[r] * fr
+                        umr[i, j, r] -= umr[i, c, r] * fr - umi[i, c, r] * fi
+                        umi[i, j, r] -= umr[i, c, r] * fi + umi[i, c, r] * fr
                 inv = 1.0 / low[i, j, j].real
                 for r in range(width):
-                    ujr[r] *= inv
-                    uji[r] *= inv
+                    umr[i, j, r] *= inv
+                    umi[i, j, r] *= inv
             # G rows of K_i^+: w_A = L^-1 e_g (non-zero on the trailing nr entries only),
             # w_B = -L_s^-1 Y~_B^H w_A; gain g~(r) = conj(Q_A w_A + U_i w_B)(r)
             for p in range(nr):
@@ -1261,16 +1244,12 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
                     for c in range(j):
                         acc -= low[i, j, c] * wb[c]
                     wb[j] = acc / low[i, j, j].real
-                hxr = hgr[x]
-                hxi = hgi[x]
                 for j in range(rk):  # += conj(um[j]) conj(wb[j])
                     fr = wb[j].real
                     fi = -wb[j].imag
-                    ujr = umr[i, j]
-                    uji = umi[i, j]
                     for r in range(width):
-                        hxr[r] += ujr[r] * fr + uji[r] * fi
-                        hxi[r] += ujr[r] * fi - uji[r] * fr
+                        hgr[x, r] += umr[i, j, r] * fr + umi[i, j, r] * fi
+                        hgi[x, r] += umr[i, j, r] * fi - umi[i, j, r] * fr
                 _gain_scale(hgr, hgi, x, ds[g], dwr[i], dwi[i])
         if iv is not None:  # the oblique residual projector's tau (_iv_tau)
             _iv_tau(rank, lev, dwr, dwi, umr, umi, ymr, ymi, ncr, nci, vmr, vmi, ehe, tau,
@@ -1279,36 +1258,23 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
         # weights 1 - lev - nu_i, and V_i = U_i conj(d_i), so that the trace term's
         # U_i^H diag(d_i conj(d_j)) U_j is V_i^H V_j
         for i in range(nz if iv is None else 0):
-            nu_i = nuv[i]
-            dr_i = dwr[i]
-            di_i = dwi[i]
             for r in range(width):
-                nu_i[r] = 0.0
+                nuv[i, r] = 0.0
             for s in range(rank[i]):
-                usr = umr[i, s]
-                usi = umi[i, s]
-                vsr = vmr[i, s]
-                vsi = vmi[i, s]
                 for r in range(width):
-                    ur = usr[r]
-                    ui = usi[r]
-                    nu_i[r] += ur * ur + ui * ui
-                    vsr[r] = ur * dr_i[r] + ui * di_i[r]
-                    vsi[r] = ui * dr_i[r] - ur * di_i[r]
+                    ur = umr[i, s, r]
+                    ui = umi[i, s, r]
+                    nuv[i, r] += ur * ur + ui * ui
+                    vmr[i, s, r] = ur * dwr[i, r] + ui * dwi[i, r]
+                    vmi[i, s, r] = ui * dwr[i, r] - ur * dwi[i, r]
         for i in range(nz if iv is None else 0):
-            nu_i = nuv[i]
-            dr_i = dwr[i]
-            di_i = dwi[i]
             for j in range(i, nz):
                 accr = 0.0
                 acci = 0.0
-                nu_j = nuv[j]
-                dr_j = dwr[j]
-                di_j = dwi[j]
                 for r in range(width):  # d_i conj(d_j) (1 - lev - nu_i - nu_j)
-                    wgt = 1.0 - lev[r] - nu_i[r] - nu_j[r]
-                    accr += (dr_i[r] * dr_j[r] + di_i[r] * di_j[r]) * wgt
-                    acci += (di_i[r] * dr_j[r] - dr_i[r] * di_j[r]) * wgt
+                    wgt = 1.0 - lev[r] - nuv[i, r] - nuv[j, r]
+                    accr += (dwr[i, r] * dwr[j, r] + dwi[i, r] * dwi[j, r]) * wgt
+                    acci += (dwi[i, r] * dwr[j, r] - dwr[i, r] * dwi[j, r]) * wgt
                 _tau_trace(complex(accr, acci), i, j, rank, umr, umi, vmr, vmi, ehe, tau,
                            scov)
         for i in range(nz):
@@ -1319,24 +1285,18 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
                 for p in range(nr):
                     acc_v = 0.0
                     x = i * nr + p
-                    hxr = hgr[x]
-                    hxi = hgi[x]
                     for r in range(width):
-                        acc_v += hxr[r] ** 2 + hxi[r] ** 2
+                        acc_v += hgr[x, r] ** 2 + hgi[x, r] ** 2
                     out_gvar[o, i, p] = acc_v * scov[i, i].real
             continue
         ng = nz * nr
         for x in range(ng):
-            hxr = hgr[x]
-            hxi = hgi[x]
             for y in range(x, ng):
                 accr = 0.0  # h_x conj(h_y)
                 acci = 0.0
-                hyr = hgr[y]
-                hyi = hgi[y]
                 for r in range(width):
-                    accr += hxr[r] * hyr[r] + hxi[r] * hyi[r]
-                    acci += hxi[r] * hyr[r] - hxr[r] * hyi[r]
+                    accr += hgr[x, r] * hgr[y, r] + hgi[x, r] * hgi[y, r]
+                    acci += hgi[x, r] * hgr[y, r] - hgr[x, r] * hgi[y, r]
                 acc = complex(accr, acci) * scov[x // nr, y // nr]
                 out_gcov[o, x, y] = acc
                 out_gcov[o, y, x] = acc.conjugate()
