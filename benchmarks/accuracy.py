@@ -33,8 +33,9 @@ import numpy as np
 from lcmr_xr import hdd, identify
 from lcmr_xr.demo import BANDS_HZ as BANDS, band_table
 from lcmr_xr.hdd.plants import FAST_PERIOD
-from lcmr_xr.kernels.adaptive import (K95, candidate_windows, nonlinearity_factor,
-                                      second_order_variance, small_sample_factor, weak_direction)
+from lcmr_xr.kernels.adaptive import (K95, candidate_windows,
+                                      second_order_factor, second_order_variance,
+                                      small_sample_factor, weak_direction)
 from lcmr_xr.kernels.closed_loop import frf_variance_from_first_row, indirect_first_row
 from lcmr_xr.kernels.identification import (denominator_instruments, experiment_spectra,
                                             identify_spectra,
@@ -353,10 +354,15 @@ def _band_terms(R, Z, *, half_width, n_fast, degrees=(3, 3, 3)):
 
 
 #: Forms of the band's variance (before the model-error term) from the pieces of
-#: :func:`_band_terms`: today's bound form of ``c_S`` and the measured alternatives
-#: (docs/uncertainty.md, "Why 5-25 kHz needs the conservative c_S").
+#: :func:`_band_terms`: production's second-order factor of ``window="auto"`` with a
+#: least-squares denominator (:func:`lcmr_xr.kernels.adaptive.second_order_factor`), the
+#: bound form of ``c_S`` (production before session 12, and of fixed windows) and the
+#: measured alternatives (docs/uncertainty.md, "Why 5-25 kHz needs the conservative c_S",
+#: "The denominator's bias from a Hausman comparison").  Every form gets production's
+#: ``P_bias``, which holds the denominator's bias.
 BAND_FORMS = {
-    "bound c_S (today)": lambda v, v2, q, rv: v * (1 + K95 * rv / (1 - q)) ** 2,
+    "second order (production)": lambda v, v2, q, rv: v * (1 + 2 * (q / K95 / (1 - q)) ** 2),
+    "bound c_S": lambda v, v2, q, rv: v * (1 + K95 * rv / (1 - q)) ** 2,
     "no c_S": lambda v, v2, q, rv: v,
     "variance form": lambda v, v2, q, rv: v * (1 + (rv / (1 - q)) ** 2),
     "exact 2nd order": lambda v, v2, q, rv: v + v2 / (1 - q) ** 2,
@@ -371,8 +377,8 @@ def band_forms(*, cases, seeds, n_samples, degrees=(3, 3, 3)):
     term ``P_bias`` are kept; each candidate window is refitted with the kernels to get the
     pieces of the band, gathered per slow bin at the chosen window, and the band
     ``c_dof^2 form + P_bias^2`` is evaluated (``inf`` where undetermined).  Checks on the
-    way that the bound form reproduces the production ``P_var`` (so the pieces are the
-    production ones).  Returns form -> (case, seed, band, input) coverage.
+    way that the second-order form reproduces the production ``P_var`` (so the pieces are
+    the production ones).  Returns form -> (case, seed, band, input) coverage.
     """
     out = {name: np.zeros((len(cases), seeds, len(BANDS), 2)) for name in BAND_FORMS}
     for ci, case in enumerate(cases):
@@ -395,7 +401,7 @@ def band_forms(*, cases, seeds, n_samples, degrees=(3, 3, 3)):
             with np.errstate(divide="ignore", invalid="ignore"):
                 q = K95 * rho
                 check = np.where(und, np.inf,
-                                 dof ** 2 * v * nonlinearity_factor(rho, rho_v)[0] ** 2 + bias2)
+                                 dof ** 2 * v * second_order_factor(rho)[0] ** 2 + bias2)
                 ok = np.isfinite(auto["P_var"])
                 np.testing.assert_allclose(check[ok], auto["P_var"][ok], rtol=1e-6)
                 f = k / (n_samples * float(exp.time[1] - exp.time[0]))
@@ -500,14 +506,16 @@ def print_table(title, s):
     """s: (case, seed, band, input, 3)."""
     print(title)
     print(f"  {'band (Hz)':<15}{'VCM err':>9}{'PZT err':>9}{'cover VCM':>11}{'cover PZT':>11}"
-          f"{'worst case VCM/PZT':>20}{'flagged':>9}")
+          f"{'worst case VCM/PZT':>20}{'best case VCM/PZT':>19}{'flagged':>9}")
     for b, (lo, hi) in enumerate(BANDS):
         med = np.median(s[:, :, b, :, 0], axis=(0, 1))
         cov = s[:, :, b, :, 1].mean(axis=(0, 1))
-        worst = s[:, :, b, :, 1].mean(axis=1).min(axis=0)  # worst case over plant cases
+        per_case = s[:, :, b, :, 1].mean(axis=1)
+        worst, best = per_case.min(axis=0), per_case.max(axis=0)  # over plant cases
         flag = s[:, :, b, 0, 2].mean()
         print(f"  {f'{lo:.0f}-{hi:.0f}':<15}{med[0]:>9.3g}{med[1]:>9.3g}{cov[0]:>11.3f}{cov[1]:>11.3f}"
-              f"{f'{worst[0]:.3f}/{worst[1]:.3f}':>20}{flag:>9.3f}")
+              f"{f'{worst[0]:.3f}/{worst[1]:.3f}':>20}{f'{best[0]:.3f}/{best[1]:.3f}':>19}"
+              f"{flag:>9.3f}")
 
 
 

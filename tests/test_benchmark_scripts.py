@@ -53,7 +53,8 @@ def test_scale_out_task_reduces_its_experiments_to_their_errors():
 
 def test_accuracy_band_forms_reproduce_identify():
     """The band-form tool (benchmarks/accuracy.py --band-forms) rebuilds the band from its
-    pieces; its bound form (today's c_S) gives identify's own coverage, bin for bin."""
+    pieces; its second-order form (production's, with the denominator's bias in P_bias)
+    gives identify's own coverage, bin for bin."""
     from lcmr_xr import hdd, identify
 
     module = _load("accuracy")
@@ -61,11 +62,11 @@ def test_accuracy_band_forms_reproduce_identify():
     exp = hdd.simulate(3600, case=2, noise=True, seed=0)
     frf = identify(exp, denominator="ls")
     truth = hdd.true_frf(frf.frequency[1:], case=2).reindex(frequency=frf.frequency)
-    np.testing.assert_allclose(cover["bound c_S (today)"][0, 0],
+    np.testing.assert_allclose(cover["second order (production)"][0, 0],
                                module.band_stats(frf, truth)[..., 1], atol=1e-12)
     # the forms differ where they should: without c_S fewer bins hold the truth
-    assert np.all(cover["no c_S"][0, 0, 1:] <= cover["bound c_S (today)"][0, 0, 1:])
-    assert cover["no c_S"][0, 0, 1:].sum() < cover["bound c_S (today)"][0, 0, 1:].sum()
+    assert np.all(cover["no c_S"][0, 0, 1:] <= cover["bound c_S"][0, 0, 1:])
+    assert cover["no c_S"][0, 0, 1:].sum() < cover["bound c_S"][0, 0, 1:].sum()
 
 
 def test_pooling_band_forms_reproduce_identify():

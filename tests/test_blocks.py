@@ -9,6 +9,7 @@ import pytest
 
 from lcmr_xr import hdd
 from lcmr_xr.kernels import identification as ki
+from lcmr_xr.kernels.adaptive import denominator_bias
 from lcmr_xr.kernels.local_models import fits_half, local_model
 
 WINDOW = 30
@@ -151,7 +152,21 @@ def _old_auto(R, Z, windows, **kw):
     block over all bins), then gathered bin by bin (``_choose_windows``, which
     ``finish_packed_auto`` still runs on the frequency-chunked fits)."""
     outs = [ki.identify_spectra(R, Z, half_width=w, **kw) for w in windows]
-    return ki._choose_windows(outs, np.asarray(windows), R.shape[-2])
+    twin = None  # the least-squares denominator's bias from the widest window's IV fit
+    n_exp = ki._n_experiments(R, Z, kw.get("experiment_axis"))
+    if ki.checks_denominator_bias(kw.get("denominator", "ls"), kw["degrees"],
+                                  kw.get("closed_loop", "indirect"), n_exp,
+                                  known_noise=kw.get("noise_covariance") is not None):
+        zhat = ki.denominator_instruments(R, Z, degrees=kw["degrees"], half_width=windows[-1])
+        iv = ki._fit_and_finish(R, Z, half_width=windows[-1], covariance=True, n_exp=n_exp,
+                                ny=Z.shape[-1] - R.shape[-1], denominator="iv",
+                                instruments=zhat, experiment_axis=kw.get("experiment_axis"),
+                                noise_covariance=None, closed_loop="indirect",
+                                **{k: kw[k] for k in ("degrees", "n_fast", "factor", "nu")})
+        twin = denominator_bias(outs[-1]["P"], iv["P"], outs[-1]["P_var_linear"],
+                                iv["P_var_linear"])
+    return ki._choose_windows(outs, np.asarray(windows), R.shape[-2], twin=twin,
+                              nr=R.shape[-1], degrees=kw["degrees"])
 
 
 def _assert_identical(got: dict, want: dict):

@@ -17,6 +17,7 @@ import xarray as xr
 from lcmr_xr import conventions as cv
 from lcmr_xr.identification import pooling
 from lcmr_xr.kernels.identification import (
+    checks_denominator_bias,
     excitation_rank,
     experiment_spectra,
     finish_packed,
@@ -88,10 +89,14 @@ def identify(experiment: xr.Dataset, *, method: str = "lrm", window=DEFAULT_WIND
         one the degrees allow to 30 (the paper's) by a local mean-squared-error criterion
         (model error against noise; see ``docs/uncertainty.md`` and
         :mod:`lcmr_xr.kernels.adaptive`); the choice is returned as ``local_window`` and
-        the estimated model error is part of ``P_std``.  ``"auto"`` needs
-        ``covariance=True`` (and ``frequency_chunks`` at least the widest candidate, 30);
-        with repeated periods each candidate's band uses the noise covariance from the
-        periods.
+        the estimated model error is part of ``P_std``.  With a least-squares LRM
+        denominator (one record, the default) the widest window is
+        also fitted by instrumental variables with its own prediction as instruments, and
+        the two estimates' difference (a Hausman comparison) adds least squares'
+        errors-in-variables bias to ``P_bias`` where that window is chosen.  ``"auto"``
+        needs ``covariance=True`` (and ``frequency_chunks`` at least twice the widest
+        candidate, 60, with that comparison; else the widest, 30); with repeated periods
+        each candidate's band uses the noise covariance from the periods.
         An integer window is a whole number (``30.0`` is 30; ``30.5`` is refused, not
         rounded).  The default is :data:`lcmr_xr.settings.DEFAULT_WINDOW`.
     degrees : (int, int, int) or str, optional
@@ -179,7 +184,8 @@ Returns
         the disc ``|P_hat - P| <= sqrt(ln 20) P_std`` is a 95 % region (first-order noise
         standard deviation ``P_std_linear`` times a small-sample factor and, for the
         indirect method, a factor for the nonlinearity of ``S^-1``, plus the model-error
-        estimate ``P_bias`` with ``window="auto"``); ``inf`` where ``P_undetermined``: the
+        estimate ``P_bias`` with ``window="auto"``, which then also holds the estimated
+        bias of a least-squares denominator); ``inf`` where ``P_undetermined``: the
         data do not determine the weakest direction of ``S`` there, so no finite band can
         be promised (``docs/uncertainty.md``).  ``P_flag``: bins that could not be
         estimated.  ``s_weak_rel_std`` (``slow_frequency``): relative standard deviation of
@@ -504,11 +510,19 @@ def _estimate(r: xr.DataArray, u: xr.DataArray, y: xr.DataArray, s, *, factor: i
     else:
         n_exp = r.sizes[cv.EXPERIMENT] if pooled else None
         windows = _candidate_windows(s, factor * nu, n // factor) if auto else (s.window,)
-        halo = max(windows) + _first_fit_halo(s, factor * nu)
+        # window="auto" with a least-squares denominator: the widest window's IV twin
+        # (kernels.adaptive.denominator_bias), whose instruments come from that window
+        twin = auto and checks_denominator_bias(_kernel_denominator(s), s.degrees,
+                                                s.closed_loop, n_exp,
+                                                known_noise=noise is not None)
+        halo = max(windows) + (max(windows) if twin else _first_fit_halo(s, factor * nu))
         if halo > s.frequency_chunks:
             what = (f"the widest candidate window of window='auto' ({max(windows)} bins"
                     if auto else f"the window ({s.window} bins")
-            if halo > max(windows):
+            if twin:
+                what += (f" plus {max(windows)} for the first fit of the instruments that "
+                         f"check the least-squares denominator's bias")
+            elif halo > max(windows):
                 what += f" plus {halo - max(windows)} for the first fit of denominator='iv'"
             raise ValueError(
                 f"frequency_chunks={s.frequency_chunks} is smaller than the halo of {what} on "
@@ -518,7 +532,12 @@ def _estimate(r: xr.DataArray, u: xr.DataArray, y: xr.DataArray, s, *, factor: i
         packed = xr.concat([_fit_frequency_chunked(r, u, y, s._replace(window=w), factor=factor,
                                                    check_rank=check_rank and i == 0,
                                                    noise=noise, pooled=pooled)
-                            for i, w in enumerate(windows)], "_candidate")
+                            for i, w in enumerate(windows)]
+                           + ([_fit_frequency_chunked(r, u, y, s._replace(window=max(windows),
+                                                                          denominator="iv"),
+                                                      factor=factor, check_rank=False,
+                                                      pooled=pooled, first_window=max(windows))]
+                              if twin else []), "_candidate")
         nz_, nr_ = packed.attrs["nz"], packed.attrs["nr"]
         shape = dict(nz=nz_, nr=nr_, n_fast=n, factor=factor, nu=nu, ny=ny,
                      closed_loop=s.closed_loop)
@@ -526,8 +545,10 @@ def _estimate(r: xr.DataArray, u: xr.DataArray, y: xr.DataArray, s, *, factor: i
         def finish(p):
             p = np.moveaxis(np.ascontiguousarray(p).view(complex), -3, 0)  # candidates first
             if auto:
-                return _split(finish_packed_auto(p, windows=windows, degrees=s.degrees,
-                                                 n_exp=n_exp, **shape), **split)
+                return _split(finish_packed_auto(p[:len(windows)], windows=windows,
+                                                 degrees=s.degrees, n_exp=n_exp,
+                                                 twin=p[len(windows)] if twin else None,
+                                                 **shape), **split)
             return _split(finish_packed(p[0], covariance=s.covariance, n_exp=n_exp,
                                         dof=window_dof(s.window, nr_, s.degrees, n_exp or 1),
                                         **shape), **split)
@@ -584,14 +605,17 @@ def _candidate_windows(s, n_excitation: int, n_bins: int) -> tuple[int, ...]:
     return candidate_windows(*auto_window_range(s.degrees, n_excitation, n_bins))
 
 
-def _fit_frequency_chunked(r, u, y, s, *, factor, check_rank, noise=None, pooled=False):
+def _fit_frequency_chunked(r, u, y, s, *, factor, check_rank, noise=None, pooled=False,
+                           first_window=None):
     """Lazy local-model fit in chunks along ``slow_frequency`` with wrapped halos.
 
     On eager data the spectra are computed here, once, and the excitation rank is checked
     on them (``check_rank``).  ``noise`` (..., ``slow_frequency``, ``_z``, ``_z2``),
     optional: the noise covariance known per bin (periods), haloed like the spectra.
     ``pooled``: one local model over the ``experiment`` dim (kept in one chunk; the fitted
-    blocks drop it).
+    blocks drop it).  ``first_window``: the half-width of the first fit of
+    ``denominator="iv"`` (default :func:`lcmr_xr.kernels.identification.first_fit_window`);
+    the halo is ``window`` plus it.
 
     Returns a DataArray (..., ``slow_frequency``, ``_packed``) of :func:`fit_packed` columns.
     """
@@ -601,7 +625,8 @@ def _fit_frequency_chunked(r, u, y, s, *, factor, check_rank, noise=None, pooled
     m = y.sizes[cv.SLOW_TIME]
     nu, ny = r.sizes[cv.INPUT], y.sizes[cv.OUTPUT]
     nr = factor * nu
-    halo = window + _first_fit_halo(s, nr)  # the instruments' first fit needs its own
+    # the instruments' first fit needs its own
+    halo = window + (_first_fit_halo(s, nr) if first_window is None else int(first_window))
     nz = nr + ny if closed_loop == "indirect" else ny
     SF = cv.SLOW_FREQUENCY
     th = even_spacing(r[cv.TIME].values, cv.TIME)[1]
@@ -660,7 +685,7 @@ def _fit_frequency_chunked(r, u, y, s, *, factor, check_rank, noise=None, pooled
         return fit_packed(rb, zb, half_width=window, degrees=s.degrees, circular=False,
                           covariance=s.covariance, noise_covariance=known,
                           experiment_axis=exp_ax, denominator=_kernel_denominator(s),
-                          closed_loop=closed_loop)
+                          closed_loop=closed_loop, first_window=first_window)
 
     chunks = Rg.chunks[:-1] + ((width,),)
     if pooled:  # the fit pools the experiment axis away

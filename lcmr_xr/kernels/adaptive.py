@@ -23,6 +23,10 @@ Two questions the first-order covariance of ``P = PS_1 S^-1`` does not answer:
    for an understated local-model covariance, docs/uncertainty.md).  Where ``k rho`` exceeds :data:`UNDETERMINED_LIMIT` the
    higher-order terms are as large as the first-order one: the first-order band is
    meaningless, the bin is flagged *undetermined* and its band is unbounded.
+   With ``window="auto"`` and a least-squares LRM denominator (one record) the band uses
+   the second-order factor (:func:`second_order_factor`) and adds the denominator's bias
+   estimated from an IV fit of the widest window (:func:`denominator_bias`) instead: the
+   bound form had been covering that bias, 2.9x too wide at 500-5000 Hz.
 
 2. **Which window?**  Per slow bin the window is chosen among a ladder of half-widths by a
    local mean-squared-error criterion (Lepski's method, in the form of the "intersection of
@@ -51,8 +55,8 @@ import numpy as np
 from lcmr_xr.kernels.lifting import first_block_row_weights
 
 __all__ = [
-    "K95", "UNDETERMINED_LIMIT", "candidate_windows", "nonlinearity_factor",
-    "pooled_nonlinearity_factor",
+    "K95", "UNDETERMINED_LIMIT", "candidate_windows", "denominator_bias", "nonlinearity_factor",
+    "pooled_nonlinearity_factor", "second_order_factor",
     "second_order_variance", "small_sample_factor", "weak_direction", "whitened_weak_direction", "select_windows",
 ]
 
@@ -239,6 +243,81 @@ def pooled_nonlinearity_factor(rho, limit: float = UNDETERMINED_LIMIT):
     with np.errstate(divide="ignore", invalid="ignore"):
         factor = 1.0 / (1.0 - q)
     return np.where(undetermined, np.inf, factor), undetermined
+
+
+def second_order_factor(rho, limit: float = UNDETERMINED_LIMIT):
+    """Factor on the first-order standard deviation for the second-order term of ``S^-1``.
+
+    Returns ``(factor, undetermined)`` as :func:`nonlinearity_factor`, with the factor
+    ``sqrt(1 + 2 (rho / (1 - K95 rho))^2)``: the variance of ``P_hat - P`` to second order
+    where the weakest direction of ``S`` dominates (module notes).  There ``e_lin ~ alpha
+    u^H`` and the Sherman-Morrison term is ``alpha (u^H dS v) / sigma`` (times the same
+    column weights), so ``E|e2|^2 <= 2 E|alpha|^2 E|u^H dS v / sigma|^2 = 2 rho^2 var_lin``
+    (Isserlis' theorem for circular Gaussian ``alpha``, ``u^H dS v``; the cross moment at
+    most equals the product of the second moments), and the geometric tail of
+    ``(I - dS S^-1)^-1`` divides it by ``(1 - K95 rho)^2`` as in the exact form
+    (:func:`second_order_variance`, which on the HDD benchmark is 0.1-1.1x ``rho^2
+    var_lin``).  Used where the bias of a least-squares denominator is estimated
+    (:func:`denominator_bias`): the bound form ``1 + K95 rho_v / (1 - K95 rho)`` is not the
+    size of the ``S^-1`` correction (its ``rho_v`` counts the noise of ``S`` in every
+    direction, 0.83 at 500-5000 Hz against ``rho`` 0.14) and was compensating for that bias
+    (docs/uncertainty.md, "The denominator's bias from a Hausman comparison").  The flag is
+    the same.
+    """
+    q = K95 * np.asarray(rho, dtype=float)
+    undetermined = ~(q <= limit)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        factor = np.sqrt(1.0 + 2.0 * (np.asarray(rho, dtype=float) / (1.0 - q)) ** 2)
+    return np.where(undetermined, np.inf, factor), undetermined
+
+
+def denominator_bias(P_ls, P_iv, var_ls, var_iv, smoothing: int = None, axis: int = -3):
+    """Squared bias of a least-squares LRM estimate from its instrumental-variables twin.
+
+    A Hausman comparison (Hausman 1978, Econometrica 46, 1251-1271; Durbin 1954, Wu 1973):
+    least squares ``P_ls`` is biased by the noise in its own denominator regressors
+    (errors-in-variables); the IV estimate ``P_iv`` of the same window, whose instruments
+    are least squares' own prediction in that window, is (nearly) free of that bias
+    (docs/uncertainty.md: 0.00-0.01 of ``G_var`` left against 0.18-0.21 at 5-25.2 kHz on
+    the HDD benchmark) at a larger variance.  Without a bias least squares is the more
+    efficient of the two and ``var(P_ls - P_iv) = var_iv - var_ls`` (Hausman's lemma), so
+
+        b^2 = max(0, mean over +-smoothing bins of (|P_ls - P_iv|^2 - max(0, var_iv - var_ls)))
+
+    estimates ``|E P_ls - E P_iv|^2``, the squared bias of least squares that IV removes;
+    averaged over neighbouring bins like the model error of :func:`select_windows`, without
+    Lepski's threshold (it enters the band as a mean squared error, not a test).  The two
+    reported variances are estimates: their difference is below 0 in 35-42 % of the HDD's
+    bins, and is floored at 0 bin by bin (a variance), which errs towards a wider band.
+    Non-finite terms count as 0.
+
+    Parameters
+    ----------
+    P_ls, P_iv : ndarray, complex, shape (..., K, ny, nu)
+        The two estimates on the fast bins.
+    var_ls, var_iv : ndarray, real, shape (..., K, ny, nu)
+        Their first-order variances.
+    smoothing : int, optional
+        Neighbours each side (default :data:`BIAS_SMOOTHING`).
+    axis : int, default -3
+        The bin axis.
+
+    Returns
+    -------
+    ndarray, real, >= 0, shape of ``P_ls``
+
+    Examples
+    --------
+    >>> P = np.zeros((50, 1, 1), complex)
+    >>> round(float(denominator_bias(P + 0.3, P, np.ones(P.shape), np.ones(P.shape))[25, 0, 0]), 12)
+    0.09
+    """
+    half = BIAS_SMOOTHING if smoothing is None else int(smoothing)
+    with np.errstate(invalid="ignore", over="ignore"):
+        raw = np.abs(np.asarray(P_ls) - np.asarray(P_iv)) ** 2 \
+            - np.maximum(np.asarray(var_iv) - np.asarray(var_ls), 0.0)
+    raw = np.where(np.isfinite(raw), raw, 0.0)
+    return np.maximum(_running_mean(raw, half, axis % raw.ndim), 0.0)
 
 
 def _kron(a, b):

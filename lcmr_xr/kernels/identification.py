@@ -9,7 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from lcmr_xr.kernels.adaptive import (nonlinearity_factor, pooled_nonlinearity_factor,
+from lcmr_xr.kernels.adaptive import (denominator_bias, nonlinearity_factor,
+                                      pooled_nonlinearity_factor, second_order_factor,
                                       select_windows, small_sample_factor, weak_direction)
 from lcmr_xr.kernels.closed_loop import frf_variance_from_first_row, indirect_first_row
 from lcmr_xr.kernels.lifting import frf_from_first_block_row, lift
@@ -45,6 +46,20 @@ def check_denominator(denominator: str, degrees) -> bool:
         raise ValueError(f"denominator='iv' needs a denominator (Rd > 0), got degrees "
                          f"{tuple(degrees)}; pass denominator='ls'.")
     return denominator == "iv"
+
+
+def checks_denominator_bias(denominator: str, degrees, closed_loop: str = "indirect",
+                            n_exp=None, known_noise: bool = False) -> bool:
+    """Whether ``window="auto"`` estimates the bias of a least-squares denominator by the
+    Hausman comparison (:func:`lcmr_xr.kernels.adaptive.denominator_bias`): one record of
+    the indirect method with the residual noise estimate, least squares, a denominator
+    (``Rd > 0``).  Pooled experiments (IV by default, their band calibrated by split
+    halves), averaged periods (``known_noise``: the noise covariance from the periods,
+    whose few degrees of freedom the bound form was also covering: with 2 steady periods
+    the comparison's band covered 0.82-0.89 at 500-5000 Hz), IV, the LPM and the direct
+    method keep the bound form of the nonlinearity factor."""
+    return (denominator == "ls" and tuple(degrees)[2] > 0 and closed_loop == "indirect"
+            and n_exp is None and not known_noise)
 
 
 def first_fit_window(nr: int, degrees) -> int:
@@ -342,7 +357,7 @@ def packed_width(nz: int, nr: int, covariance: bool, n_exp: int = 1,
 def fit_packed(R, Z, *, half_width: int, degrees=(3, 3, 3), circular: bool = True,
                covariance: bool = True, noise_covariance=None,
                experiment_axis: int | None = None, denominator: str = "ls",
-               closed_loop: str = "indirect") -> np.ndarray:
+               closed_loop: str = "indirect", first_window: int | None = None) -> np.ndarray:
     """Local model per bin, reduced to what the recovery reads and packed into one complex
     array ``(..., M, K)``.
 
@@ -371,7 +386,8 @@ def fit_packed(R, Z, *, half_width: int, degrees=(3, 3, 3), circular: bool = Tru
     ``denominator="iv"``: instrumental variables (:func:`denominator_instruments`).  With
     ``circular=False`` its first fit needs :func:`first_fit_window` more halo bins: the
     ``half_width + first_fit_window`` bins at each end are not those of the circular fit
-    (trim them).
+    (trim them).  ``first_window``: the first fit's half-width (default
+    :func:`first_fit_window`; the halo then grows by it instead).
     """
     known = None
     if covariance and noise_covariance is not None:
@@ -379,7 +395,7 @@ def fit_packed(R, Z, *, half_width: int, degrees=(3, 3, 3), circular: bool = Tru
     terms = _fit_terms(R, Z, half_width=half_width, degrees=degrees, circular=circular,
                        covariance=covariance, known_covariance=known,
                        experiment_axis=experiment_axis, denominator=denominator,
-                       closed_loop=closed_loop)
+                       closed_loop=closed_loop, first_window=first_window)
     lead_m = terms["G"].shape[:-2]
     names = ["G", "T", "noise_variance", "condition", "ill_posed", "spread_ratio", "half_weight",
              "P1_half_a", "P1_half_b", "P1", "s_condition", "s_singular"]
@@ -391,7 +407,7 @@ def fit_packed(R, Z, *, half_width: int, degrees=(3, 3, 3), circular: bool = Tru
 
 def _fit_terms(R, Z, *, half_width, degrees, circular, covariance, known_covariance,
                experiment_axis, closed_loop, denominator="ls", instruments=None,
-               halves_instruments=None, bins=None, spread=True) -> dict:
+               halves_instruments=None, bins=None, spread=True, first_window=None) -> dict:
     """The local model at every bin (``bins``: those of the circle) reduced by
     :func:`slow_bin_terms`: ``G``, ``T`` (pooled: (..., M, E, nz)), ``noise_variance``,
     ``condition``, ``ill_posed`` and the terms; ``G_cov`` is dropped.  ``G_cov`` is
@@ -401,7 +417,8 @@ def _fit_terms(R, Z, *, half_width, degrees, circular, covariance, known_covaria
     (on these bins: the caller does it otherwise)."""
     if check_denominator(denominator, degrees) and instruments is None:
         instruments = denominator_instruments(R, Z, degrees=degrees, circular=circular,
-                                              experiment_axis=experiment_axis)
+                                              experiment_axis=experiment_axis,
+                                              half_width=first_window)
     fit = local_model(R, Z, half_width=half_width, degrees=tuple(degrees), circular=circular,
                       covariance="full" if covariance else None, experiment_axis=experiment_axis,
                       instruments=instruments if denominator == "iv" else None, bins=bins)
@@ -810,7 +827,12 @@ def identify_spectra_auto(R, Z, *, n_fast: int, factor: int, nu: int, windows,
     calibrated variance recovered, and :func:`lcmr_xr.kernels.adaptive.select_windows`
     picks one per slow bin; every returned array is then the chosen window's, bin by bin
     (a fast bin ``k`` from the choice at slow bin ``k mod M``).  The squared model-error
-    estimate of the chosen window is added to ``P_var``.
+    estimate of the chosen window is added to ``P_var``.  Where
+    :func:`checks_denominator_bias` (one least-squares LRM record), the widest window is
+    also fitted by IV with its own least-squares prediction as instruments, and the
+    Hausman estimate of least squares' bias (:func:`lcmr_xr.kernels.adaptive.
+    denominator_bias`) joins the model error where that window is chosen, with the
+    second-order nonlinearity factor (:func:`_finish_choice`).
 
     Memory (issue 18): of the candidates fitted before the widest, only what the choice
     reads is kept (``P``, ``P_var``, ``P_var_linear`` on the fast bins, and the pooled
@@ -865,6 +887,19 @@ def identify_spectra_auto(R, Z, *, n_fast: int, factor: int, nu: int, windows,
             out = None  # (not held while the next candidate is fitted)
     choice, bias2 = select_windows(fast["P"], fast["P_var"], fast["P_var_linear"], m)
     fast_choice = np.take(choice, np.arange(bias2.shape[-3]) % m, axis=-1)
+    twin = None
+    if checks_denominator_bias(denominator, degrees, closed_loop, n_exp,
+                               known_noise=noise_covariance is not None):
+        # least squares' errors-in-variables bias at the widest window, by its IV twin
+        # whose instruments are that window's own least-squares prediction
+        zhat = denominator_instruments(R, Z, degrees=degrees, half_width=windows[-1])
+        iv = _fit_and_finish(R, Z, half_width=windows[-1], covariance=True, n_fast=n_fast,
+                             factor=factor, nu=nu, ny=ny, n_exp=n_exp, degrees=degrees,
+                             noise_covariance=None, experiment_axis=experiment_axis,
+                             closed_loop=closed_loop, denominator="iv", instruments=zhat)
+        twin = denominator_bias(fast["P"][-1], iv["P"], fast["P_var_linear"][-1],
+                                iv["P_var_linear"])
+        del iv, zhat
     idx = fast_choice[None, ..., None, None]
     for k in fast:  # the chosen candidate's, fast bin by fast bin
         fast[k] = np.take_along_axis(fast[k], idx, axis=0)[0]
@@ -887,7 +922,7 @@ def identify_spectra_auto(R, Z, *, n_fast: int, factor: int, nu: int, windows,
                   where=np.isin(fast_choice, refit))
     out.update(fast)
     return _finish_choice(out, choice, fast_choice, bias2, widest_undetermined,
-                          np.asarray(windows, dtype=int))
+                          np.asarray(windows, dtype=int), twin=twin, nr=nr, degrees=degrees)
 
 
 #: ``window="auto"`` (:func:`identify_spectra_auto`) keeps the per-bin outputs of narrower
@@ -1011,12 +1046,14 @@ def _slow_axis(name, n_exp) -> int:
 
 def finish_packed_auto(packed, *, windows, nz: int, nr: int, n_fast: int, factor: int, nu: int,
                        ny: int, closed_loop: str = "indirect", degrees=(3, 3, 3),
-                       n_exp: int | None = None) -> dict:
+                       n_exp: int | None = None, twin=None) -> dict:
     """The window choice of :func:`identify_spectra_auto` from its candidates' fits.
 
     ``packed`` (J, ..., M, K): :func:`fit_packed` of every candidate half-width in
-    ``windows`` (ascending, with covariance), e.g. fitted in frequency chunks.  Returns the
-    dict of :func:`identify_spectra_auto`.
+    ``windows`` (ascending, with covariance), e.g. fitted in frequency chunks.  ``twin``
+    (..., M, K), where :func:`checks_denominator_bias`: :func:`fit_packed` of the widest
+    window with ``denominator="iv"`` and ``first_window`` that window (the Hausman twin
+    of :func:`identify_spectra_auto`).  Returns the dict of :func:`identify_spectra_auto`.
     """
     windows = np.asarray(windows, dtype=int)
     if np.any(np.diff(windows) <= 0) or len(windows) != len(packed):
@@ -1026,10 +1063,15 @@ def finish_packed_auto(packed, *, windows, nz: int, nr: int, n_fast: int, factor
                  closed_loop=closed_loop, covariance=True)
     outs = [finish_packed(p, dof=window_dof(w, nr, degrees, n_exp or 1), n_exp=n_exp, **shape)
             for p, w in zip(packed, windows)]
-    return _choose_windows(outs, windows, packed.shape[-2])
+    bias = None
+    if twin is not None:
+        iv = finish_packed(twin, dof=None, n_exp=n_exp, **shape)
+        bias = denominator_bias(outs[-1]["P"], iv["P"], outs[-1]["P_var_linear"],
+                                iv["P_var_linear"])
+    return _choose_windows(outs, windows, packed.shape[-2], twin=bias, nr=nr, degrees=degrees)
 
 
-def _choose_windows(outs, windows, m) -> dict:
+def _choose_windows(outs, windows, m, *, twin=None, nr=None, degrees=None) -> dict:
     """Choose per slow bin among the finished candidates ``outs`` (ascending ``windows``)
     and gather every array from the chosen one (module notes of ``kernels.adaptive``).
     The candidates' arrays are released as they are gathered (``outs`` is emptied)."""
@@ -1054,15 +1096,36 @@ def _choose_windows(outs, windows, m) -> dict:
         return out
 
     out = {name: gather(name) for name in list(outs[0])}
-    return _finish_choice(out, choice, fast_choice, bias2, widest_undetermined, windows)
+    return _finish_choice(out, choice, fast_choice, bias2, widest_undetermined, windows,
+                          twin=twin, nr=nr, degrees=degrees)
 
 
-def _finish_choice(out, choice, fast_choice, bias2, widest_undetermined, windows) -> dict:
+def _finish_choice(out, choice, fast_choice, bias2, widest_undetermined, windows, *,
+                   twin=None, nr=None, degrees=None) -> dict:
     """The chosen candidate's outputs ``out`` (gathered bin by bin) with the model error
     ``bias2`` of :func:`lcmr_xr.kernels.adaptive.select_windows` added to ``P_var``,
-    ``P_bias`` and ``window``."""
+    ``P_bias`` and ``window``.
+
+    ``twin`` (..., K, ny, nu), where :func:`checks_denominator_bias`: the squared bias of
+    the widest window's least-squares denominator
+    (:func:`lcmr_xr.kernels.adaptive.denominator_bias`).  It is added to ``bias2`` where the
+    widest window is chosen (the bias grows with the window: 0.00 / 0.05 / 0.18-0.21 of
+    ``G_var`` at windows 12 / 19 / 30, docs/uncertainty.md), and the band's factor for
+    the nonlinearity of ``S^-1`` is then the second-order one
+    (:func:`lcmr_xr.kernels.adaptive.second_order_factor`) instead of the bound form that
+    was covering that bias.  The window choice itself is made as before (same ``P``)."""
     b2 = np.take_along_axis(
         bias2, fast_choice.reshape((1,) + fast_choice.shape + (1, 1)), axis=0)[0]
+    if twin is not None:
+        widest = (fast_choice == len(windows) - 1)[..., None, None]
+        b2 = b2 + np.where(widest, twin, 0.0)
+        m = choice.shape[-1]
+        k = np.arange(fast_choice.shape[-1])
+        rho = np.take(out["s_weak_rel_std"], k % m, axis=-1)
+        dof = window_dof(np.asarray(windows)[fast_choice], nr, degrees)
+        factor = small_sample_factor(dof) * second_order_factor(rho)[0]
+        with np.errstate(invalid="ignore", over="ignore"):
+            out["P_var"] = out["P_var_linear"] * (factor ** 2)[..., None, None]
     # The widest candidate has the most data: where even it cannot determine the weakest
     # direction of S, a narrower window that seems to is a lucky draw (choosing among noisy
     # determinacy tests), so the bin stays undetermined.
