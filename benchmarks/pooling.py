@@ -456,14 +456,14 @@ def _band_pieces(fit, kw, out, ratio=None):
         P_h = [frf_from_first_block_row(fit[h], f_)[..., : bins.size, :, :]
                for h in ("P1_half_a", "P1_half_b")]
         pf = p_spread_factor(*P_h, v, und[:, 0, 0], weight=fit["half_weight"][slow])
-        np.testing.assert_allclose(pf, out["P_spread_calibration"], rtol=1e-12)
+        np.testing.assert_allclose(pf, out["P_spread_calibration"], rtol=1e-9)
         with np.errstate(divide="ignore", invalid="ignore"):
             check = np.where(und, np.inf,
                              dof ** 2 * pf * BAND_FORMS[PRODUCTION_FORM](
                                  v, v2, K95 * rho[slow, None, None], rho_v[slow, None, None]))
         ok = np.isfinite(out["P_var"])
         np.testing.assert_allclose(check[ok], out["P_var"][ok], rtol=1e-9)
-        np.testing.assert_allclose(v, out["P_var_linear"], rtol=1e-9)
+        np.testing.assert_allclose(v, out["P_var_linear"], rtol=1e-7)
     return dict(v=v, v2=v2, q=K95 * rho[slow, None, None], rho_v=rho_v[slow, None, None],
                 dof=dof, und=und, P=out["P"], cal=cal, t2=t2, pf=pf)
 
@@ -687,7 +687,7 @@ DECOMPOSITION = {
 
 
 def pooled_band_decomposition(groups: int, first_group: int = 0, n_exp: int = 8,
-                              denominator="iv"):
+                              denominator="iv", disturbances=None):
     """Coverage of the pooled 95 % discs per band with the band built from some of its
     ingredients (:data:`DECOMPOSITION`), at production's window choice and flag (so every
     row has ``identify``'s ``P``; a flagged bin counts as covered).  One pooled
@@ -696,15 +696,19 @@ def pooled_band_decomposition(groups: int, first_group: int = 0, n_exp: int = 8,
     ``identify``'s ``P_std`` and ``P``.  Returns the bands, row -> (group, band, input)
     coverage, the flagged fraction (group, band), and medians over the unflagged bins
     (name -> (group, band, input)) of the factors and of the error over the calibrated
-    first-order variance (``ln 2`` if that variance is right)."""
+    first-order variance (``ln 2`` if that variance is right).  ``disturbances``: names
+    for :func:`lcmr_xr.hdd.simulate` (default: all of them, the benchmark's)."""
     from lcmr_xr.demo import BANDS_HZ
     from lcmr_xr.kernels.adaptive import second_order_factor
+
+    which = {} if disturbances is None else {"disturbances": tuple(disturbances)}
 
     cover = {name: np.zeros((groups, len(BANDS_HZ), 2)) for name in DECOMPOSITION}
     flagged = np.zeros((groups, len(BANDS_HZ)))
     medians = {}
     for gi, g in enumerate(range(first_group, first_group + groups)):
-        exps = [hdd.simulate(N, case=CASE, seed=500 + n_exp * g + e) for e in range(n_exp)]
+        exps = [hdd.simulate(N, case=CASE, seed=500 + n_exp * g + e, **which)
+                for e in range(n_exp)]
         with _captured_candidates({}) as calls:
             pooled = lcmr_xr.identify(xr.concat(exps, "experiment"), combine="experiment",
                                       errors="ignore", denominator=denominator)
@@ -910,6 +914,9 @@ def main(argv=None):
     parser.add_argument("--decompose", action="store_true",
                         help="with --only-disturbances: the pooled coverage of the band built "
                              "from each of its ingredients (production's window choice)")
+    parser.add_argument("--disturbances", nargs="+", default=None,
+                        choices=["rotational", "fan", "runout"],
+                        help="with --decompose: only these disturbances (default: all)")
     parser.add_argument("--calibrations", nargs="*", default=[],
                         choices=list(CALIBRATIONS) + list(P_CALIBRATIONS),
                         help="with --band-forms: also these split-half calibrations "
@@ -935,7 +942,8 @@ def main(argv=None):
         if args.decompose:
             for d in args.denominator:
                 report_band_decomposition(*pooled_band_decomposition(
-                    args.groups, args.first_group, denominator=d),
+                    args.groups, args.first_group, denominator=d,
+                    disturbances=args.disturbances),
                     first_group=args.first_group, denominator=d)
             return
         if args.band_forms:
