@@ -830,8 +830,8 @@ def identify_spectra_auto(R, Z, *, n_fast: int, factor: int, nu: int, windows,
     estimate of the chosen window is added to ``P_var``.  Where
     :func:`checks_denominator_bias` (one least-squares LRM record), the widest window is
     also fitted by IV with its own least-squares prediction as instruments, and the
-    Hausman estimate of least squares' bias (:func:`lcmr_xr.kernels.adaptive.
-    denominator_bias`) joins the model error where that window is chosen, with the
+    Hausman upper term for least squares' bias (:func:`lcmr_xr.kernels.adaptive.
+    denominator_bias`) joins the model error at every bin, with the
     second-order nonlinearity factor (:func:`_finish_choice`).
 
     Memory (issue 18): of the candidates fitted before the widest, only what the choice
