@@ -340,7 +340,12 @@ def estimator_settings(*, method="lrm", window=DEFAULT_WINDOW, degrees=None,
     method, window, degrees, closed_loop, covariance, errors, frequency_chunks
         As in :func:`lcmr_xr.identify`.  ``degrees=None`` is the method's default
         (:data:`METHODS`); ``window`` a half-width or ``"auto"`` (default
-        :data:`DEFAULT_WINDOW`), which needs ``covariance=True`` and no ``frequency_chunks``.
+        :data:`DEFAULT_WINDOW`), which needs ``covariance=True``; its ``frequency_chunks``
+        (any value is accepted here) is checked by :func:`lcmr_xr.identify` once the
+        candidate windows are known: at least the widest plus the halo of any instruments'
+        first fit (on the HDD 60 with the default least-squares LRM of one record, whose
+        Hausman comparison fits instruments from the widest window;
+        42 with ``denominator="iv"``; 30 for the LPM).
     no_transient : bool, default False
         Accept ``Rm = -1`` in ``degrees`` (see :func:`parse_degrees`); the caller checks that
         the data are steady-state periodic.

@@ -164,7 +164,7 @@ def _old_auto(R, Z, windows, **kw):
                                 noise_covariance=None, closed_loop="indirect",
                                 **{k: kw[k] for k in ("degrees", "n_fast", "factor", "nu")})
         twin = denominator_bias(outs[-1]["P"], iv["P"], outs[-1]["P_var_linear"],
-                                iv["P_var_linear"])
+                                iv["P_var_linear"], determined=np.isfinite(outs[-1]["P_var"]))
     return ki._choose_windows(outs, np.asarray(windows), R.shape[-2], twin=twin,
                               nr=R.shape[-1], degrees=kw["degrees"])
 
