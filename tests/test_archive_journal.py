@@ -1034,3 +1034,88 @@ def test_the_write_lock_is_reentrant_within_a_thread(tmp_path):
 def _enter(d, entered):
     with dirindex.write_lock(d):
         entered.set()
+
+
+def _forked(job, n):
+    """The pids of ``n`` children forked now (os.fork), each running ``job(i)`` (exit code 0
+    if it returned; :func:`_reap`)."""
+    pids = []
+    for i in range(n):
+        pid = os.fork()
+        if pid == 0:  # the child: never back into pytest
+            code = 1
+            try:
+                job(i)
+                code = 0
+            except BaseException:  # noqa: BLE001 - the exit code reports it
+                import traceback
+
+                traceback.print_exc()
+            finally:
+                os._exit(code)
+        pids.append(pid)
+    return pids
+
+
+def _reap(pids, timeout=120):
+    """The exit codes of the children ``pids`` (killed after ``timeout`` s: -9)."""
+    deadline, codes = time.monotonic() + timeout, {}
+    while len(codes) < len(pids):
+        for pid in pids:
+            if pid not in codes:
+                got, status = os.waitpid(pid, os.WNOHANG)
+                if got:
+                    codes[pid] = os.waitstatus_to_exitcode(status)
+        if time.monotonic() > deadline:
+            for pid in pids:
+                if pid not in codes:
+                    os.kill(pid, 9)
+                    os.waitpid(pid, 0)
+                    codes[pid] = -9
+        time.sleep(0.01)
+    return [codes[p] for p in pids]
+
+
+@pytest.mark.skipif(not hasattr(os, "fork"), reason="needs os.fork")
+def test_processes_forked_while_the_write_lock_is_held_wait_for_it(tmp_path):
+    """A process forked while it held the write lock (a tool running save_archive in a
+    fork-based pool inside ``write_lock``) passed the held-state to its children, which
+    then took the re-entrant path without flock: they held the lock at once, before the
+    parent released it, and two unlabelled appends took one order (FileExistsError; two
+    labelled ones: two files of one order).  Now each child waits for the parent and for
+    the other child; the parent's release is not kept back by the children's copies."""
+    d = tmp_path / "d"
+    _archive(d, 2)
+    log = tmp_path / "log"
+
+    def hold(i):
+        with dirindex.write_lock(d):
+            start = time.time()
+            time.sleep(0.3)
+            end = time.time()
+        with open(log, "a") as fh:
+            fh.write(f"{start!r} {end!r}\n")
+
+    with dirindex.write_lock(d):
+        pids = _forked(hold, 2)
+        time.sleep(0.3)
+        released = time.time()
+    assert _reap(pids) == [0, 0]
+    spans = sorted(tuple(map(float, line.split())) for line in log.read_text().splitlines())
+    assert len(spans) == 2
+    assert spans[0][0] >= released  # waited for the parent
+    assert spans[1][0] >= spans[0][1]  # and for the other child
+    # the appends of two children forked inside the lock: one order each
+    with dirindex.write_lock(d):
+        pids = _forked(lambda i: append_to_archive(_labelled(10 + i).drop_vars("experiment"), d), 2)
+        time.sleep(0.1)
+    assert _reap(pids) == [0, 0]
+    with dirindex.write_lock(d):
+        pids = _forked(lambda i: append_to_archive(_labelled(20 + i).assign_coords(
+            experiment=f"new{i}"), d), 2)
+        time.sleep(0.1)
+    assert _reap(pids) == [0, 0]
+    orders = sorted(dirx.order_index(p, d) for p in _files(d))
+    assert orders == list(range(6))
+    got = _assert_same_as_oracle(d)
+    assert sorted(got.seed.values.tolist()) == [0, 1, 10, 11, 20, 21]
