@@ -966,6 +966,61 @@ def test_after_a_crash_between_a_file_and_its_journal_file_the_next_append_skips
     assert got.seed.values.tolist() == [0, 1, 2, 3, 4]
 
 
+@pytest.mark.parametrize("how", ["disk full", "killed"])
+@pytest.mark.parametrize("labelled", [True, False])
+def test_a_journal_write_failing_inside_its_atomic_write_does_not_hide_the_order(
+        tmp_path, monkeypatch, labelled, how):
+    """A journal write that failed after atomic_write created its temporary in the journal
+    directory (ENOSPC, EIO while writing the JSON; a writer killed then) changed the journal
+    directory's time, which the order allocation compared with the archive directory's: the
+    next append skipped the files the index does not list and took their order again
+    (labelled: two files of order 2; unlabelled: refused as 'already in').  Now the newest
+    journal FILE's time counts, and the warning ('the next write reads their archive order
+    from them') holds."""
+    import errno
+
+    d = tmp_path / "d"
+    label = (lambda i: f"run{i}") if labelled else (lambda i: i)
+    save_archive([_labelled(i).assign_coords(experiment=label(i)) for i in range(2)], d, layout="files")
+    append_to_archive(_labelled(2).assign_coords(experiment=label(2)), d)  # one journal file
+    new = [_labelled(i).assign_coords(experiment=label(i)) for i in (3, 4, 5)]
+    new = new if labelled else [ds.drop_vars("experiment") for ds in new]
+    time.sleep(0.02)
+    temporaries = []
+
+    def dump(obj, fh, **kwargs):  # inside atomic_write: its temporary exists
+        temporaries.append(fh.name)
+        assert os.path.exists(fh.name) and os.path.dirname(fh.name) == str(d / JOURNAL)
+        time.sleep(0.05)  # the write takes a moment, then fails
+        if how == "killed":
+            raise _Killed
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(dirindex.json, "dump", dump)
+    if how == "killed":
+        with pytest.raises(_Killed):
+            append_to_archive(new[0], d)
+    else:
+        with pytest.warns(RuntimeWarning, match=r"not written .*No space left.*reads their "
+                                                r"archive order from them"):
+            append_to_archive(new[0], d)
+    monkeypatch.undo()
+    assert len(temporaries) == 1
+    assert (d / JOURNAL).stat().st_mtime_ns > d.stat().st_mtime_ns  # what misled the check
+    scans = _calls(monkeypatch, dirindex, "read_index")
+    append_to_archive(new[1], d)
+    listed = len(scans)
+    assert listed >= 1  # the directory changed after the newest journal file: listed
+    append_to_archive(new[2], d)
+    assert len(scans) == listed  # after a complete append: two stat calls, no listing
+    files = arc.archive_files(d)
+    assert [p.stem for p in files] == [str(label(i)) for i in range(6)]
+    assert [dirx.order_index(p, d) for p in files] == list(range(6))
+    monkeypatch.undo()
+    got = _assert_same_as_oracle(d)
+    assert got.seed.values.tolist() == list(range(6))
+
+
 def test_journal_files_a_compaction_keeps_do_not_make_every_append_compact(tmp_path, monkeypatch):
     """A compaction leaves the journal files of a newer version; they counted towards the
     next one, so with more than JOURNAL_FILES of them every append compacted (a rewrite of
