@@ -514,7 +514,11 @@ def sweep_to_disk(experiments: xr.Dataset, output, *, window=(30,), degrees=None
     ValueError
         Invalid settings or ``variables`` (before anything runs), no ``experiment`` dim, an ``output`` that
         is the archive ``experiments`` were opened from or lies inside it, or parts of a
-        different sweep in the parts directory.
+        different sweep in the parts directory; a file of the archive that no longer opens
+        (removed or moved out after the archive was opened; named).  A damaged file (it
+        opens, its values cannot be read) is not raised: its experiment is flagged in
+        ``experiment_error`` as :func:`lcmr_xr.scaleout.sweep` flags it (this function
+        runs its own computation, never shared with another use of the archive).
 
     Notes
     -----

@@ -630,7 +630,15 @@ def sweep(experiments: xr.Dataset, *, window=(30,), degrees=None, method=("lrm",
         not excite every lifted channel, a file of an archive directory whose values
         cannot be read: damaged) is NaN with every flag set, and
         ``experiment_error`` (str; ``""`` for the others) says which experiment (its
-        archive file) and why: the rest of the sweep is unaffected.
+        archive file) and why: the rest of the sweep is unaffected.  A file that no
+        longer opens (removed or moved out after the archive was opened, no permission)
+        is not data: its read fails the computation, naming the file.  Compute the
+        result on its own (``.compute()``, or :func:`lcmr_xr.scaleout.sweep_to_disk`):
+        in ONE ``dask.compute`` together with another use of the same lazy archive
+        (e.g. ``dask.compute(sweep(ds, ...), ds.r.sum())``) both share the archive's
+        read tasks (the same keys), so a damaged file may then fail the whole
+        computation with ``DamagedFile`` instead of being flagged, or be read as NaN by
+        the other use.
 
     Raises
     ------
