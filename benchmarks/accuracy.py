@@ -11,14 +11,16 @@ the local model's own covariance (:func:`covariance_check`).
 Usage: ``python benchmarks/accuracy.py [--seeds 10] [--cases 1-9] [--n-samples 3600]
 [--denominator ls iv] [--band-forms] [--decomposition [--records 30] [--half-width 30]
 [--degrees 3 3 3] [--denominator ls] [--instruments narrow] [--first-window 30]
-[--noise VARIANT ...]] [--instrument-coverage [--first-window 30]] [--attribution]``.
+[--noise VARIANT ...]] [--instrument-coverage [--first-window 30]] [--attribution]
+[--cost [--repeats 5]]``.
 ``--band-forms`` prints only the coverage of candidate forms of the ``S^-1`` nonlinearity
 factor (:func:`band_forms`); ``--decomposition`` only the bias / variance decomposition of
 the local model's error at fixed excitations (:func:`covariance_decomposition`; with
 ``--denominator iv`` the instruments of ``--instruments``, :func:`build_instruments`);
 ``--instrument-coverage`` only the coverage of ``P``'s band per instrument kind and band
 form at a fixed window (:func:`instrument_coverage`); ``--attribution`` only the error with
-each disturbance alone (:func:`attribution`).
+each disturbance alone (:func:`attribution`); ``--cost`` only the cost of ``window="auto"``
+against one fixed-window fit (:func:`cost`, issue 13's bound 3x; the full run prints it last).
 Prints progress to stderr; takes minutes (one identification per seed, case and setting).
 """
 
@@ -37,8 +39,8 @@ from lcmr_xr.kernels.adaptive import (K95, candidate_windows,
                                       second_order_factor, second_order_variance,
                                       small_sample_factor, weak_direction)
 from lcmr_xr.kernels.closed_loop import frf_variance_from_first_row, indirect_first_row
-from lcmr_xr.kernels.identification import (denominator_instruments, experiment_spectra,
-                                            identify_spectra,
+from lcmr_xr.kernels.identification import (_block_plan, denominator_instruments,
+                                            experiment_spectra, identify_spectra,
                                             identify_spectra_auto, window_dof)
 from lcmr_xr.kernels.local_models import hermitian, local_model
 from lcmr_xr.settings import auto_window_range
@@ -537,6 +539,71 @@ def print_cover_forms(cover, width: int) -> None:
             _print_cover_row(f"{name}, {form}", width, mean, worst)
 
 
+def cost(*, n_samples=3600, case=2, seed=0, repeats=5, denominators=("ls", "iv")):
+    """Cost of ``identify(window="auto")`` against ``identify(window=30)`` (both with
+    ``P_std``, the default covariance), timed alternately in this process: best of
+    ``repeats`` in CPU seconds (``time.process_time``, every thread of the process) and
+    wall seconds, per ``denominators``.  Also the floor set by the local-model fits that
+    ``auto`` (least squares) needs whatever else it does: each candidate window fitted
+    with its covariance on the bins the blocks fit, and the widest window again by IV with
+    that candidate's own prediction as instruments (the Hausman comparison), against the
+    same ``identify(window=30)``.
+
+    Returns
+    -------
+    dict
+        ``(setting, denominator) -> (cpu, wall)`` best times, settings ``30``, ``"auto"``
+        and, for least squares, ``"fits"`` (the sum of those local-model fits).
+    """
+    exp = hdd.simulate(n_samples, case=case, seed=seed)
+    R, Z = experiment_spectra(exp.r.values, exp.u.values, exp.y.values, factor=hdd.FACTOR)
+    nr, m = R.shape[-1], R.shape[-2]
+    windows = candidate_windows(*auto_window_range((3, 3, 3), nr, m))
+    zhat = denominator_instruments(R, Z, half_width=windows[-1])
+
+    def fits():
+        for w in windows:
+            stop = _block_plan(R, Z, half_width=w, degrees=(3, 3, 3), covariance=True,
+                               noise_covariance=None, experiment_axis=None,
+                               instruments=None)["edges"][-1]
+            local_model(R, Z, half_width=w, covariance="full", bins=(0, stop))
+        local_model(R, Z, half_width=windows[-1], covariance="full", instruments=zhat,
+                    bins=(0, stop))
+
+    calls = {(w, d): (lambda w=w, d=d: identify(exp, window=w, errors="ignore", denominator=d))
+             for w in (30, "auto") for d in denominators}
+    if "ls" in denominators:
+        calls["fits", "ls"] = fits
+    for f in calls.values():  # first calls (compiled code loaded)
+        f()
+    times = {k: [] for k in calls}
+    for _ in range(repeats):
+        for k, f in calls.items():
+            c, w = time.process_time(), time.perf_counter()
+            f()
+            times[k].append((time.process_time() - c, time.perf_counter() - w))
+    return {k: tuple(np.min(v, axis=0)) for k, v in times.items()}
+
+
+def print_cost(best, repeats):
+    """Print :func:`cost`'s ratios."""
+    import os
+
+    for d in sorted({d for _, d in best}):
+        a, f = best["auto", d], best[30, d]
+        print(f"cost, denominator {d}: auto / fixed window 30 = {a[0] / f[0]:.2f}x CPU "
+              f"({a[0] * 1e3:.0f} ms vs {f[0] * 1e3:.0f} ms), {a[1] / f[1]:.2f}x wall "
+              f"(best of {repeats}, alternating; issue 13's bound 3x)")
+        if ("fits", d) in best:
+            k = best["fits", d]
+            print(f"  of which the local-model fits auto needs (candidates with covariance, "
+                  f"the widest by IV) alone: {k[0] / f[0]:.2f}x CPU ({k[0] * 1e3:.0f} ms)")
+    if ("auto", "iv") in best and ("auto", "ls") in best:
+        print(f"  denominator iv / ls: window 30 {best[30, 'iv'][0] / best[30, 'ls'][0]:.2f}x, "
+              f"auto {best['auto', 'iv'][0] / best['auto', 'ls'][0]:.2f}x CPU")
+    print(f"  load average {os.getloadavg()[0]:.1f} (2 cores shared: compare within the run)")
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=10)
@@ -572,7 +639,15 @@ def main(argv=None):
     ap.add_argument("--attribution", action="store_true",
                     help="only the error per band with each disturbance alone (none, each, all) "
                          "for window 30 and auto")
+    ap.add_argument("--cost", action="store_true",
+                    help="only the cost of window='auto' against one fixed-window fit (CPU and "
+                         "wall, alternating in this process)")
+    ap.add_argument("--repeats", type=int, default=5, help="timings per setting of --cost")
     args = ap.parse_args(argv)
+    if args.cost:
+        print_cost(cost(n_samples=args.n_samples, repeats=args.repeats,
+                        denominators=tuple(args.denominator)), args.repeats)
+        return
     lo, _, hi = args.cases.partition("-")
     cases = list(range(int(lo), int(hi or lo) + 1))
     t0 = time.perf_counter()
@@ -656,19 +731,8 @@ def main(argv=None):
                 "/".join(f"{x:.2f}" for x in row) for row in r))
     print(f"({time.perf_counter() - t0:.0f} s; machine shared with other jobs)")
     # cost: auto against one fixed-window fit, same process
-    exp = hdd.simulate(args.n_samples, case=2, seed=0)
-    times = {}
-    for _ in range(2):
-        for w in (30, "auto"):
-            for d in ("ls", "iv"):
-                t = time.perf_counter()
-                identify(exp, window=w, errors="ignore", denominator=d)
-                times.setdefault((w, d), []).append(time.perf_counter() - t)
-    best = {k: min(v) for k, v in times.items()}
-    print(f"cost: auto / fixed window 30 = {best['auto', 'ls'] / best[30, 'ls']:.2f}x "
-          f"({best['auto', 'ls']:.2f} s vs {best[30, 'ls']:.2f} s); denominator iv / ls: "
-          f"window 30 {best[30, 'iv'] / best[30, 'ls']:.2f}x, auto "
-          f"{best['auto', 'iv'] / best['auto', 'ls']:.2f}x")
+    print_cost(cost(n_samples=args.n_samples, repeats=args.repeats,
+                    denominators=tuple(args.denominator)), args.repeats)
 
 
 if __name__ == "__main__":

@@ -259,6 +259,30 @@ def test_auto_in_frequency_chunks_is_the_eager_result():
     np.testing.assert_allclose(chunked.P_std.values, pooled.P_std.values, rtol=1e-5)
 
 
+@pytest.mark.parametrize("real", [True, False], ids=["real-mirrored", "complex-every-bin"])
+def test_hausman_twin_takes_the_widest_candidates_fit_bit_for_bit(real):
+    """What window='auto' reuses for its Hausman comparison instead of fitting again: the
+    widest candidate's G and T (fitted with covariance, in blocks) give the instruments of a
+    separate first fit without covariance, and the IV twin's first-row-only terms are those
+    of the full terms, bit for bit."""
+    import lcmr_xr.kernels.identification as ki
+
+    exp = hdd.simulate(1200, noise=True, seed=5)
+    R, Z = ki.experiment_spectra(exp.r.values, exp.u.values, exp.y.values, factor=hdd.FACTOR)
+    if not real:  # every bin fitted, nothing mirrored
+        R, Z = R * np.exp(0.3j), Z * np.exp(0.3j)
+    kw = dict(half_width=30, degrees=(3, 3, 3), covariance=True, noise_covariance=None,
+              experiment_axis=None, closed_loop="indirect")
+    ls = ki._fit_blocks(R, Z, **kw)
+    zhat = ki._prediction(ls["G"], ls["T"], R, Z)
+    np.testing.assert_array_equal(zhat, ki.denominator_instruments(R, Z, half_width=30))
+    full = ki._fit_blocks(R, Z, denominator="iv", instruments=zhat, **kw)
+    lean = ki._fit_blocks(R, Z, denominator="iv", instruments=zhat, first_row_only=True, **kw)
+    assert sorted(lean) == sorted(set(full) - {"G_var", "rho", "rho_v"})
+    for name in lean:
+        np.testing.assert_array_equal(lean[name], full[name], err_msg=name)
+
+
 def test_auto_refuses_what_it_cannot_do():
     exp = hdd.simulate(600, noise=False, seed=0)
     with pytest.raises(ValueError, match="covariance=True"):

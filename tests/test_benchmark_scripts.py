@@ -201,3 +201,20 @@ def test_accuracy_decomposition_wide_first_stage_instruments_trade_bias_for_vari
                                             instruments="lrm", first_window=30)
     z, var, bias2, mse, mse_over_ls = iv["white"][0, 2]  # excitation seed 0, 5-25.2 kHz
     assert abs(bias2) < 0.05 and mse_over_ls > 1.0  # 30 records: 0.00, 1.15-1.16
+
+
+def test_pooling_decomposition_rebuilds_identify_band():
+    """The pooled decomposition tool (benchmarks/pooling.py --decompose) rebuilds the pooled
+    band from its ingredients at identify's own window choice: it checks inside that the
+    full band reproduces identify's P_std (to 1e-9) and P; the ingredients then order as
+    they must (a factor of at least 1 never loses a covered bin)."""
+    module = _load("pooling")
+    bands, cover, flagged, medians = module.pooled_band_decomposition(groups=1, n_exp=4)
+    assert len(bands) == cover["production (all)"].shape[1] == flagged.shape[1]
+    for row in cover.values():
+        assert np.all((0 <= row) & (row <= 1))
+    # c_dof >= 1 and c_S >= 1: each widens the band, so coverage never falls
+    assert np.all(cover["c_dof"] >= cover["P_std_linear"] - 1e-12)
+    assert np.all(cover["c_dof c_S"] >= cover["c_dof"] - 1e-12)
+    assert np.all(cover["production (all)"] >= cover["c_dof c_P"] - 1e-12)
+    assert np.all((0 <= flagged) & (flagged <= 1))

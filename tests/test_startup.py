@@ -29,6 +29,21 @@ def test_import_lcmr_xr_imports_no_heavy_dependency():
     assert out.strip() == "[]"
 
 
+def test_labelled_api_imports_only_xarray_and_pandas():
+    """The functions a first ``identify`` script reaches (``identify``, ``experiment``,
+    ``lcmr_xr.hdd``, ``lcmr_xr.io``, ``lcmr_xr.plot``) import xarray and pandas but
+    none of dask, distributed, numba, scipy, matplotlib, netCDF4, h5netcdf, h5py: numba
+    comes with the first compiled call, the others with the functions that use them."""
+    heavy = ("dask", "distributed", "numba", "scipy", "matplotlib", "netCDF4", "h5netcdf",
+             "h5py")
+    out = _run("import sys, lcmr_xr\n"
+               "lcmr_xr.identify, lcmr_xr.experiment, lcmr_xr.save, lcmr_xr.open_experiment\n"
+               "import lcmr_xr.hdd, lcmr_xr.io, lcmr_xr.plot\n"
+               f"print([m for m in {heavy!r} if m in sys.modules],"
+               " 'xarray' in sys.modules, 'pandas' in sys.modules)")
+    assert out.strip() == "[] True True"
+
+
 def test_kernels_import_no_xarray():
     """Every module of lcmr_xr.kernels (the compiled one included) imports without xarray
     and pandas: the kernels on plain arrays start without them."""

@@ -97,14 +97,25 @@ def denominator_instruments(R, Z, *, degrees=(3, 3, 3), half_width: int | None =
     n1 = first_fit_window(np.shape(R)[-1], degrees) if half_width is None else int(half_width)
     first = local_model(R, Z, half_width=n1, degrees=tuple(degrees), circular=circular,
                         covariance=None, experiment_axis=experiment_axis)
+    return _prediction(first.G, first.T, R, Z, circular=circular,
+                       experiment_axis=experiment_axis)
+
+
+def _prediction(G, T, R, Z, *, circular: bool = True, experiment_axis: int | None = None):
+    """The instruments of :func:`denominator_instruments` from a least-squares fit's ``G``
+    and ``T`` (layout of :func:`lcmr_xr.kernels.local_models.local_model`), e.g. those of
+    a fit with covariance: the local model's ``G`` and ``T`` do not depend on whether the
+    covariance is computed, nor on the blocks of bins they were fitted in (bit for bit),
+    so ``window="auto"`` takes its widest candidate's instead of fitting that window once
+    more (:func:`identify_spectra_auto`)."""
     R, Z = np.asarray(R), np.asarray(Z)
     lead = np.broadcast_shapes(R.shape[:-2], Z.shape[:-2])
     R = np.broadcast_to(R, lead + R.shape[-2:])
     if experiment_axis is None:
-        zhat = np.einsum("...mip,...mp->...mi", first.G, R) + first.T
+        zhat = np.einsum("...mip,...mp->...mi", G, R) + T
     else:  # G1 (..., M, nz, nr) shared; T1 (..., E, M, nz) one per experiment
-        zhat = np.einsum("...mip,...emp->...emi", first.G,
-                         np.moveaxis(R, experiment_axis, -3)) + first.T
+        zhat = np.einsum("...mip,...emp->...emi", G,
+                         np.moveaxis(R, experiment_axis, -3)) + T
         zhat = np.moveaxis(zhat, -3, experiment_axis)
     zhat = np.where(np.isfinite(zhat), zhat, np.broadcast_to(Z, zhat.shape))
     m = zhat.shape[-2]
@@ -197,7 +208,7 @@ def recover_frf(G, G_cov, *, n_fast: int, factor: int, nu: int, ny: int,
 
 
 def slow_bin_terms(G, G_cov, *, nr: int, closed_loop: str = "indirect",
-                   mirrors: bool = True) -> dict:
+                   mirrors: bool = True, first_row_only: bool = False) -> dict:
     """Per slow bin, what the recovery of the fast FRF reads of the local model.
 
     Everything :func:`recover_frf` needs from ``G_cov``, reduced bin by bin, so that the
@@ -214,6 +225,10 @@ def slow_bin_terms(G, G_cov, *, nr: int, closed_loop: str = "indirect",
     mirrors : bool, default True
         The bins are the whole circle: an exactly mirrored estimate is computed on half of
         them (:func:`lcmr_xr.kernels.closed_loop.indirect_first_row`).  False for a block.
+    first_row_only : bool, default False
+        Only ``P1``, ``P1_cov``, ``s_condition`` and ``s_singular``: what the fast ``P`` and
+        its first-order variance read (the Hausman twin of :func:`identify_spectra_auto`);
+        no weak direction of ``S``, no variances of ``G``.
 
     Returns
     -------
@@ -232,6 +247,8 @@ def slow_bin_terms(G, G_cov, *, nr: int, closed_loop: str = "indirect",
         P1, P1_cov = G, G_cov
         s_cond = np.ones(G.shape[:-2])
         s_sing = np.zeros(G.shape[:-2], dtype=bool)
+    if first_row_only:
+        return {"P1": P1, "P1_cov": P1_cov, "s_condition": s_cond, "s_singular": s_sing}
     rho = rho_v = np.full(G.shape[:-2], np.nan)
     if G_cov is not None and closed_loop == "indirect":
         S_cov = G_cov[..., : nr * nr, : nr * nr]
@@ -407,14 +424,16 @@ def fit_packed(R, Z, *, half_width: int, degrees=(3, 3, 3), circular: bool = Tru
 
 def _fit_terms(R, Z, *, half_width, degrees, circular, covariance, known_covariance,
                experiment_axis, closed_loop, denominator="ls", instruments=None,
-               halves_instruments=None, bins=None, spread=True, first_window=None) -> dict:
+               halves_instruments=None, bins=None, spread=True, first_window=None,
+               first_row_only=False) -> dict:
     """The local model at every bin (``bins``: those of the circle) reduced by
     :func:`slow_bin_terms`: ``G``, ``T`` (pooled: (..., M, E, nz)), ``noise_variance``,
     ``condition``, ``ill_posed`` and the terms; ``G_cov`` is dropped.  ``G_cov`` is
     rebuilt from ``known_covariance`` (the window mean of a known noise covariance, on
     the fitted bins) when given.  ``instruments``: those of ``denominator="iv"`` when the
     caller has them already.  ``spread``: also the pooled fits' split-half spread ratio
-    (on these bins: the caller does it otherwise)."""
+    (on these bins: the caller does it otherwise).  ``first_row_only``: of the terms only
+    those of :func:`slow_bin_terms` with ``first_row_only``."""
     if check_denominator(denominator, degrees) and instruments is None:
         instruments = denominator_instruments(R, Z, degrees=degrees, circular=circular,
                                               experiment_axis=experiment_axis,
@@ -431,9 +450,9 @@ def _fit_terms(R, Z, *, half_width, degrees, circular, covariance, known_covaria
            "ill_posed": fit.ill_posed}
     # (a block of the circle or a chunk: no mirror there, the caller mirrors)
     out.update(slow_bin_terms(fit.G, G_cov, nr=np.shape(R)[-1], closed_loop=closed_loop,
-                              mirrors=False))
+                              mirrors=False, first_row_only=first_row_only))
     del G_cov, fit
-    if spread and covariance and (n_exp or 0) >= MIN_SPLIT_EXPERIMENTS:
+    if spread and covariance and not first_row_only and (n_exp or 0) >= MIN_SPLIT_EXPERIMENTS:
         out.update(_spread_ratio(R, Z, out, half_width=half_width, degrees=degrees,
                                  circular=circular, experiment_axis=experiment_axis,
                                  denominator=denominator, instruments=halves_instruments,
@@ -489,7 +508,7 @@ def _block_plan(R, Z, *, half_width, degrees, covariance, noise_covariance, expe
 
 
 def _block_terms(R, Z, a, b, *, known, covariance, half_width, degrees, experiment_axis,
-                 closed_loop, denominator, instruments) -> dict:
+                 closed_loop, denominator, instruments, first_row_only=False) -> dict:
     """:func:`_fit_terms` of the slow bins ``a..b-1`` of the circle (a block of
     :func:`_fit_blocks`, or a refit of :func:`_refit_chosen`), with those bins' window
     mean ``known`` of a known noise covariance; without the split-half spread, which
@@ -499,16 +518,17 @@ def _block_terms(R, Z, a, b, *, known, covariance, half_width, degrees, experime
                       known_covariance=None if known is None else known[..., a:b, :, :],
                       experiment_axis=experiment_axis, closed_loop=closed_loop,
                       denominator=denominator, instruments=instruments, bins=(a, b),
-                      spread=False)
+                      spread=False, first_row_only=first_row_only)
 
 
 def _fit_blocks(R, Z, *, half_width, degrees, covariance, noise_covariance, experiment_axis,
-                closed_loop, denominator="ls", instruments=None, halves_instruments=None
-                ) -> dict:
+                closed_loop, denominator="ls", instruments=None, halves_instruments=None,
+                first_row_only=False) -> dict:
     """:func:`_fit_terms` of every slow bin of the circle, fitted in blocks of bins
     (:data:`BLOCK_BYTES`).  Spectra of real signals: the blocks cover bins ``0..M/2``
     and the others are their mirrors, as in one fit over all bins
-    (:func:`lcmr_xr.kernels.local_models.fits_half`)."""
+    (:func:`lcmr_xr.kernels.local_models.fits_half`).  ``first_row_only``: the terms of
+    :func:`slow_bin_terms` with ``first_row_only``, no split-half spread."""
     R, Z = np.asarray(R), np.asarray(Z)
     iv = check_denominator(denominator, degrees)
     if iv and instruments is None:
@@ -525,7 +545,8 @@ def _fit_blocks(R, Z, *, half_width, degrees, covariance, noise_covariance, expe
         block = _block_terms(R, Z, a, b, known=known, covariance=covariance,
                              half_width=half_width, degrees=degrees,
                              experiment_axis=experiment_axis, closed_loop=closed_loop,
-                             denominator=denominator, instruments=instruments)
+                             denominator=denominator, instruments=instruments,
+                             first_row_only=first_row_only)
         if out is None:  # every per-bin output, all M bins: the bin axis of each
             axes = {k: _bin_axis(k, n_exp) for k, v in block.items() if v is not None}
             out = {k: (None if v is None else
@@ -543,7 +564,7 @@ def _fit_blocks(R, Z, *, half_width, degrees, covariance, noise_covariance, expe
                 np.conjugate(src, out=dst)
             else:
                 dst[...] = src
-    if covariance and (n_exp or 0) >= MIN_SPLIT_EXPERIMENTS:
+    if covariance and not first_row_only and (n_exp or 0) >= MIN_SPLIT_EXPERIMENTS:
         out.update(_spread_ratio(R, Z, out, half_width=half_width, degrees=degrees,
                                  circular=True, experiment_axis=experiment_axis,
                                  denominator=denominator, instruments=halves_instruments,
@@ -892,13 +913,18 @@ def identify_spectra_auto(R, Z, *, n_fast: int, factor: int, nu: int, windows,
                                known_noise=noise_covariance is not None):
         # least squares' errors-in-variables bias at the widest window, by its IV twin
         # whose instruments are that window's own least-squares prediction
-        zhat = denominator_instruments(R, Z, degrees=degrees, half_width=windows[-1])
-        iv = _fit_and_finish(R, Z, half_width=windows[-1], covariance=True, n_fast=n_fast,
-                             factor=factor, nu=nu, ny=ny, n_exp=n_exp, degrees=degrees,
-                             noise_covariance=None, experiment_axis=experiment_axis,
-                             closed_loop=closed_loop, denominator="iv", instruments=zhat)
-        twin = denominator_bias(fast["P"][-1], iv["P"], fast["P_var_linear"][-1],
-                                iv["P_var_linear"])
+        # (the instruments of denominator_instruments(half_width=windows[-1]), from that
+        # candidate's own G and T; of the IV fit only P and its first-order variance)
+        zhat = _prediction(out["G"], out["T"], R, Z, experiment_axis=experiment_axis)
+        iv = _fit_blocks(R, Z, half_width=windows[-1], degrees=degrees, covariance=True,
+                         noise_covariance=None, experiment_axis=experiment_axis,
+                         closed_loop=closed_loop, denominator="iv", instruments=zhat,
+                         first_row_only=True)
+        bins = np.arange(n_fast // 2 + 1)
+        twin = denominator_bias(
+            fast["P"][-1], frf_from_first_block_row(iv["P1"], factor)[..., : n_fast // 2 + 1, :, :],
+            fast["P_var_linear"][-1],
+            frf_variance_from_first_row(iv["P1_cov"], n_fast, factor, bins, ny, nu))
         del iv, zhat
     idx = fast_choice[None, ..., None, None]
     for k in fast:  # the chosen candidate's, fast bin by fast bin

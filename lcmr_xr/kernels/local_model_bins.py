@@ -768,7 +768,7 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
             c += 1
     rho_pow, shift, lead = _recurrence(n, p1)
     # inverse of the transient basis Gram sum_r rho^(c+c') (every experiment, every bin)
-    tinv = np.zeros((qt, qt))
+    tinv = np.empty((qt, qt))  # (written below when pooled; read only then)
     if pool is not None and qt > 0:
         tg = np.zeros((qt, 2 * qt), dtype=np.complex128)
         for t1 in range(qt):
@@ -803,8 +803,8 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
     wn = 2 * n + 1  # one experiment's window
     nan_c = complex(np.nan, np.nan)
     m = np.empty((q, q + nxw), dtype=np.complex128)
-    mr = np.zeros((q, q + nxw))  # m's real and imaginary planes for the Cholesky
-    mi = np.zeros((q, q + nxw))
+    mr = np.empty((q, q + nxw))  # m's real and imaginary planes for the Cholesky
+    mi = np.empty((q, q + nxw))
     piv_a = np.empty(q)
     rb_c = np.empty((4, q + nxw))
     # Y = L^-1 A~^H X transposed (nx, q) and v_i = Y_i delta_i (nz, q), real and imaginary
@@ -817,13 +817,13 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
     upow = np.empty((nz, rd1), dtype=np.complex128)
     ds = np.empty(q)
     xx = np.empty((nz, nz, rd1, rd1), dtype=np.complex128)
-    delta = np.zeros((nz, rd1), dtype=np.complex128)
+    delta = np.empty((nz, rd1), dtype=np.complex128)
     v = np.empty((nz, q), dtype=np.complex128)
     schur = np.empty((max(rd, 1), max(rd, 1)), dtype=np.complex128)
-    low = np.zeros((nz, max(rd, 1), max(rd, 1)), dtype=np.complex128)
-    perm = np.zeros((nz, max(rd, 1)), dtype=np.int64)
+    low = np.empty((nz, max(rd, 1), max(rd, 1)), dtype=np.complex128)
+    perm = np.empty((nz, max(rd, 1)), dtype=np.int64)
     spiv = np.empty(max(rd, 1))
-    rank = np.zeros(nz, dtype=np.int64)
+    rank = np.empty(nz, dtype=np.int64)
     tsc = np.empty((nz, max(rd, 1)))
     rhs = np.empty(max(rd, 1), dtype=np.complex128)
     dsol = np.empty(max(rd, 1), dtype=np.complex128)
@@ -1096,7 +1096,7 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
                 continue
 
         # ---- residual cross products e_i^H e_j = delta_i^H X_i^H X_j delta_j - v_i^H v_j
-        _gram_rows(vpr, vpi, 0, vv)
+        _gram_rows(vpr, vpi, np.int64(0), vv)  # (not the literal 0: one compiled _gram_rows)
         for i in range(nz):
             for j in range(i, nz):
                 acc = 0j
