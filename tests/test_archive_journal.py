@@ -966,6 +966,61 @@ def test_after_a_crash_between_a_file_and_its_journal_file_the_next_append_skips
     assert got.seed.values.tolist() == [0, 1, 2, 3, 4]
 
 
+@pytest.mark.parametrize("how", ["disk full", "killed"])
+@pytest.mark.parametrize("labelled", [True, False])
+def test_a_journal_write_failing_inside_its_atomic_write_does_not_hide_the_order(
+        tmp_path, monkeypatch, labelled, how):
+    """A journal write that failed after atomic_write created its temporary in the journal
+    directory (ENOSPC, EIO while writing the JSON; a writer killed then) changed the journal
+    directory's time, which the order allocation compared with the archive directory's: the
+    next append skipped the files the index does not list and took their order again
+    (labelled: two files of order 2; unlabelled: refused as 'already in').  Now the newest
+    journal FILE's time counts, and the warning ('the next write reads their archive order
+    from them') holds."""
+    import errno
+
+    d = tmp_path / "d"
+    label = (lambda i: f"run{i}") if labelled else (lambda i: i)
+    save_archive([_labelled(i).assign_coords(experiment=label(i)) for i in range(2)], d, layout="files")
+    append_to_archive(_labelled(2).assign_coords(experiment=label(2)), d)  # one journal file
+    new = [_labelled(i).assign_coords(experiment=label(i)) for i in (3, 4, 5)]
+    new = new if labelled else [ds.drop_vars("experiment") for ds in new]
+    time.sleep(0.02)
+    temporaries = []
+
+    def dump(obj, fh, **kwargs):  # inside atomic_write: its temporary exists
+        temporaries.append(fh.name)
+        assert os.path.exists(fh.name) and os.path.dirname(fh.name) == str(d / JOURNAL)
+        time.sleep(0.05)  # the write takes a moment, then fails
+        if how == "killed":
+            raise _Killed
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(dirindex.json, "dump", dump)
+    if how == "killed":
+        with pytest.raises(_Killed):
+            append_to_archive(new[0], d)
+    else:
+        with pytest.warns(RuntimeWarning, match=r"not written .*No space left.*reads their "
+                                                r"archive order from them"):
+            append_to_archive(new[0], d)
+    monkeypatch.undo()
+    assert len(temporaries) == 1
+    assert (d / JOURNAL).stat().st_mtime_ns > d.stat().st_mtime_ns  # what misled the check
+    scans = _calls(monkeypatch, dirindex, "read_index")
+    append_to_archive(new[1], d)
+    listed = len(scans)
+    assert listed >= 1  # the directory changed after the newest journal file: listed
+    append_to_archive(new[2], d)
+    assert len(scans) == listed  # after a complete append: two stat calls, no listing
+    files = arc.archive_files(d)
+    assert [p.stem for p in files] == [str(label(i)) for i in range(6)]
+    assert [dirx.order_index(p, d) for p in files] == list(range(6))
+    monkeypatch.undo()
+    got = _assert_same_as_oracle(d)
+    assert got.seed.values.tolist() == list(range(6))
+
+
 def test_journal_files_a_compaction_keeps_do_not_make_every_append_compact(tmp_path, monkeypatch):
     """A compaction leaves the journal files of a newer version; they counted towards the
     next one, so with more than JOURNAL_FILES of them every append compacted (a rewrite of
@@ -1034,3 +1089,88 @@ def test_the_write_lock_is_reentrant_within_a_thread(tmp_path):
 def _enter(d, entered):
     with dirindex.write_lock(d):
         entered.set()
+
+
+def _forked(job, n):
+    """The pids of ``n`` children forked now (os.fork), each running ``job(i)`` (exit code 0
+    if it returned; :func:`_reap`)."""
+    pids = []
+    for i in range(n):
+        pid = os.fork()
+        if pid == 0:  # the child: never back into pytest
+            code = 1
+            try:
+                job(i)
+                code = 0
+            except BaseException:  # noqa: BLE001 - the exit code reports it
+                import traceback
+
+                traceback.print_exc()
+            finally:
+                os._exit(code)
+        pids.append(pid)
+    return pids
+
+
+def _reap(pids, timeout=120):
+    """The exit codes of the children ``pids`` (killed after ``timeout`` s: -9)."""
+    deadline, codes = time.monotonic() + timeout, {}
+    while len(codes) < len(pids):
+        for pid in pids:
+            if pid not in codes:
+                got, status = os.waitpid(pid, os.WNOHANG)
+                if got:
+                    codes[pid] = os.waitstatus_to_exitcode(status)
+        if time.monotonic() > deadline:
+            for pid in pids:
+                if pid not in codes:
+                    os.kill(pid, 9)
+                    os.waitpid(pid, 0)
+                    codes[pid] = -9
+        time.sleep(0.01)
+    return [codes[p] for p in pids]
+
+
+@pytest.mark.skipif(not hasattr(os, "fork"), reason="needs os.fork")
+def test_processes_forked_while_the_write_lock_is_held_wait_for_it(tmp_path):
+    """A process forked while it held the write lock (a tool running save_archive in a
+    fork-based pool inside ``write_lock``) passed the held-state to its children, which
+    then took the re-entrant path without flock: they held the lock at once, before the
+    parent released it, and two unlabelled appends took one order (FileExistsError; two
+    labelled ones: two files of one order).  Now each child waits for the parent and for
+    the other child; the parent's release is not kept back by the children's copies."""
+    d = tmp_path / "d"
+    _archive(d, 2)
+    log = tmp_path / "log"
+
+    def hold(i):
+        with dirindex.write_lock(d):
+            start = time.time()
+            time.sleep(0.3)
+            end = time.time()
+        with open(log, "a") as fh:
+            fh.write(f"{start!r} {end!r}\n")
+
+    with dirindex.write_lock(d):
+        pids = _forked(hold, 2)
+        time.sleep(0.3)
+        released = time.time()
+    assert _reap(pids) == [0, 0]
+    spans = sorted(tuple(map(float, line.split())) for line in log.read_text().splitlines())
+    assert len(spans) == 2
+    assert spans[0][0] >= released  # waited for the parent
+    assert spans[1][0] >= spans[0][1]  # and for the other child
+    # the appends of two children forked inside the lock: one order each
+    with dirindex.write_lock(d):
+        pids = _forked(lambda i: append_to_archive(_labelled(10 + i).drop_vars("experiment"), d), 2)
+        time.sleep(0.1)
+    assert _reap(pids) == [0, 0]
+    with dirindex.write_lock(d):
+        pids = _forked(lambda i: append_to_archive(_labelled(20 + i).assign_coords(
+            experiment=f"new{i}"), d), 2)
+        time.sleep(0.1)
+    assert _reap(pids) == [0, 0]
+    orders = sorted(dirx.order_index(p, d) for p in _files(d))
+    assert orders == list(range(6))
+    got = _assert_same_as_oracle(d)
+    assert sorted(got.seed.values.tolist()) == [0, 1, 10, 11, 20, 21]

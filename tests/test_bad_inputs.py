@@ -589,6 +589,14 @@ API = [
                                                               degrees=["2-2-2"]).compute(),
          check=_flagged_experiment(1, ("experiment 'e1' (file damagedarc2/e1.nc)", "is damaged",
                                        "Restore it from a copy"))),
+    # astype drops encoding["source"]: the damaged file's experiment was reported as
+    # holding NaN ('remove or interpolate the bad samples'); the sweep finds the file from
+    # its own reads of the archive
+    Case("archive_second_file_damaged_sweep_astype",
+         lambda e: sweep(open_archive("damagedarc2").astype("float64"), window=[12],
+                         degrees=["2-2-2"]).compute(),
+         check=_flagged_experiment(1, ("experiment 'e1' (file damagedarc2/e1.nc)", "is damaged",
+                                       "Restore it from a copy"))),
     Case("archive_with_junk_file", lambda e: open_archive("junkarc"), ValueError, ("junkarc/junk.nc", "not a readable NetCDF",
                                                                         "move it out")),
     Case("archive_with_foreign_file", lambda e: open_archive("forarc"), ValueError, ("cf.nc", "not an lcmr-xr-1 experiment")),
@@ -820,6 +828,36 @@ def test_sweep_to_disk_flags_a_damaged_file_and_goes_on(workdir, small):
         result, Env(small, None, {}, None))
     assert snapshot(workdir / "damagedarc2") == before
 
+
+
+@pytest.mark.parametrize("how", ["moved out", "replaced by junk"])
+def test_a_file_that_no_longer_opens_is_not_read_as_damaged(tmp_path, small, how):
+    """The sweep read a file removed or moved out after the archive was opened (the remedy
+    the library suggests for a damaged file), or replaced by one that is not HDF5, as NaN
+    and reported its experiment as holding NaN ('remove or interpolate the bad samples'):
+    a wrong diagnosis.  Only the values of a file that opens read as NaN (damaged); a file
+    that does not open is refused, naming it, by the sweep as by a plain compute."""
+    arc = tmp_path / "arc"
+    save_archive(xr.concat([small, hdd.simulate(n_samples=400, noise=False, seed=2)],
+                           dim="experiment").assign_coords(experiment=["e0", "e1"]), arc,
+                 layout="files")
+    ds = open_archive(arc)
+    if how == "moved out":
+        (arc / "e1.nc").rename(tmp_path / "e1-moved-out.nc")
+        words = ("arc/e1.nc was removed or moved after the archive was opened",
+                 "reopen the archive")
+    else:
+        (arc / "e1.nc").write_bytes(b"\x89HDF\r\n\x1a\n not really")
+        words = ("arc/e1.nc: not a readable NetCDF file any more", "move it out")
+    for run in (lambda: ds.r.values,
+                lambda: sweep(ds, window=[12], degrees=["2-2-2"]).compute(),
+                lambda: sweep(ds.astype("float64"), window=[12], degrees=["2-2-2"]).compute(),
+                lambda: sweep_to_disk(ds, tmp_path / "out.nc", window=[12], degrees=["2-2-2"],
+                                      progress=False)):
+        with pytest.raises(ValueError) as info:
+            run()
+        assert all(w in str(info.value) for w in words), str(info.value)
+        assert "NaN" not in str(info.value)
 
 # ----------------------------------------------------------- interrupted writes (15.5)
 def test_stale_temporary_of_a_dead_writer_is_removed_on_next_save(tmp_path, small):

@@ -231,6 +231,27 @@ def test_dft_refuses_bad_spacing(time, match):
         dft(x)
 
 
+
+@pytest.mark.parametrize("kind", ["timedelta64", "datetime64"])
+def test_dft_refuses_time_types_and_the_remedy_gives_seconds(kind):
+    """numpy counts timedelta64 as a number, so a timedelta64 time coordinate passed the
+    check that refuses datetime64: in microseconds it failed inside float() (TypeError), in
+    nanoseconds it was read in ns as seconds (bins 1.25e-7 'Hz' for 1 ms samples, silently).
+    The time coordinates are seconds (docs/conventions.md): both types are refused with the
+    conversion to seconds, which gives the spectrum of the same samples."""
+    stamps = np.datetime64("2020-01-01T00:00:00", "ns") + np.arange(8) * np.timedelta64(1, "ms")
+    time = stamps - stamps[0] if kind == "timedelta64" else stamps
+    x = xr.DataArray(np.sin(np.arange(8.0)), dims="time", coords={"time": time}, name="r")
+    with pytest.raises(ValueError, match=rf"coordinate 'time' is {kind}.*seconds.*"
+                                         r"x = x.assign_coords\(time=") as info:
+        dft(x)
+    remedy = str(info.value).split("x = ", 1)[1].rstrip(".")
+    fixed = eval(remedy, {"x": x})  # the message's own remedy
+    want = dft(x.assign_coords(time=np.arange(8) * 1e-3))
+    got = dft(fixed)
+    np.testing.assert_array_equal(got.values, want.values)
+    np.testing.assert_allclose(got.frequency.values, want.frequency.values, rtol=1e-12)
+
 def test_dft_refuses_missing_coordinate_and_chunked_dim():
     with pytest.raises(ValueError, match="no coordinate"):
         dft(xr.DataArray(np.ones(4), dims="time"))

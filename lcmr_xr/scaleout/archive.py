@@ -701,9 +701,10 @@ def _save_files(items, first, directory: Path, overwrite: bool, add_only: bool =
     replaced are checked themselves, and the next order index comes from the index
     (:mod:`lcmr_xr.scaleout.dirindex`: the base's order column and the journal's file
     names), whose journal gets one file for the new ones; only when the directory changed
-    after the journal (a writer died between its file and its journal file; the first
-    write after a compaction) are its names listed, for the orders of the files the
-    index does not list (:func:`_unindexed_orders`).
+    after the newest journal file (a writer died between its file and its journal file,
+    or its journal file was not written; the first write after a compaction) are its
+    names listed, for the orders of the files the index does not list
+    (:func:`_unindexed_orders`).
     Without an index (or with one of an older version) the index is built first, as
     :func:`index_archive` does (reading the headers of the files it does not list).
     """
@@ -834,24 +835,30 @@ def _next_order(journal, facts, directory: Path) -> int:
         orders += [o for o in (dirx.order_index(directory / n, directory)
                                for n in _nc_names(directory)) if o is not None]
     else:
-        orders += _unindexed_orders(directory)
+        orders += _unindexed_orders(directory, journal)
     return max(orders) + 1 if orders else 0
 
 
-def _unindexed_orders(directory: Path) -> list[int]:
+def _unindexed_orders(directory: Path, journal: list[str]) -> list[int]:
     """The orders of the directory's files that its index does not list: a writer that
-    died after moving its file into place and before writing its journal file left one
-    (the next write must not take its order again), as may another tool.
+    died after moving its file into place and before writing its journal file left one,
+    as does one whose journal file could not be written (disk full; the warning says the
+    next write reads their orders), and may another tool (the next write must not take
+    such an order again).
 
-    Looked for only when the directory changed after the journal directory did (its
-    modification time not older: a file moved in, or the index's base rewritten, after
-    the last journal file was written or removed); every complete write of this library
-    ends in the journal directory, so an append after a complete one costs two ``stat``
-    calls; otherwise the names are listed, the index read and the order attribute of the
-    files it does not list read.  A file whose order cannot be read is left to the
-    checks of the write and of the open."""
+    Looked for unless the newest journal file (``journal``: the one of the largest order,
+    which the last complete write wrote after moving its files in) is newer than the
+    directory's last change (a file moved in or removed, the index's base rewritten): an
+    append after a complete one then costs two ``stat`` calls; otherwise (no journal
+    file, e.g. after a compaction; a write that ended before its journal file) the names
+    are listed, the index read and the order attribute of the files it does not list
+    read.  The journal DIRECTORY's time does not tell: a journal write that failed, or a
+    writer killed during it, changed it (its temporary) without a journal file.  A file
+    whose order cannot be read is left to the checks of the write and of the open."""
+    newest = max((n for n in journal if n.split("-", 1)[0].isdigit()), default=None)
     try:
-        if os.stat(directory).st_mtime_ns < os.stat(directory / dirindex.JOURNAL_NAME).st_mtime_ns:
+        if newest is not None and (os.stat(directory).st_mtime_ns
+                                   < os.stat(directory / dirindex.JOURNAL_NAME / newest).st_mtime_ns):
             return []
     except OSError:
         pass

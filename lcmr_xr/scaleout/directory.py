@@ -417,9 +417,19 @@ def _refuse(path, spec: dict, what: str):
 
 
 def _open_for_reading(path):
+    """The file's low-level id; a file that cannot be opened any more is refused naming it
+    (never read as damaged: it may be gone, moved out, or not readable for this user)."""
     try:
         return _open_id(path)
     except OSError as err:
+        if not os.path.lexists(path):
+            raise StructureError(
+                f"{path} was removed or moved after the archive was opened ({err}); reopen the "
+                "archive (open_archive) to read the files it holds now.") from err
+        if not os.access(path, os.R_OK):
+            raise StructureError(
+                f"{path} cannot be opened for reading ({err}); give this user read permission "
+                "on it, or move it out of the archive directory and reopen the archive.") from err
         raise StructureError(f"{path}: not a readable NetCDF file any more ({err}); move it out "
                              "of the archive directory and reopen the archive.") from err
 
@@ -493,9 +503,11 @@ def read_files(paths: tuple, specs: dict, damaged: str = "raise") -> dict:
         see :func:`lazy_signals`): ``shape``, ``raw_dtype``, ``dims``, ``encoding`` (the
         attributes that decide the decoding), ``dtype`` (decoded), ``first`` (its path).
     damaged : {"raise", "nan"}, default "raise"
-        A file whose values cannot be read (damaged: HDF5's checksum or filter fails):
-        :class:`DamagedFile` naming it, or (``"nan"``, the sweep's reads) its floating-point
-        variables NaN, for the sweep to flag its experiment (:func:`damage` says why).
+        A file that opens but whose values cannot be read (damaged: HDF5's checksum or
+        filter fails): :class:`DamagedFile` naming it, or (``"nan"``, the sweep's reads)
+        its floating-point variables NaN, for the sweep to flag its experiment
+        (:func:`damage` says why).  A file that does not open (removed or moved out after
+        the open, no permission) is refused either way (:class:`StructureError`).
 
     Returns
     -------
@@ -507,7 +519,8 @@ def read_files(paths: tuple, specs: dict, damaged: str = "raise") -> dict:
     ------
     StructureError
         A file lacks a variable or stores it otherwise (type, shape, dims, encoding) than
-        the first file did when the archive was opened; the message names the file.
+        the first file did when the archive was opened, or does not open (removed, moved
+        out, no permission, not HDF5 any more); the message names the file.
     DamagedFile
         A file's values cannot be read (with ``damaged="nan"``: only a variable that is not
         floating point); the message names the file and what to do.
@@ -521,14 +534,7 @@ def read_files(paths: tuple, specs: dict, damaged: str = "raise") -> dict:
         out[name][i] = np.nan
 
     for i, path in enumerate(paths):
-        try:
-            fid = _open_for_reading(path)
-        except StructureError as err:  # no longer a readable HDF5 file at all
-            if damaged == "raise":
-                raise
-            for name in specs:
-                unreadable(name, i, path, err.__cause__ or err)
-            continue
+        fid = _open_for_reading(path)  # a file that does not open (gone, no permission): raised
         try:
             for name, spec in specs.items():
                 try:
@@ -569,6 +575,24 @@ def reading_damaged_as_nan(array):
 
     return da.Array(HighLevelGraph(layers, graph.dependencies), array.name, array.chunks,
                     meta=array._meta)
+
+
+def directories_read(array) -> tuple[str, ...]:
+    """The directories of the archive files that the dask ``array`` reads (its
+    :func:`read_files` tasks; ``()`` for other data): where a sweep looks for the file of
+    an experiment whose values are NaN (:func:`damage`), whatever became of the dataset's
+    ``encoding`` (``astype`` and most operations drop it)."""
+    graph = getattr(array, "__dask_graph__", lambda: None)()
+    if graph is None:
+        return ()
+    found = {}
+    for name, layer in graph.layers.items():
+        if not name.startswith(READ_LAYER):
+            continue
+        for task in layer.values():
+            if type(task) is tuple and len(task) >= 3 and task[0] is read_files and task[1]:
+                found.update(dict.fromkeys(os.path.dirname(os.fspath(p)) for p in task[1]))
+    return tuple(found)
 
 
 def variable_spec(first: Path, name: str, template: xr.Variable) -> dict:

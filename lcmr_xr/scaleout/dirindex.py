@@ -727,6 +727,37 @@ def compaction_due(index: Index | BaseFacts | None, journal: int, new_rows: int)
 
 
 _held = threading.local()  # {(st_dev, st_ino) of a directory: depth} of this thread's write locks
+#: {descriptor: owning pid} of the lock descriptors (write and compaction locks) this process
+#: holds open; a child forked meanwhile closes its inherited copies (:func:`_forget_locks`).
+_lock_fds: dict[int, int] = {}
+
+
+def _forget_locks() -> None:
+    """In a child just forked (``os.register_at_fork``): close the inherited copies of the
+    parent's lock descriptors and forget the locks held.  The child did not take them: it
+    must wait for them like any other process (with the held-state copied, it took the
+    re-entrant path and wrote at the same time as its siblings), and an inherited copy
+    left open would keep a lock alive after the parent released it.  The parent's own
+    descriptors keep holding its locks (a ``flock`` lasts until the last copy closes)."""
+    for fd in list(_lock_fds):
+        try:
+            os.close(fd)
+        except OSError:
+            pass
+    _lock_fds.clear()
+    _held.__dict__.pop("depths", None)  # the forking thread's, the only one in the child
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_forget_locks)
+
+
+def _release(fd: int | None) -> None:
+    """Close a lock descriptor this process opened (releases the lock); nothing in a
+    forked child, which closed its inherited copy already (the number may be reused)."""
+    if fd is not None and _lock_fds.get(fd) == os.getpid():
+        del _lock_fds[fd]
+        os.close(fd)
 
 
 @contextlib.contextmanager
@@ -742,7 +773,8 @@ def write_lock(directory: Path):
     that calls :func:`lcmr_xr.scaleout.save_archive` inside ``write_lock``, goes on
     holding it (a second ``flock`` of the same process on another descriptor would wait
     for itself forever); the lock is released when the outermost ``with`` ends.  Other
-    threads and processes wait for it as before.
+    threads and processes wait for it as before, processes forked while it is held
+    included (they do not inherit it: :func:`_forget_locks`).
     """
     try:
         st = os.stat(directory)
@@ -750,16 +782,18 @@ def write_lock(directory: Path):
     except OSError:
         key = None
     depths = _held.__dict__.setdefault("depths", {})
-    if key is not None and depths.get(key):
-        depths[key] += 1
+    pid = os.getpid()
+    held = depths.get(key) if key is not None else None
+    if held is not None and held[0] == pid:  # (pid, depth): never a parent's, after a fork
+        held[1] += 1
         try:
             yield
         finally:
-            depths[key] -= 1
+            held[1] -= 1
         return
     fd = _open_to_lock(Path(directory))
     if key is not None:
-        depths[key] = 1
+        depths[key] = [pid, 1]
     try:
         if fd is not None:
             try:
@@ -770,10 +804,9 @@ def write_lock(directory: Path):
                 pass
         yield  # outside any except clause: the writer's errors are not chained to the lock's
     finally:
-        if key is not None:
+        if key is not None and depths.get(key) is not None and depths[key][0] == pid:
             depths.pop(key, None)
-        if fd is not None:
-            os.close(fd)  # releases the lock
+        _release(fd)
 
 
 @contextlib.contextmanager
@@ -799,14 +832,15 @@ def compaction_lock(directory: Path, blocking: bool):
                 pass
         yield held  # outside any except clause (see write_lock)
     finally:
-        if fd is not None:
-            os.close(fd)  # releases the lock
+        _release(fd)
 
 
 def _open_to_lock(directory: Path) -> int | None:
     """A descriptor of ``directory`` to ``flock``, or None where it cannot be opened
     (Windows, no permission): the lock is then not taken."""
     try:
-        return os.open(directory, os.O_RDONLY)
+        fd = os.open(directory, os.O_RDONLY)
     except OSError:
         return None
+    _lock_fds[fd] = os.getpid()
+    return fd

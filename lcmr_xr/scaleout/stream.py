@@ -514,7 +514,11 @@ def sweep_to_disk(experiments: xr.Dataset, output, *, window=(30,), degrees=None
     ValueError
         Invalid settings or ``variables`` (before anything runs), no ``experiment`` dim, an ``output`` that
         is the archive ``experiments`` were opened from or lies inside it, or parts of a
-        different sweep in the parts directory.
+        different sweep in the parts directory; a file of the archive that no longer opens
+        (removed or moved out after the archive was opened; named).  A damaged file (it
+        opens, its values cannot be read) is not raised: its experiment is flagged in
+        ``experiment_error`` as :func:`lcmr_xr.scaleout.sweep` flags it (this function
+        runs its own computation, never shared with another use of the archive).
 
     Notes
     -----
@@ -539,7 +543,7 @@ def sweep_to_disk(experiments: xr.Dataset, output, *, window=(30,), degrees=None
     from lcmr_xr.io._guards import check_outputs, same_or_inside
     from lcmr_xr.scaleout import sweep as sweep_lazily
     from lcmr_xr.settings import degrees_label
-    from lcmr_xr.scaleout.sweep import _chunked, sweep_settings
+    from lcmr_xr.scaleout.sweep import _chunked, _sources, sweep_settings
 
     if scheduler not in ("threads", "processes", "synchronous"):
         raise ValueError(f"scheduler must be 'threads', 'processes' or 'synchronous', got "
@@ -567,6 +571,7 @@ def sweep_to_disk(experiments: xr.Dataset, output, *, window=(30,), degrees=None
                               covariance=covariance, experiments=experiments,
                               denominator=denominator).items()}
     ds = _chunked(experiments, experiments_per_task)
+    places = _sources(ds) or source  # where an experiment's file is (its damage, its name)
     chunks = ds["r"].chunks[ds["r"].get_axis_num(cv.EXPERIMENT)]
     parts = parts_directory(output)
     run_id = _check_parts(parts, _manifest(lazy, chunks, closed_loop, covariance, keep))
@@ -580,7 +585,7 @@ def sweep_to_disk(experiments: xr.Dataset, output, *, window=(30,), degrees=None
         st = checked[str(lazy["method"].values[im]), str(lazy["degrees"].values[idg]),
                      int(lazy["window"].values[iw])]
         settings = dict(method=st.method, window=st.window, degrees=st.degrees,
-                        closed_loop=st.closed_loop, covariance=st.covariance, source=source,
+                        closed_loop=st.closed_loop, covariance=st.covariance, source=places,
                         denominator=denominator)
         specs.append(_PartTask(a, b, str(parts.resolve()), name, run_id, keep, settings))
     tasks = _part_tasks(ds, chunks, specs)

@@ -416,9 +416,23 @@ def _identify_or_flag(one: xr.Dataset, source, settings) -> xr.Dataset:
     return res.assign({ERROR_VAR: (tuple(lead), np.full(shape, message, dtype=object), ERROR_ATTRS)})
 
 
+def _sources(ds: xr.Dataset) -> tuple[str, ...]:
+    """The archive directories whose files the lazy data of ``ds`` read
+    (:func:`lcmr_xr.scaleout.directory.directories_read`): where an experiment's file is
+    looked for, also after operations that drop ``encoding["source"]`` (``astype``)."""
+    from lcmr_xr.scaleout.directory import directories_read
+
+    found = {}
+    for var in ds.data_vars.values():
+        if var.chunks is not None:
+            found.update(dict.fromkeys(directories_read(var.data)))
+    return tuple(found)
+
+
 def _label_and_file(one: xr.Dataset, source):
     """The label of experiment ``one`` (None: no single label) and its file in the archive
-    directory ``source`` (None: no such file)."""
+    directory ``source`` (or the first of several directories holding a file of its name;
+    None: no such file)."""
     label = (one[cv.EXPERIMENT].values.ravel()[0].item() if cv.EXPERIMENT in one.coords
              and one[cv.EXPERIMENT].size == 1 else None)
     if label is None or not source:
@@ -427,8 +441,11 @@ def _label_and_file(one: xr.Dataset, source):
 
     from lcmr_xr.scaleout.archive import SUFFIX, _file_stem
 
-    file = Path(source) / (_file_stem(label) + SUFFIX)
-    return label, (file if Path(source).is_dir() and file.is_file() else None)
+    for place in ((source,) if isinstance(source, str) else source):
+        file = Path(place) / (_file_stem(label) + SUFFIX)
+        if Path(place).is_dir() and file.is_file():
+            return label, file
+    return label, None
 
 
 def _where(one: xr.Dataset, source) -> str:
@@ -438,7 +455,9 @@ def _where(one: xr.Dataset, source) -> str:
         return "experiment"
     if file is not None:
         return f"experiment {label!r} (file {file})"
-    return f"experiment {label!r} of {source}" if source else f"experiment {label!r}"
+    if not source:
+        return f"experiment {label!r}"
+    return f"experiment {label!r} of {source if isinstance(source, str) else ', '.join(source)}"
 
 
 def _damage(one: xr.Dataset, source) -> str | None:
@@ -611,7 +630,15 @@ def sweep(experiments: xr.Dataset, *, window=(30,), degrees=None, method=("lrm",
         not excite every lifted channel, a file of an archive directory whose values
         cannot be read: damaged) is NaN with every flag set, and
         ``experiment_error`` (str; ``""`` for the others) says which experiment (its
-        archive file) and why: the rest of the sweep is unaffected.
+        archive file) and why: the rest of the sweep is unaffected.  A file that no
+        longer opens (removed or moved out after the archive was opened, no permission)
+        is not data: its read fails the computation, naming the file.  Compute the
+        result on its own (``.compute()``, or :func:`lcmr_xr.scaleout.sweep_to_disk`):
+        in ONE ``dask.compute`` together with another use of the same lazy archive
+        (e.g. ``dask.compute(sweep(ds, ...), ds.r.sum())``) both share the archive's
+        read tasks (the same keys), so a damaged file may then fail the whole
+        computation with ``DamagedFile`` instead of being flagged, or be read as NaN by
+        the other use.
 
     Raises
     ------
@@ -655,8 +682,8 @@ def sweep(experiments: xr.Dataset, *, window=(30,), degrees=None, method=("lrm",
     degrees_list = list(dict.fromkeys(d for _, d, _ in checked))
     windows = list(dict.fromkeys(w for _, _, w in checked))
     pools = _pools(pool, ds)
-    source = experiments.encoding.get("source")
     ds = _chunked(ds, experiments_per_task)
+    source = _sources(ds) or experiments.encoding.get("source")
     carried = _carried(ds)
     blocks_in = _labels_as_data(ds.drop_vars(list(carried)), lead)
 

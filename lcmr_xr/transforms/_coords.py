@@ -41,6 +41,15 @@ def even_spacing(values, dim: str) -> tuple[float, float]:
         First value and the mean spacing ``(t[-1] - t[0]) / (N - 1)``.
     """
     t = np.asarray(values)
+    if t.dtype.kind in "mM":  # numpy counts timedelta64 as a number: read in its ticks (ns)
+        c = f"x[{dim!r}]"
+        seconds = (f"{c}.dt.total_seconds()" if t.dtype.kind == "m"
+                   else f"({c} - {c}[0]).dt.total_seconds()")
+        raise ValueError(
+            f"coordinate {dim!r} is {t.dtype}; the time coordinates of this library are real "
+            f"numbers in seconds (docs/conventions.md). Convert it, e.g. "
+            f"x = x.assign_coords({dim}={seconds})."
+        )
     if not np.issubdtype(t.dtype, np.number) or np.iscomplexobj(t):
         raise ValueError(
             f"coordinate {dim!r} must be real numbers (seconds), got dtype {t.dtype}; "
