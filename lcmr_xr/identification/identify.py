@@ -95,9 +95,10 @@ def identify(experiment: xr.Dataset, *, method: str = "lrm", window=DEFAULT_WIND
         also fitted by instrumental variables with its own prediction as instruments, and
         the two estimates' difference (a Hausman comparison) adds a noise-inflated upper
         term for least squares' errors-in-variables bias to ``P_bias`` at every bin.
-        ``"auto"`` needs ``covariance=True`` (and ``frequency_chunks`` at least twice the
-        widest candidate, 60, with that comparison; else the widest plus the halo of
-        ``denominator="iv"``'s first fit if any: 42, or 30); with repeated periods
+        ``"auto"`` needs ``covariance=True`` (and ``frequency_chunks`` of at least the
+        widest candidate, 30, plus the halo of ``denominator="iv"``'s first fit if any:
+        42; the comparison's instruments come from the widest candidate's own chunks);
+        with repeated periods
         each candidate's band uses the noise covariance from the periods.
         An integer window is a whole number (``30.0`` is 30; ``30.5`` is refused, not
         rounded).  The default is :data:`lcmr_xr.settings.DEFAULT_WINDOW`.
