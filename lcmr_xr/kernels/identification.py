@@ -1085,8 +1085,10 @@ def finish_packed_auto(packed, *, windows, nz: int, nr: int, n_fast: int, factor
     ``packed`` (J, ..., M, K): :func:`fit_packed` of every candidate half-width in
     ``windows`` (ascending, with covariance), e.g. fitted in frequency chunks.  ``twin``
     (..., M, K), where :func:`checks_denominator_bias`: :func:`fit_packed` of the widest
-    window with ``denominator="iv"`` and ``first_window`` that window (the Hausman twin
-    of :func:`identify_spectra_auto`).  Returns the dict of :func:`identify_spectra_auto`.
+    window with ``denominator="iv"`` and as ``instruments`` the widest candidate's own
+    prediction ``G R + T`` (:func:`_prediction`; or ``first_window`` that window, which fits
+    it once more: the same to rounding), the Hausman twin of :func:`identify_spectra_auto`.
+    Returns the dict of :func:`identify_spectra_auto`.
     """
     windows = np.asarray(windows, dtype=int)
     if np.any(np.diff(windows) <= 0) or len(windows) != len(packed):
