@@ -31,7 +31,10 @@ degrees 3-3-3):
    ``--band-forms`` prints instead the pooled coverage per form of the ``S^-1`` factor
    (:data:`BAND_FORMS`), each from the same pooled fit per group (:func:`pooled_band_forms`);
    ``--decompose`` the coverage of the band built from each of its ingredients at
-   production's window choice (:func:`pooled_band_decomposition`).
+   production's window choice (:func:`pooled_band_decomposition`), with the error the split
+   halves share against the truth and the candidate bias terms ``b2_W`` (chosen window
+   against the pilot) and, with ``--hausman``, ``b2_H`` (pooled least squares against IV);
+   ``--circular-fan`` and ``--instruments-without-own-transient`` measure variants.
 6. Window 0 exactness for F = 3 (a SISO loop, E = F nu + 1 = 4 experiments).
 7. Cost: 64 experiments of N = 3600 pooled in one local model against identifying them
    one by one (one call over the experiment dim, and a loop of calls), window 30.
@@ -719,6 +722,17 @@ DECOMPOSITION = {
     "prod., c_S 2nd, no floors": lambda x: (x["dof"] ** 2 * x["v"] / x["cal"] * x["raw"]
                                             * x["pf_raw_nf"] * x["cs2"] ** 2 + x["b2"]),
 }
+#: Rows with ``b2W``: the squared difference between the chosen window's ``P`` and the
+#: narrowest candidate's (the pilot), less the variance of that difference measured by the
+#: split halves (``|d_a - d_b|^2 / 4``), averaged over the neighbours as
+#: :func:`lcmr_xr.kernels.adaptive.denominator_bias` does: the noise-induced bias that
+#: grows with the window, if the pilot's own is small (:func:`pooled_band_decomposition`).
+WINDOW_BIAS_ROWS = {
+    "prod. + b2_W": lambda x: DECOMPOSITION["production (all)"](x) + x["b2W"],
+    "prod., c_S exact quantile + b2_W": lambda x: (DECOMPOSITION["prod., c_S exact quantile"](x)
+                                                   + x["b2W"]),
+    "c_dof c_P + P_bias + b2_W": lambda x: DECOMPOSITION["c_dof c_P + P_bias"](x) + x["b2W"],
+}
 #: Rows with the Hausman term ``b2H`` of the pooled least-squares fit against the pooled IV
 #: fit at the widest window (:func:`lcmr_xr.kernels.adaptive.denominator_bias`), added by
 #: ``--hausman`` (:func:`pooled_band_decomposition`).
@@ -760,7 +774,7 @@ def pooled_band_decomposition(groups: int, first_group: int = 0, n_exp: int = 8,
     from lcmr_xr.kernels.adaptive import second_order_factor
 
     which = {} if disturbances is None else {"disturbances": tuple(disturbances)}
-    rows = {**DECOMPOSITION, **(HAUSMAN_ROWS if hausman else {})}
+    rows = {**DECOMPOSITION, **WINDOW_BIAS_ROWS, **(HAUSMAN_ROWS if hausman else {})}
 
     cover = {name: np.zeros((groups, len(BANDS_HZ), 2)) for name in rows}
     flagged = np.zeros((groups, len(BANDS_HZ)))
@@ -812,6 +826,13 @@ def pooled_band_decomposition(groups: int, first_group: int = 0, n_exp: int = 8,
         undetermined = chosen(und) | und[-1]
         c = {key: chosen(val) for key, val in x.items()}
         c["b2"] = chosen(bias2)
+        assert np.all(np.diff([np.min(kw["dof"]) for _, kw, _ in calls]) > 0)  # narrowest first
+        # the chosen window against the pilot (the narrowest candidate, first fitted), the
+        # variance of the difference from the halves' own difference
+        with np.errstate(invalid="ignore"):
+            spread = 0.25 * np.abs((c["Pa"] - x["Pa"][0]) - (c["Pb"] - x["Pb"][0])) ** 2
+        c["b2W"] = denominator_bias(chosen(P), P[0], np.zeros(spread.shape), spread,
+                                    determined=~undetermined & np.isfinite(spread))
         if hausman:  # pooled least squares against pooled IV, both at the widest window
             with _variant(circular_fan, own_transient):
                 twins = [lcmr_xr.identify(xr.concat(exps, "experiment"), combine="experiment",
