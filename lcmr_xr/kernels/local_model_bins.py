@@ -731,10 +731,8 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
     nz = zz_index.shape[0]
     rd1 = zz_index.shape[2]
     # instruments: their columns follow X in [Gaa | A^H X | A^H W] (nw = 0 without)
-    if iv is None:
-        nw = 0
-    else:
-        nw = nz * rd1
+    has_iv = iv[0].shape[0] > 0
+    nw = nz * rd1 if has_iv else 0
     nx = aug_index.shape[1] - q - nw
     rd = rd1 - 1
     nr = out_g.shape[2]
@@ -966,7 +964,7 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
         # m: the scaled [L^H | L^-1 A~^H X] for what reads it whole (covariance, pooled
         # transients, instruments); otherwise only the trailing (T, G) block of L^H, which
         # the tail solves read
-        whole = cov or pool is not None or iv is not None
+        whole = cov or pool is not None or has_iv
         for a in range(0 if whole else q - nt, q):
             for c in range(a, q):
                 m[a, c] = complex(mr[a, c] * ds[c], mi[a, c] * ds[c])
@@ -985,7 +983,7 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
                         for t in range(rd1):
                             zf = zre[i, j, s, t]
                             xx[i, j, s, t] = complex(momf[zf], zsg[i, j, s, t] * momf[zf + 1])
-        if iv is not None:  # the instruments' moments W^H X, W^H W (same row only)
+        if has_iv:  # the instruments' moments W^H X, W^H W (same row only)
             if pool is None:
                 for i in range(nz):
                     for s in range(rd1):
@@ -1057,7 +1055,7 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
                         sens += abs(tail[nt - nr + p]) ** 2
                     if sens > sens_limit**2 * norm2:
                         ill = True
-                if iv is not None:  # the kept columns' coefficients by IV instead
+                if has_iv:  # the kept columns' coefficients by IV instead
                     corr = _iv_row(m, q, nx, i, rk, perm[i], low[i], tsc[i], wxm, wwm,
                                    twc[i], siv[i], ipiv[i], gwv, gws, dsol, delta[i],
                                    drop_tol)
@@ -1089,7 +1087,7 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
                 _pooled_transients(m, q, nx, ds, delta[i], i, rd1, sh, tr, wtx, out_t[o],
                                    v[i], wa)
 
-        if iv is not None:
+        if has_iv:
             if iv_failed:  # a singular IV system: the instruments do not determine D
                 _failed_bin(o, mode, out_g, out_t, out_ncov, out_cond, out_ill,
                             out_reduced, out_gcov, out_gvar)
@@ -1189,7 +1187,7 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
                 dwi[i, r] = acc.imag
             rk = rank[i]
             c0 = i * rd1
-            if iv is not None:
+            if has_iv:
                 _iv_row_gains(rt, zt, b, k, i, nz, rk, perm[i], tsc[i], twc[i], siv[i],
                               ipiv[i], m, q, nx, q_all, ds, dwr[i], dwi[i], qhr, qhi, rho_pow,
                               tpow, wtx, pool is not None, crow, ybk, ybw, wmr, wmi, sinv,
@@ -1251,13 +1249,13 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
                         hgr[x, r] += umr[i, j, r] * fr + umi[i, j, r] * fi
                         hgi[x, r] += umr[i, j, r] * fi - umi[i, j, r] * fr
                 _gain_scale(hgr, hgi, x, ds[g], dwr[i], dwi[i])
-        if iv is not None:  # the oblique residual projector's tau (_iv_tau)
+        if has_iv:  # the oblique residual projector's tau (_iv_tau)
             _iv_tau(rank, lev, dwr, dwi, umr, umi, ymr, ymi, ncr, nci, vmr, vmi, ehe, tau,
                     scov)
         # tau_ij and s_ij = raw_ij / tau_ij (i <= j, Hermitian).  Per row first: the
         # weights 1 - lev - nu_i, and V_i = U_i conj(d_i), so that the trace term's
         # U_i^H diag(d_i conj(d_j)) U_j is V_i^H V_j
-        for i in range(nz if iv is None else 0):
+        for i in range(0 if has_iv else nz):
             for r in range(width):
                 nuv[i, r] = 0.0
             for s in range(rank[i]):
@@ -1267,7 +1265,7 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
                     nuv[i, r] += ur * ur + ui * ui
                     vmr[i, s, r] = ur * dwr[i, r] + ui * dwi[i, r]
                     vmi[i, s, r] = ui * dwr[i, r] - ur * dwi[i, r]
-        for i in range(nz if iv is None else 0):
+        for i in range(0 if has_iv else nz):
             for j in range(i, nz):
                 accr = 0.0
                 acci = 0.0
