@@ -717,15 +717,19 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
     covariance stacks the experiments' windows (``E W`` rows, transient leverage added).
     One experiment is the single-record path (``pool=None``).
 
-    ``iv``: None for least squares; instrumental variables for the denominator columns:
-    ``(wx_index, ww_index, weak_limit)``.  ``zt`` then holds ``Z`` and after it the
+    ``iv``: ``(wx_index, ww_index, weak_limit)``; empty index tables (shape
+    ``(0, 1, 1)``) for least squares, else instrumental variables for the denominator
+    columns.  ``zt`` then holds ``Z`` and after it the
     instruments ``Zhat`` (nbat, K + 2n, 2 nz); ``aug_index`` (q, q + nx + nw) indexes
     ``[Gaa | A^H X | A^H W]`` (``W`` columns ``rho^s Zhat_i`` at ``i (Rd+1) + s``, ``nw =
     nx``), ``wx_index``, ``ww_index`` (nz, Rd+1, Rd+1) the moments ``W_s^H X_t``,
     ``W_s^H W_t``.  Rows whose geometric-mean canonical correlation between projected
     instruments and regressors is below ``weak_limit`` flag the bin (weak instruments);
-    a singular IV system fails it.  Compiled apart from the least-squares version
-    (``iv is None`` is tested on the argument: numba drops the IV branches there).
+    a singular IV system fails it.  Least squares and instrumental variables are one
+    compiled version (the same argument types, the branches taken at run time):
+    ``identify``'s default fits both (the IV twin of the widest window), and one version
+    with both compiles in much less than two versions with one each (measured:
+    ``docs/architecture.md``, "A new process to its first result").
     """
     q = aug_index.shape[0]
     nz = zz_index.shape[0]
@@ -745,7 +749,8 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
     # experiment; the shared solve below sees the other qs columns only (indices sh)
     # ``pool is None`` / ``pool is not None`` on the argument itself: numba then drops
     # the pooled branches when compiling for one record (pool=None), which keeps that
-    # version (everybody's first call) free of the pooled code: less to compile
+    # version (everybody's first call) free of the pooled code: less to compile (one
+    # version with the pooled branches as well took about as long as both: measured)
     if pool is None:
         n_exp = 1
     else:
@@ -776,7 +781,8 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
                     acc += rho_pow[r, a_pow[tr[t1]]] * rho_pow[r, a_pow[tr[t2]]]
                 tg[t1, t2] = acc
             tg[t1, qt + t1] = 1.0
-        cholesky_augmented(tg, qt)  # rows [L^H | L^-1]: inverse = L^-H L^-1
+        # rows [L^H | L^-1]: inverse = L^-H L^-1 (qt not a literal: one compiled version)
+        cholesky_augmented(tg, np.int64(qt))
         for t1 in range(qt):
             for t2 in range(qt):
                 acc = 0.0
