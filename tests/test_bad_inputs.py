@@ -234,6 +234,14 @@ def _set_attr(ds, **attrs):
     return ds
 
 
+def _spectrum(e):
+    return lcmr_xr.dft(e.small.r)
+
+
+def _lifted_spectrum(e):
+    return lcmr_xr.dft(lcmr_xr.lift(e.small.r, 2), dim="slow_time")
+
+
 def _with_nan(ds, name, index, lazy_chunks=None):
     ds = ds.copy(deep=True)
     ds[name].values[index] = np.nan
@@ -318,12 +326,14 @@ API = [
     Case("nan_in_r", lambda e: e.build(r=np.where(np.arange(400)[:, None] == 7, np.nan, e.r)), ValueError,
          ("NaN",)),
     Case("inf_in_y", lambda e: e.build(y=np.where(np.arange(200)[:, None] == 7, np.inf, e.y)), ValueError,
-         ("NaN or inf", "'y'", "y: 1 slow_time sample(s) from slow_time = 0.000138889 s")),
+         ("y contains 1 NaN or inf value(s) (output='y0') at 1 of its 200 slow_time samples",
+          "from slow_time = 0.000138889 s", "interpolate_na('slow_time')")),
     # a sweep flags the bad experiment (experiment_error says which and why) and goes on
     Case("nan_in_one_experiment_of_a_sweep", lambda e: sweep(
         _with_nan(xr.concat([e.small, e.small], "experiment"), "u", (1, 30, 0), {"experiment": 1}),
         window=[12], degrees=["2-2-2"]).compute(),
-        check=_flagged_experiment(1, ("'u'", "u: 1 time sample(s) from time = 0.000297619 s"))),
+        check=_flagged_experiment(1, ("u contains 1 NaN or inf", "from time = 0.000297619 s",
+                                       "interpolate"))),
     Case("r_experiment_dim_but_u_y_not", lambda e: e.build(r=np.stack([e.r, e.r])), ValueError,
          ("leading dims", "r ('experiment',)", "u ()")),
     Case("y_experiment_dim_but_u_not", lambda e: e.build(y=np.stack([e.y, e.y])), ValueError,
@@ -421,6 +431,23 @@ API = [
          ("y contains 1 NaN or inf", "output='position'", "indices 20..20")),
     Case("dft_nan_lazy", lambda e: lcmr_xr.dft(_with_nan(e.small, "u", (30, 0), {"input": 1}).u).compute(),
          ValueError, ("u contains 1 NaN or inf", "dask block", "indices 30..30", "interpolate_na")),
+    # idft and fast_spectrum_from_lifted passed NaN/inf through (every time sample / F fast
+    # bins NaN), silently: refused as dft refuses them, eagerly and per lazy block
+    Case("idft_nan_in_spectrum", lambda e: lcmr_xr.idft(
+        _spectrum(e).where(lambda X: X.frequency != X.frequency[5], np.nan)), ValueError,
+         ("r contains 2 NaN or inf", "at 1 of its 400 frequency bins", "frequency = 1260 Hz",
+          "indices 5..5", "every time sample", "fillna")),
+    Case("idft_inf_lazy", lambda e: lcmr_xr.idft(_spectrum(e).where(
+        lambda X: (X.frequency != X.frequency[7]) | (X.input != "pzt"), np.inf).chunk(input=1)).compute(),
+         ValueError, ("r contains 1 NaN or inf", "dask block", "indices 7..7", "fillna")),
+    Case("fast_spectrum_nan_slow_bin", lambda e: lcmr_xr.fast_spectrum_from_lifted(
+        _lifted_spectrum(e).where(lambda X: X.slow_frequency != X.slow_frequency[3], np.nan)),
+         ValueError, ("r contains 4 NaN or inf", "at 1 of its 200 slow_frequency bins",
+                      "indices 3..3", "2 fast bins", "fillna")),
+    Case("fast_spectrum_nan_lazy", lambda e: lcmr_xr.fast_spectrum_from_lifted(
+        _lifted_spectrum(e).where(lambda X: X.slow_frequency != X.slow_frequency[3], np.nan)
+        .chunk(input=1)).compute(),
+         ValueError, ("r contains 2 NaN or inf", "dask block", "indices 3..3", "fillna")),
     # --- simulate_closed_loop: the factor was truncated (2.5 simulated F = 2), flags coerced ---
     Case("simulate_closed_loop_factor_fractional", lambda e: lcmr_xr.simulate_closed_loop(
         *_toy_loop(), 2.5, xr.DataArray(np.ones((8, 1)), dims=("time", "input"))), ValueError,
@@ -509,9 +536,9 @@ API = [
     Case("dask_chunked_along_time", lambda e: _identify12(e.small.chunk(time=100, slow_time=50)).compute(),
          check=_same_p(rtol=1e-12)),
     Case("dask_chunked_along_time_with_nan", lambda e: _identify12(_with_nan(e.small, "r", (50, 0), {"time": 100, "slow_time": 50})).compute(),
-         ValueError, ("r contains NaN", "time = 0.000496", "indices 50..50"), absent=("R and Z", "bad bins", "Core dimension")),
+         ValueError, ("r contains 1 NaN or inf", "time = 0.000496", "indices 50..50", "interpolate_na"), absent=("R and Z", "bad bins", "Core dimension")),
     Case("dask_nan_in_y", lambda e: _identify12(_with_nan(e.small, "y", (20, 0), {})).compute(),
-         ValueError, ("y contains NaN", "slow_time =", "indices 20..20"), absent=("R and Z",)),
+         ValueError, ("y contains 1 NaN or inf", "slow_time =", "indices 20..20"), absent=("R and Z",)),
     Case("frequency_chunks_below_window", lambda e: _identify12(e.small, frequency_chunks=5), ValueError,
          ("frequency_chunks", ">= 12")),
     Case("frequency_chunks_zero", lambda e: _identify12(e.small, frequency_chunks=0), ValueError, ("frequency_chunks", ">= 1")),

@@ -20,7 +20,7 @@ def _load(name):
     return module
 
 
-@pytest.mark.parametrize("name", ["local_models", "scale_out", "pooling", "accuracy"])
+@pytest.mark.parametrize("name", ["local_models", "scale_out", "pooling", "accuracy", "window_coverage"])
 def test_benchmark_command_line_parses(name, capsys):
     module = _load(name)
     with pytest.raises(SystemExit) as exc:

@@ -296,3 +296,28 @@ def test_fast_spectrum_from_lifted_errors():
         fast_spectrum_from_lifted(dft(_signal(12)))
     with pytest.raises(ValueError, match="one-sided"):
         fast_spectrum_from_lifted(dft(lift(_signal(12), 3), dim="slow_time", one_sided=True))
+
+
+def test_dft_identify_and_validate_experiment_say_the_same_of_nan():
+    """One message builder (lcmr_xr.transforms._finite) for dft, identify's lazy guard and
+    validate_experiment: the same samples, range and indices for the same bad value (there
+    were three builders, counting samples or values, with or without the indices)."""
+    import lcmr_xr
+    from lcmr_xr import hdd
+
+    ds = hdd.simulate(n_samples=400, noise=False, seed=0)
+    ds["y"] = ds.y.copy(data=np.where(np.arange(200)[:, None] == 20, np.nan, ds.y.values))
+    t = float(ds.slow_time.values[20])
+    said = "1 NaN or inf value(s)"
+    tail = f"at 1 of its 200 slow_time samples, from slow_time = {t:.6g} s to {t:.6g} s (indices 20..20)"
+    messages = []
+    for call in (lambda: lcmr_xr.dft(ds.y, dim="slow_time"),
+                 lambda: lcmr_xr.validate_experiment(ds),
+                 lambda: lcmr_xr.identify(ds.chunk({"time": 200}), window=12,
+                                          degrees=(2, 2, 2)).P.compute()):
+        with pytest.raises(ValueError) as info:
+            call()
+        messages.append(str(info.value))
+    for message in messages:
+        assert f"y contains {said}" in message and tail in message, message
+        assert "interpolate_na('slow_time')" in message, message

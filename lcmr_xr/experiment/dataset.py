@@ -27,6 +27,7 @@ from lcmr_xr.conventions import (
 )
 from lcmr_xr.settings import as_bool
 from lcmr_xr.transforms._coords import even_spacing
+from lcmr_xr.transforms._finite import channel_labels, describe_non_finite
 
 __all__ = ["experiment", "validate_experiment"]
 
@@ -549,16 +550,23 @@ def validate_experiment(ds: xr.Dataset, *, check_values: bool = True) -> xr.Data
         values = checks
     bad = [name for name, ok in values.items() if not bool(ok)]
     if bad:
-        where = "; ".join(_bad_samples(ds[name]) for name in bad if not _is_lazy(ds[name].data))
-        _fail(f"{bad} contain NaN or inf{' (' + where + ')' if where else ''}",
-              "remove or interpolate the bad samples before identification.")
+        # in memory: the message of dft and identify's lazy guard (variable, count, channels,
+        # samples and time range); lazy: the names (the reductions computed no positions)
+        lazy = [name for name in bad if _is_lazy(ds[name].data)]
+        said = [_bad_samples(ds[name]) for name in bad if name not in lazy]
+        if lazy:
+            said.append(f"{lazy} contain NaN or inf")
+        how = ", ".join(f"ds[{name!r}].interpolate_na({TIME if TIME in ds[name].dims else SLOW_TIME!r})"
+                        for name in bad)
+        _fail("; ".join(said), f"Remove or interpolate the bad samples before identification "
+              f"(e.g. {how}), or drop the experiments that hold them.")
     return ds
 
 
 def _bad_samples(var: xr.DataArray) -> str:
-    """``name: N samples, time = a s to b s`` for the non-finite samples of an in-memory variable."""
+    """What :func:`lcmr_xr.dft` says of the non-finite values of an in-memory variable
+    (:func:`lcmr_xr.transforms._finite.describe_non_finite`)."""
     dim = TIME if TIME in var.dims else SLOW_TIME
-    bad = ~np.isfinite(var.transpose(dim, ...).values)
-    rows = np.flatnonzero(bad.reshape(bad.shape[0], -1).any(axis=1))
-    t = np.asarray(var[dim].values)
-    return f"{var.name}: {rows.size} {dim} sample(s) from {dim} = {t[rows[0]]:.6g} s to {t[rows[-1]]:.6g} s"
+    bad = ~np.isfinite(var.transpose(..., dim).values)
+    return describe_non_finite(var.name, bad, dim=dim, coord=np.asarray(var[dim].values),
+                               where=channel_labels(var, dim, bad))

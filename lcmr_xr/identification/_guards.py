@@ -14,6 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from lcmr_xr import conventions as cv
+from lcmr_xr.transforms._finite import describe_non_finite, message
 
 #: Variables whose largest magnitude lies outside [1 / SAFE_MAGNITUDE, SAFE_MAGNITUDE] are
 #: scaled.  Products of two spectra (covariances, noise variances) must stay finite and
@@ -36,22 +37,22 @@ def rechunk_core(ds):
 
 
 def check_finite(r, u, y, *, th: float, factor: int) -> None:
-    """Refuse NaN/inf in a block, naming the variable and its time range."""
+    """Refuse NaN/inf in a block, naming the variable and its time range (the message of
+    :func:`lcmr_xr.transforms._finite.describe_non_finite`, as :func:`lcmr_xr.dft`'s)."""
     for name, x, step, dim in (("r", r, th, cv.TIME), ("u", u, th, cv.TIME),
                                ("y", y, th * factor, cv.SLOW_TIME)):
         x = np.asarray(x)
         bad = ~np.isfinite(x)
         if not bad.any():
             continue
-        other = tuple(i for i in range(x.ndim) if i != x.ndim - 2)
-        idx = np.flatnonzero(bad.any(axis=other))
         where = " (in at least one experiment)" if x.ndim > 2 else ""
-        raise ValueError(
-            f"{name} contains NaN or inf at {idx.size} of its {x.shape[-2]} {dim} samples"
-            f"{where}, from {dim} = {idx[0] * step:.6g} s to {idx[-1] * step:.6g} s (indices "
-            f"{idx[0]}..{idx[-1]}); remove or interpolate the bad samples before identification "
-            "(lazy data are checked when computed)."
-        )
+        raise ValueError(message(
+            describe_non_finite(name, np.moveaxis(bad, -2, -1), dim=dim,
+                                coord=np.arange(x.shape[-2]) * step, where=where),
+            "its spectra would be NaN at every bin",
+            f"Remove or interpolate the bad samples before identification (e.g. "
+            f"x.interpolate_na({dim!r})), or drop the experiments that hold them (lazy data "
+            f"are checked when computed)."))
 
 
 def _power_of_two_scale(x) -> float:

@@ -24,6 +24,7 @@ from lcmr_xr.conventions import (
 from lcmr_xr.kernels import lifting as lifting_kernels
 from lcmr_xr.settings import as_bool
 from lcmr_xr.transforms._coords import even_spacing, rebuild_time, time_inverse_attrs
+from lcmr_xr.transforms._finite import checked_blocks, refuse_non_finite
 
 __all__ = ["dft", "idft", "fast_spectrum_from_lifted"]
 
@@ -96,16 +97,19 @@ def _signal_attrs(attrs: dict) -> dict:
     return out
 
 
-def _non_finite_message(name, dim: str, bad: np.ndarray, t: np.ndarray, where: str) -> str:
-    """What :func:`dft` says of NaN/inf: ``bad`` is the mask with ``dim`` last, ``t`` its times."""
-    rows = np.flatnonzero(bad.reshape(-1, bad.shape[-1]).any(axis=0))
-    return (
-        f"{name or 'the input'} contains {int(bad.sum())} NaN or inf value(s){where} at "
-        f"{rows.size} of its {bad.shape[-1]} {dim} samples, from {dim} = {t[rows[0]]:.6g} s to "
-        f"{t[rows[-1]]:.6g} s (indices {rows[0]}..{rows[-1]}); a DFT would spread them over "
-        f"every frequency bin (all NaN).  Remove or interpolate the bad samples first (e.g. "
-        f"x.interpolate_na({dim!r})), or drop the channels or records that hold them."
-    )
+#: What NaN/inf would do to a DFT, and the remedy (the message of :mod:`._finite`).
+_DFT_CONSEQUENCE = "a DFT would spread them over every frequency bin (all NaN)"
+
+
+def _remedy(dim: str, what: str = "samples") -> str:
+    return (f"Remove or interpolate the bad {what} first (e.g. x.interpolate_na({dim!r})), or "
+            f"drop the channels or records that hold them.")
+
+
+def _spectrum_remedy(dim: str) -> str:
+    return ("Recompute the spectrum from finite data, or fill the bad bins where their value "
+            "is known (e.g. X.fillna(0) where the spectrum vanishes), or drop the channels or "
+            f"records that hold them (X.dropna(..., how='any') along a dim other than {dim!r}).")
 
 
 def _check_finite(da: xr.DataArray, dim: str) -> None:
@@ -114,30 +118,12 @@ def _check_finite(da: xr.DataArray, dim: str) -> None:
     Lazy data are checked block by block when computed (:func:`_finite_kernel`), as
     ``identify`` checks its lazy data.
     """
-    if da.dtype.kind not in "fc" or da.chunks is not None:
-        return
-    bad = ~np.isfinite(da.transpose(..., dim).values)
-    if not bad.any():
-        return
-    others = [d for d in da.dims if d != dim]
-    where = []
-    for i, d in enumerate(others):
-        hit = np.flatnonzero(bad.any(axis=tuple(j for j in range(bad.ndim) if j != i)))
-        labels = da[d].values[hit].tolist() if d in da.coords else hit.tolist()
-        where.append(f"{d}={labels[0]!r}" if len(labels) == 1 else f"{d} in {labels}")
-    where = f" ({', '.join(where)})" if where else ""
-    raise ValueError(_non_finite_message(da.name, dim, bad, np.asarray(da[dim].values), where))
+    refuse_non_finite(da, dim, consequence=_DFT_CONSEQUENCE, remedy=_remedy(dim))
 
 
 def _finite_kernel(kernel, name, dim: str, t: np.ndarray):
     """``kernel`` on blocks of lazy data, refusing a block that holds NaN/inf."""
-    def checked(a, axis):
-        bad = ~np.isfinite(a)
-        if bad.any():
-            raise ValueError(_non_finite_message(name, dim, bad, t, " (in one dask block; lazy "
-                                                 "data are checked when computed)"))
-        return kernel(a, axis=axis)
-    return checked
+    return checked_blocks(kernel, name, dim, t, consequence=_DFT_CONSEQUENCE, remedy=_remedy(dim))
 
 
 def _dft_dataarray(da: xr.DataArray, dim: str, one_sided: bool) -> xr.DataArray:
@@ -256,6 +242,11 @@ def _idft_dataarray(da: xr.DataArray, fdim: str) -> xr.DataArray:
             f"{expected}; was the spectrum sliced? Use the full spectrum for idft."
         )
     _require_single_chunk(da, fdim)
+    # NaN/inf spread over every time sample, silently: refused as dft refuses them
+    consequence = "an inverse DFT would spread them over every time sample (all NaN)"
+    coord = np.asarray(da[fdim].values) if fdim in da.coords else None
+    refuse_non_finite(da, fdim, consequence=consequence, remedy=_spectrum_remedy(fdim),
+                      unit="Hz", noun="bins")
     signal_dtype = np.dtype(attrs.get("signal_dtype", "float64"))
     real = not np.issubdtype(signal_dtype, np.complexfloating)
     if real:
@@ -272,6 +263,9 @@ def _idft_dataarray(da: xr.DataArray, fdim: str) -> xr.DataArray:
 
         def kernel(a):
             return np.fft.ifft(a, axis=-1)
+    if da.chunks is not None and da.dtype.kind in "fc":
+        kernel = checked_blocks(kernel, da.name, fdim, coord, consequence=consequence,
+                                remedy=_spectrum_remedy(fdim), unit="Hz", noun="bins")
     sig = xr.apply_ufunc(
         kernel,
         da,
@@ -311,7 +305,9 @@ def idft(x, dim: str | None = None):
         ``x`` not a DataArray or Dataset.
     ValueError
         No frequency dim, or a frequency coordinate without the attributes :func:`dft`
-        sets, or a sliced spectrum.
+        sets, or a sliced spectrum; NaN or inf in the spectrum (they would make every time
+        sample NaN; the message names the variable, channels and frequency range as
+        :func:`dft`'s; lazy data are checked when computed, block by block).
 
     Examples
     --------
@@ -352,6 +348,16 @@ def fast_spectrum_from_lifted(X, dim: str = SLOW_FREQUENCY, factor: int | None =
         ``N = M F`` fast bins at ``k / (N Th)`` Hz, ``Th = Tl / F``, same units and
         attributes as ``X``; the coordinate carries what :func:`idft` needs.
 
+    Raises
+    ------
+    TypeError
+        ``X`` not a DataArray.
+    ValueError
+        Missing dims, a ``factor`` other than the number of phases, a one-sided slow
+        spectrum, a core dim split into dask chunks; NaN or inf in ``X`` (each would make
+        ``F`` fast bins NaN; the message names the variable, channels and frequency range as
+        :func:`dft`'s; lazy data are checked when computed, block by block).
+
     Examples
     --------
     >>> import numpy as np, xarray as xr
@@ -383,8 +389,18 @@ def fast_spectrum_from_lifted(X, dim: str = SLOW_FREQUENCY, factor: int | None =
     fast_dim = dim[len("slow_"):] if dim.startswith("slow_") else f"fast_{dim}"
     _require_single_chunk(X, dim)
     _require_single_chunk(X, LIFT_PHASE)
+    # a NaN/inf slow bin would make its F fast bins NaN, silently: refused as dft refuses
+    consequence = (f"each would make the {f_} fast bins it serves NaN (fast bin k reads slow "
+                   f"bin k mod {m} of every phase)")
+    coord = np.asarray(X[dim].values) if dim in X.coords else None
+    refuse_non_finite(X, dim, consequence=consequence, remedy=_spectrum_remedy(dim),
+                      unit="Hz", noun="bins")
+    kernel = lifting_kernels.fast_spectrum_from_lifted
+    if X.chunks is not None and X.dtype.kind in "fc":
+        kernel = checked_blocks(kernel, X.name, dim, coord, consequence=consequence,
+                                remedy=_spectrum_remedy(dim), unit="Hz", noun="bins", axes=2)
     out = xr.apply_ufunc(
-        lifting_kernels.fast_spectrum_from_lifted,
+        kernel,
         X,
         input_core_dims=[[dim, LIFT_PHASE]],
         output_core_dims=[[fast_dim]],
