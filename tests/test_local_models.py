@@ -672,6 +672,7 @@ def test_chunks_as_views_of_read_only_data_same_fit_no_new_compilation(monkeypat
     R_ro, Z_ro = R.copy(), Z.copy()
     R_ro.flags.writeable = Z_ro.flags.writeable = False
     ro = local_model(R_ro, Z_ro, **kw)
+    assert lmb.fit_bins.signatures, "the fits above compiled (or loaded) no version of the loop"
     assert all(sig[0].mutable and sig[1].mutable for sig in lmb.fit_bins.signatures)
     for fit in (many, ro):
         for name in ("G", "T", "noise_covariance", "condition", "ill_posed"):
