@@ -727,7 +727,8 @@ def _fit_frequency_chunked(R, Z, s, *, factor, noise=None, pooled=False, first_w
     def fit_block(rb, zb, *nb, block_id=None):
         sb = None
         if select is not None:  # this block's bins, haloed (wrapped) like the spectra
-            first = starts[block_id[ax]] - halo
+            # (block_id is the output block's: pooled, without the experiment axis)
+            first = starts[block_id[ax - (pooled and exp_ax < ax)]] - halo
             sb = np.take(select, np.arange(first, first + rb.shape[ax]) % m)
         wb = None
         if instruments is not None:
