@@ -12,7 +12,7 @@ from scipy import stats
 from lcmr_xr import hdd, identify
 from lcmr_xr.kernels.adaptive import (K95, MODEL_ERROR_LEVEL, UNDETERMINED_LIMIT,
                                       candidate_windows, denominator_bias,
-                                      model_error_excess, nonlinearity_factor,
+                                      noise_share, nonlinearity_factor,
                                       second_order_factor, select_windows, small_sample_factor,
                                       weak_direction, whitened_weak_direction)
 
@@ -239,25 +239,28 @@ def test_auto_window_recovers_noiseless_truth_like_the_best_fixed_window():
     assert k.mean() > 0.9
 
 
-def test_model_error_excess_is_the_variance_ratio_f_test():
+def test_noise_share_is_the_variance_ratio_f_test():
     rng = np.random.default_rng(3)
     dof_w, dof_n, n = 38, 2, 400_000
     # residual variances of pure noise (variance 1): mean of dof |complex Gaussian|^2
     var_w = rng.chisquare(2 * dof_w, n) / (2 * dof_w)
     var_n = rng.chisquare(2 * dof_n, n) / (2 * dof_n)
-    rate = model_error_excess(var_w, var_n, dof_w, dof_n).mean()
+    rate = (noise_share(var_w, var_n, dof_w, dof_n) < 1.0).mean()
     p = 1.0 - MODEL_ERROR_LEVEL  # false alarms of the test, binomial over n draws
     assert abs(rate - p) < 4.0 * np.sqrt(p / n), rate
-    limit = stats.f.ppf(MODEL_ERROR_LEVEL, 2 * dof_w, 2 * dof_n)
-    got = model_error_excess(np.array([0.999, 1.001]) * limit, np.ones(2), dof_w, dof_n)
-    assert got.tolist() == [False, True]
+    q = stats.f.ppf(MODEL_ERROR_LEVEL, 2 * dof_w, 2 * dof_n)
+    np.testing.assert_allclose(noise_share(np.array([0.5, 2.0, 10.0]) * q, np.ones(3), dof_w, dof_n),
+                               [1.0, 0.5, 0.1], rtol=1e-10)
     # model error in the wide window's residuals (100x the noise): found with the F law's
-    # power (0.93 with 2 dof in the narrow window); an exact narrow fit (residual 0) under
-    # a wide one with residuals is an excess, 0 / 0 is not
-    power = model_error_excess(100.0 * var_w, var_n, dof_w, dof_n).mean()
-    exact = stats.f.sf(limit / 100.0, 2 * dof_w, 2 * dof_n)
+    # power (0.93 with 2 dof in the narrow window), and then the share left for noise
+    # bounds the noise's true share, 1/100, from above at the test's level
+    share = noise_share(100.0 * var_w, var_n, dof_w, dof_n)
+    power = (share < 1.0).mean()
+    exact = stats.f.sf(q / 100.0, 2 * dof_w, 2 * dof_n)
     assert abs(power - exact) < 4.0 * np.sqrt(exact * (1 - exact) / n) and exact > 0.9
-    assert model_error_excess(np.array([1e-30, 0.0]), np.zeros(2), dof_w, dof_n).tolist() == [True, False]
+    assert (share >= 0.01).mean() > MODEL_ERROR_LEVEL - 4.0 * np.sqrt(p / n)
+    # an exact narrow fit (residual 0) under a wide one with residuals: no noise; 0 / 0: all
+    assert noise_share(np.array([1e-30, 0.0]), np.zeros(2), dof_w, dof_n).tolist() == [0.0, 1.0]
 
 
 @pytest.mark.parametrize("n", [3600, pytest.param(36000, marks=pytest.mark.slow),

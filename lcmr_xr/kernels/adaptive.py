@@ -69,7 +69,7 @@ __all__ = [
     "K95", "UNDETERMINED_LIMIT", "candidate_windows", "denominator_bias", "nonlinearity_factor",
     "pooled_nonlinearity_factor", "second_order_factor",
     "second_order_variance", "small_sample_factor", "weak_direction", "whitened_weak_direction", "select_windows",
-    "MODEL_ERROR_LEVEL", "model_error_excess",
+    "MODEL_ERROR_LEVEL", "noise_share",
 ]
 
 #: Radius, in standard deviations, of the 95 % disc of a circular complex Gaussian error.
@@ -557,27 +557,30 @@ def select_windows(P: np.ndarray, P_var: np.ndarray, P_var_lin: np.ndarray, n_sl
     return choice, bias2
 
 
-#: Level of the variance-ratio test of :func:`model_error_excess`: under noise alone the
-#: wider window's residual variance exceeds the narrower one's by the test's limit in at
-#: most this fraction's complement of the bins (0.1 %).
+#: Level of the variance-ratio test of :func:`noise_share`: under noise alone the wider
+#: window's residual variance exceeds the narrower one's by the test's limit in 0.1 % of
+#: the bins.
 MODEL_ERROR_LEVEL = 0.999
 
 
-def model_error_excess(var_wide, var_narrow, dof_wide, dof_narrow,
-                       level: float = MODEL_ERROR_LEVEL) -> np.ndarray:
-    """Whether a wider window's residual variance exceeds a narrower one's beyond noise.
+def noise_share(var_wide, var_narrow, dof_wide, dof_narrow,
+                level: float = MODEL_ERROR_LEVEL) -> np.ndarray:
+    """The largest share of a wider window's residual variance that can be noise, judged by
+    a narrower window's residuals at the same bin: ``min(1, q var_narrow / var_wide)``.
 
     Both windows are centred on the same bin and see the same noise; a local model that
     describes the data leaves residuals of that noise's variance in either window, and
     ``var_wide / var_narrow`` (residual variances estimated from ``dof_wide`` and
     ``dof_narrow`` complex residuals) then follows ``F(2 dof_wide, 2 dof_narrow)``, to
     the extent that the noise variance is constant over the wider window (nested windows
-    share residuals, which makes the ratio scatter less than that F law: the test is
-    conservative).  A ratio beyond its ``level`` quantile is the wider window's model
-    error (the variance test of nested models; for noiseless data whose narrow fit is
-    exact to rounding the ratio is 1e3-1e5 on the HDD): its residual variance, and every
-    statistic built from it such as the weak direction's ``rho``, then measures model
-    error rather than noise.  ``var_narrow = 0 < var_wide`` is an excess; ``0 / 0`` is not.
+    share residuals, which makes the ratio scatter less than that F law).  ``q`` is that
+    law's ``level`` quantile: a ratio beyond it is the wider window's model error (the
+    variance test of nested models), and of ``var_wide`` at most ``q var_narrow`` is
+    noise.  A statistic built from ``var_wide``, such as the weak direction's ``rho``
+    (proportional to the noise's standard deviation), measures the noise alone when scaled
+    by the square root of this share.  On noiseless HDD data whose narrow fit is exact to
+    rounding the ratio is 1e3-4e4 (share 1e-3-3e-2); with the disturbances its median is
+    2.1.  ``var_narrow = 0 < var_wide`` gives 0; ``var_wide = 0`` gives 1.
 
     Parameters
     ----------
@@ -590,12 +593,12 @@ def model_error_excess(var_wide, var_narrow, dof_wide, dof_narrow,
 
     Returns
     -------
-    ndarray of bool
+    ndarray, real, in [0, 1]
 
     Examples
     --------
-    >>> model_error_excess(np.array([1.5, 100.0, 1.0, 0.0]), np.array([1.0, 1.0, 0.0, 0.0]), 38, 2).tolist()
-    [False, True, True, False]
+    >>> noise_share(np.array([1.5, 446.0, 1.0, 0.0]), np.array([1.0, 1.0, 0.0, 0.0]), 38, 2).round(3).tolist()
+    [1.0, 0.1, 0.0, 1.0]
     """
     from scipy.special import fdtri  # lazy: not needed to import the kernels
 
@@ -603,5 +606,5 @@ def model_error_excess(var_wide, var_narrow, dof_wide, dof_narrow,
                   2.0 * np.asarray(dof_narrow, dtype=float), level)
     var_wide, var_narrow = np.asarray(var_wide, dtype=float), np.asarray(var_narrow, dtype=float)
     with np.errstate(divide="ignore", invalid="ignore"):
-        ratio = np.where(var_wide > 0, var_wide / var_narrow, 0.0)
-    return ratio > limit
+        share = np.where(var_wide > 0, limit * var_narrow / var_wide, 1.0)
+    return np.clip(share, 0.0, 1.0)

@@ -9,7 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from lcmr_xr.kernels.adaptive import (denominator_bias, model_error_excess, nonlinearity_factor,
+from lcmr_xr.kernels.adaptive import (K95, UNDETERMINED_LIMIT, denominator_bias, noise_share,
+                                      nonlinearity_factor,
                                       pooled_nonlinearity_factor, second_order_factor,
                                       select_windows, small_sample_factor, weak_direction)
 from lcmr_xr.kernels.closed_loop import frf_variance_from_first_row, indirect_first_row
@@ -933,8 +934,10 @@ def identify_spectra_auto(R, Z, *, n_fast: int, factor: int, nu: int, windows,
     # ``out`` is the widest candidate's; the bins another window won are gathered from it
     # if it is held, else fitted again
     widest_undetermined = out["P_undetermined"].copy()
-    # its residual variance (the test of its flag, _finish_choice; not with a known noise)
-    widest_noise = out["noise_variance"].copy() if noise_covariance is None else None
+    # its residual variance and rho (the test of its flag, _finish_choice; not with a
+    # known noise)
+    widest_noise = (out["noise_variance"].copy(), out["s_weak_rel_std"].copy()) \
+        if noise_covariance is None else None
     for j, o in held.items():
         for name, value in o.items():
             at = choice if value.shape[choice.ndim - 1] == m else fast_choice
@@ -1117,7 +1120,8 @@ def _choose_windows(outs, windows, m, *, twin=None, nr=None, degrees=None, n_exp
     del P, P_var, P_lin
     fast_choice = np.take(choice, np.arange(bias2.shape[-3]) % m, axis=-1)
     widest_undetermined = outs[-1]["P_undetermined"]
-    widest_noise = None if known_noise else outs[-1]["noise_variance"].copy()
+    widest_noise = None if known_noise else (outs[-1]["noise_variance"].copy(),
+                                             outs[-1]["s_weak_rel_std"].copy())
 
     def gather(name):
         """The chosen candidate's array, bin by bin (slow or fast bins), without a stack
@@ -1156,14 +1160,15 @@ def _finish_choice(out, choice, fast_choice, bias2, widest_undetermined, windows
     0.86-1.00 with the bound form kept there, 0.94-0.98 with it everywhere;
     docs/uncertainty.md.)  The window choice itself is made as before (same ``P``).
 
-    ``widest_noise`` (..., M, nz), the widest candidate's residual noise variances (None
-    where the covariance comes from a known noise covariance): where the widest window's
-    residual variance of the rows of ``S`` exceeds the chosen window's beyond noise
-    (:func:`lcmr_xr.kernels.adaptive.model_error_excess`), the widest window's
-    weak-direction test measured its model error, not the noise, and its flag is not
-    carried over: the chosen window's own test decides (noiseless HDD, N = 3600: the
-    widest window flagged 28-84 Hz, whose chosen window-12 estimate its own test and band
-    cover)."""
+    ``widest_noise``: the widest candidate's residual noise variances (..., M, nz) and
+    ``rho`` (``s_weak_rel_std``, (..., M)); None where the covariance comes from a known
+    noise covariance.  Where the widest window's residual variance of the rows of ``S``
+    exceeds the chosen window's beyond noise, only a share of it can be noise
+    (:func:`lcmr_xr.kernels.adaptive.noise_share`), the rest is its model error, and its
+    weak-direction test is taken with ``rho`` scaled to that share: its flag is carried
+    over only where the noise alone leaves the weak direction undetermined (noiseless
+    HDD, N = 3600: the widest window flagged 28-84 Hz from its model error, where the
+    chosen window 12's estimate is covered by its own band)."""
     b2 = np.take_along_axis(
         bias2, fast_choice.reshape((1,) + fast_choice.shape + (1, 1)), axis=0)[0]
     if twin is not None:
@@ -1178,15 +1183,16 @@ def _finish_choice(out, choice, fast_choice, bias2, widest_undetermined, windows
     # The widest candidate has the most data: where even it cannot determine the weakest
     # direction of S, a narrower window that seems to is a lucky draw (choosing among noisy
     # determinacy tests), so the bin stays undetermined; unless the widest window's residual
-    # variance is its model error (the variance test above): then its test measured that.
+    # variance is mostly its model error and the noise alone passes its test (above).
     m = choice.shape[-1]
-    if widest_noise is not None and nr is not None and widest_noise.shape[-1] > nr:
+    if widest_noise is not None and nr is not None and widest_noise[0].shape[-1] > nr:
         dof = lambda w: window_dof(w, nr, degrees, n_exp or 1)  # noqa: E731
-        excess = model_error_excess(widest_noise[..., :nr].sum(-1),
-                                    out["noise_variance"][..., :nr].sum(-1),
-                                    dof(windows[-1]), dof(np.asarray(windows)[choice]))
-        widest_undetermined = widest_undetermined & ~np.take(
-            excess, np.arange(fast_choice.shape[-1]) % m, axis=-1)
+        variance, rho = widest_noise
+        share = noise_share(variance[..., :nr].sum(-1), out["noise_variance"][..., :nr].sum(-1),
+                            dof(windows[-1]), dof(np.asarray(windows)[choice]))
+        noisy = ~(K95 * rho * np.sqrt(share) <= UNDETERMINED_LIMIT)  # its test, noise only
+        widest_undetermined = widest_undetermined & np.take(
+            noisy, np.arange(fast_choice.shape[-1]) % m, axis=-1)
     undetermined = out["P_undetermined"] | widest_undetermined
     out["P_undetermined"] = undetermined
     out["P_var"] = np.where(undetermined[..., None, None], np.inf, out["P_var"] + b2)
