@@ -31,7 +31,10 @@ degrees 3-3-3):
    ``--band-forms`` prints instead the pooled coverage per form of the ``S^-1`` factor
    (:data:`BAND_FORMS`), each from the same pooled fit per group (:func:`pooled_band_forms`);
    ``--decompose`` the coverage of the band built from each of its ingredients at
-   production's window choice (:func:`pooled_band_decomposition`).
+   production's window choice (:func:`pooled_band_decomposition`), with the error the split
+   halves share against the truth and the candidate bias terms ``b2_W`` (chosen window
+   against the pilot) and, with ``--hausman``, ``b2_H`` (pooled least squares against IV);
+   ``--circular-fan`` and ``--instruments-without-own-transient`` measure variants.
 6. Window 0 exactness for F = 3 (a SISO loop, E = F nu + 1 = 4 experiments).
 7. Cost: 64 experiments of N = 3600 pooled in one local model against identifying them
    one by one (one call over the experiment dim, and a loop of calls), window 30.
@@ -53,7 +56,8 @@ import xarray as xr
 
 import lcmr_xr
 from lcmr_xr import conventions as cv, hdd
-from lcmr_xr.kernels.adaptive import (K95, nonlinearity_factor, second_order_variance,
+from lcmr_xr.kernels.adaptive import (K95, denominator_bias, nonlinearity_factor,
+                                      second_order_variance,
                                       select_windows,
                                       small_sample_factor, weak_direction)
 from lcmr_xr.kernels.closed_loop import frf_variance_from_first_row, indirect_first_row
@@ -424,6 +428,40 @@ def _captured_candidates(calibrations=None):
         kid._spread_ratio = spread
 
 
+@contextlib.contextmanager
+def _variant(circular_fan: bool = False, own_transient: bool = True):
+    """Measurement variants of :func:`pooled_band_decomposition` (not production):
+    ``circular_fan``: the fan vibration as the periodic steady state of its filter (the
+    noise's DFT times the filter's FRF at the fast bins: no transient, no leakage in its
+    spectrum); ``own_transient=False``: the pooled IV's instruments ``G1 R`` without each
+    experiment's own first-fit transient ``T1`` (which is fitted to that experiment's
+    noise)."""
+    from lcmr_xr.hdd import benchmark as hb, disturbances as hd
+    from lcmr_xr.kernels import identification as kid
+    from lcmr_xr.kernels.lti import frequency_response
+
+    fan, prediction = hb.fan_vibration, kid._prediction
+
+    def circular(n, rng):
+        e = hd.NOISE_SCALE * rng.uniform(-0.5, 0.5, size=int(n))
+        H = frequency_response(hd.fan_filter(), np.fft.rfftfreq(int(n), d=hd.FAST_PERIOD))
+        return np.fft.irfft(np.fft.rfft(e) * H[:, 0, 0], n=int(n))
+
+    def without_own_transient(G, T, R, Z, *, circular=True, experiment_axis=None):
+        if experiment_axis is not None:
+            T = np.zeros_like(T)
+        return prediction(G, T, R, Z, circular=circular, experiment_axis=experiment_axis)
+
+    if circular_fan:
+        hb.fan_vibration = circular
+    if not own_transient:
+        kid._prediction = without_own_transient
+    try:
+        yield
+    finally:
+        hb.fan_vibration, kid._prediction = fan, prediction
+
+
 def _band_pieces(fit, kw, out, ratio=None):
     """Per fast bin of one candidate: ``v``, ``v2``, ``q``, ``rho_v`` (broadcast to ``P``),
     the small-sample factor, and the calibration and undetermined flag it used.
@@ -684,10 +722,36 @@ DECOMPOSITION = {
     "prod., c_S 2nd, no floors": lambda x: (x["dof"] ** 2 * x["v"] / x["cal"] * x["raw"]
                                             * x["pf_raw_nf"] * x["cs2"] ** 2 + x["b2"]),
 }
+#: Rows with ``b2W``: the squared difference between the chosen window's ``P`` and the
+#: narrowest candidate's (the pilot), less the variance of that difference measured by the
+#: split halves (``|d_a - d_b|^2 / 4``), averaged over the neighbours as
+#: :func:`lcmr_xr.kernels.adaptive.denominator_bias` does: the noise-induced bias that
+#: grows with the window, if the pilot's own is small (:func:`pooled_band_decomposition`).
+WINDOW_BIAS_ROWS = {
+    "prod. + b2_W": lambda x: DECOMPOSITION["production (all)"](x) + x["b2W"],
+    "prod., c_S exact quantile + b2_W": lambda x: (DECOMPOSITION["prod., c_S exact quantile"](x)
+                                                   + x["b2W"]),
+    "c_dof c_P + P_bias + b2_W": lambda x: DECOMPOSITION["c_dof c_P + P_bias"](x) + x["b2W"],
+}
+#: Rows with the Hausman term ``b2H`` of the pooled least-squares fit against the pooled IV
+#: fit at the widest window (:func:`lcmr_xr.kernels.adaptive.denominator_bias`), added by
+#: ``--hausman`` (:func:`pooled_band_decomposition`).
+HAUSMAN_ROWS = {
+    "prod. + b2_H": lambda x: DECOMPOSITION["production (all)"](x) + x["b2H"],
+    "prod., c_S exact quantile + b2_H": lambda x: (DECOMPOSITION["prod., c_S exact quantile"](x)
+                                                   + x["b2H"]),
+    "prod., c_S 2nd order + b2_H": lambda x: DECOMPOSITION["prod., c_S 2nd order"](x) + x["b2H"],
+    "c_dof c_P + P_bias + b2_H": lambda x: DECOMPOSITION["c_dof c_P + P_bias"](x) + x["b2H"],
+    "prod. + b2_H halves": lambda x: DECOMPOSITION["production (all)"](x) + x["b2Hh"],
+    "prod., c_S exact quantile + b2_H halves": lambda x: (
+        DECOMPOSITION["prod., c_S exact quantile"](x) + x["b2Hh"]),
+    "c_dof c_P + P_bias + b2_H halves": lambda x: DECOMPOSITION["c_dof c_P + P_bias"](x) + x["b2Hh"],
+}
 
 
 def pooled_band_decomposition(groups: int, first_group: int = 0, n_exp: int = 8,
-                              denominator="iv", disturbances=None):
+                              denominator="iv", disturbances=None, hausman: bool = False,
+                              circular_fan: bool = False, own_transient: bool = True):
     """Coverage of the pooled 95 % discs per band with the band built from some of its
     ingredients (:data:`DECOMPOSITION`), at production's window choice and flag (so every
     row has ``identify``'s ``P``; a flagged bin counts as covered).  One pooled
@@ -696,20 +760,30 @@ def pooled_band_decomposition(groups: int, first_group: int = 0, n_exp: int = 8,
     ``identify``'s ``P_std`` and ``P``.  Returns the bands, row -> (group, band, input)
     coverage, the flagged fraction (group, band), and medians over the unflagged bins
     (name -> (group, band, input)) of the factors and of the error over the calibrated
-    first-order variance (``ln 2`` if that variance is right).  ``disturbances``: names
-    for :func:`lcmr_xr.hdd.simulate` (default: all of them, the benchmark's)."""
+    first-order variance (``ln 2`` if that variance is right); rows marked ``(mean)`` are
+    means over those bins: the error the two halves share against the truth, ``Re(e_a
+    conj(e_b))`` (``|B|^2`` for a bias ``B`` common to both, 0 on average for independent
+    noise), next to the halves' difference ``|e_a - e_b|^2 / 4`` (the pooled noise
+    variance for equal halves) and the pooled error.  ``disturbances``: names
+    for :func:`lcmr_xr.hdd.simulate` (default: all of them, the benchmark's).
+    ``hausman``: also the rows of :data:`HAUSMAN_ROWS`, with ``b2H`` from two more pooled
+    fits per group at the widest window (least squares and IV), whose difference bounds
+    least squares' errors-in-variables bias (an upper term for IV's).  ``circular_fan``,
+    ``own_transient``: measurement variants (:func:`_variant`)."""
     from lcmr_xr.demo import BANDS_HZ
     from lcmr_xr.kernels.adaptive import second_order_factor
 
     which = {} if disturbances is None else {"disturbances": tuple(disturbances)}
+    rows = {**DECOMPOSITION, **WINDOW_BIAS_ROWS, **(HAUSMAN_ROWS if hausman else {})}
 
-    cover = {name: np.zeros((groups, len(BANDS_HZ), 2)) for name in DECOMPOSITION}
+    cover = {name: np.zeros((groups, len(BANDS_HZ), 2)) for name in rows}
     flagged = np.zeros((groups, len(BANDS_HZ)))
     medians = {}
     for gi, g in enumerate(range(first_group, first_group + groups)):
-        exps = [hdd.simulate(N, case=CASE, seed=500 + n_exp * g + e, **which)
-                for e in range(n_exp)]
-        with _captured_candidates({}) as calls:
+        with _variant(circular_fan, own_transient):
+            exps = [hdd.simulate(N, case=CASE, seed=500 + n_exp * g + e, **which)
+                    for e in range(n_exp)]
+        with _captured_candidates({}) as calls, _variant(circular_fan, own_transient):
             pooled = lcmr_xr.identify(xr.concat(exps, "experiment"), combine="experiment",
                                       errors="ignore", denominator=denominator)
         pieces = [_band_pieces(fit, kw, out) for fit, kw, out in calls]
@@ -720,7 +794,7 @@ def pooled_band_decomposition(groups: int, first_group: int = 0, n_exp: int = 8,
         truth[1:] = hdd.true_frf(f[1:], case=CASE).values
         full = lambda a: np.broadcast_to(a, pieces[0]["v"].shape)  # noqa: E731
         x = {key: [] for key in ("v", "cal", "raw", "dof", "pf", "pf_nf", "pf_raw", "pf_raw_nf",
-                                 "cs", "cs2", "csq", "jk")}
+                                 "cs", "cs2", "csq", "jk", "Pa", "Pb")}
         for p, (fit, kw, out) in zip(pieces, calls):
             P_h = [frf_from_first_block_row(fit[h], kw["factor"])[: f.size]
                    for h in ("P1_half_a", "P1_half_b")]
@@ -739,7 +813,7 @@ def pooled_band_decomposition(groups: int, first_group: int = 0, n_exp: int = 8,
                              ("cs", np.where(und[:, None, None], 1.0, 1.0 / (1.0 - p["q"]))),
                              ("cs2", cs2),
                              ("csq", weak_direction_quantile_factor(np.where(und[:, None, None], 0.0, rho))),
-                             ("jk", jk)):
+                             ("jk", jk), ("Pa", P_h[0]), ("Pb", P_h[1])):
                 x[key].append(full(val))
         x = {key: np.stack(val) for key, val in x.items()}
         P = np.stack([p["P"] for p in pieces])
@@ -752,6 +826,38 @@ def pooled_band_decomposition(groups: int, first_group: int = 0, n_exp: int = 8,
         undetermined = chosen(und) | und[-1]
         c = {key: chosen(val) for key, val in x.items()}
         c["b2"] = chosen(bias2)
+        assert np.all(np.diff([np.min(kw["dof"]) for _, kw, _ in calls]) > 0)  # narrowest first
+        # the chosen window against the pilot (the narrowest candidate, first fitted), the
+        # variance of the difference from the halves' own difference
+        with np.errstate(invalid="ignore"):
+            spread = 0.25 * np.abs((c["Pa"] - x["Pa"][0]) - (c["Pb"] - x["Pb"][0])) ** 2
+        c["b2W"] = denominator_bias(chosen(P), P[0], np.zeros(spread.shape), spread,
+                                    determined=~undetermined & np.isfinite(spread))
+        if hausman:  # pooled least squares against pooled IV, both at the widest window
+            with _variant(circular_fan, own_transient):
+                twins = [lcmr_xr.identify(xr.concat(exps, "experiment"), combine="experiment",
+                                          errors="ignore", denominator=d, window=WINDOW)
+                         for d in ("ls", "iv")]
+            var = [t.P_std_linear.values ** 2 for t in twins]
+            determined = np.isfinite(twins[1].P_std.values)
+            c["b2H"] = denominator_bias(twins[0].P.values, twins[1].P.values, *var,
+                                        determined=determined)
+            # the same comparison with the variance of the difference measured by the
+            # split halves (random groups, equal halves: w = 1/4) instead of the fits'
+            # reported variances: mean over the neighbours of |d|^2 - |d_a - d_b|^2 / 4
+            with _variant(circular_fan, own_transient):
+                d_h = [lcmr_xr.identify(xr.concat(exps[h::2], "experiment"),
+                                        combine="experiment", errors="ignore", denominator="ls",
+                                        window=WINDOW).P.values
+                       - lcmr_xr.identify(xr.concat(exps[h::2], "experiment"),
+                                          combine="experiment", errors="ignore",
+                                          denominator="iv", window=WINDOW).P.values
+                       for h in (0, 1)]
+            with np.errstate(invalid="ignore"):
+                spread = 0.25 * np.abs(d_h[0] - d_h[1]) ** 2
+            c["b2Hh"] = denominator_bias(twins[0].P.values, twins[1].P.values,
+                                         np.zeros(spread.shape), spread,
+                                         determined=determined & np.isfinite(spread))
         P_c = chosen(P)
         np.testing.assert_array_equal(P_c, pooled.P.values)
         with np.errstate(all="ignore"):
@@ -764,11 +870,18 @@ def pooled_band_decomposition(groups: int, first_group: int = 0, n_exp: int = 8,
                      "P_bias > 0": (c["b2"] > 0).astype(float),
                      "err^2 / (c_dof^2 v)": err2 / (c["dof"] ** 2 * c["v"]),
                      "err^2 / production": err2 / DECOMPOSITION["production (all)"](c),
-                     "jackknife bias^2 / (c_dof^2 v)": c["jk"] / (c["dof"] ** 2 * c["v"])}
+                     "jackknife bias^2 / (c_dof^2 v)": c["jk"] / (c["dof"] ** 2 * c["v"]),
+                     # the error the halves share, against the truth: Re(e_a conj(e_b)) is
+                     # |B|^2 for a bias B common to both (independent halves' noise: 0 on average)
+                     "shared Re(e_a e_b*) / (c_dof^2 v) (mean)":
+                         np.real((c["Pa"] - truth) * np.conj(c["Pb"] - truth)) / (c["dof"] ** 2 * c["v"]),
+                     "w |e_a - e_b|^2 / (c_dof^2 v) (mean)":
+                         0.25 * np.abs(c["Pa"] - c["Pb"]) ** 2 / (c["dof"] ** 2 * c["v"]),
+                     "err^2 / (c_dof^2 v) (mean)": err2 / (c["dof"] ** 2 * c["v"])}
         for b, (lo, hi) in enumerate(BANDS_HZ):
             sel = (f > lo) & (f < hi) & (f < f.max())
             flagged[gi, b] = undetermined[sel, 0, 0].mean()
-            for name, form in DECOMPOSITION.items():
+            for name, form in rows.items():
                 with np.errstate(all="ignore"):
                     hit = (err2 <= K95 ** 2 * np.where(undetermined, np.inf, form(c))) | undetermined
                 cover[name][gi, b] = hit[sel, 0].mean(axis=0)
@@ -776,7 +889,8 @@ def pooled_band_decomposition(groups: int, first_group: int = 0, n_exp: int = 8,
             for name, val in extra.items():
                 medians.setdefault(name, np.full((groups, len(BANDS_HZ), 2), np.nan))
                 if keep.any():
-                    medians[name][gi, b] = np.nanmedian(val[keep, 0], axis=0)
+                    how = np.nanmean if name.endswith("(mean)") else np.nanmedian
+                    medians[name][gi, b] = how(val[keep, 0], axis=0)
         print(f"  decomposition: group {g} done", file=sys.stderr, flush=True)
     return BANDS_HZ, cover, flagged, medians
 
@@ -793,7 +907,8 @@ def report_band_decomposition(bands, cover, flagged, medians, *, first_group, de
         print(f"   {name:<32}" + "".join(f"{f'{mean[b, 0]:.3f}/{mean[b, 1]:.3f}':>17}"
                                          for b in range(len(bands))))
     print(f"   {'flagged':<32}" + "".join(f"{flagged[:, b].mean():>17.3f}" for b in range(len(bands))))
-    print("   medians over the unflagged bins of the chosen windows (median over groups):")
+    print("   medians over the unflagged bins of the chosen windows (means where marked; "
+          "median over groups):")
     for name, v in medians.items():
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)
@@ -914,6 +1029,15 @@ def main(argv=None):
     parser.add_argument("--decompose", action="store_true",
                         help="with --only-disturbances: the pooled coverage of the band built "
                              "from each of its ingredients (production's window choice)")
+    parser.add_argument("--hausman", action="store_true",
+                        help="with --decompose: also the bands with the Hausman term of pooled "
+                             "least squares against pooled IV at the widest window")
+    parser.add_argument("--circular-fan", action="store_true",
+                        help="with --decompose: the fan vibration as its filter's periodic "
+                             "steady state (no leakage; a measurement variant)")
+    parser.add_argument("--instruments-without-own-transient", action="store_true",
+                        help="with --decompose: pooled IV instruments G1 R without each "
+                             "experiment's own first-fit transient (a measurement variant)")
     parser.add_argument("--disturbances", nargs="+", default=None,
                         choices=["rotational", "fan", "runout"],
                         help="with --decompose: only these disturbances (default: all)")
@@ -943,7 +1067,9 @@ def main(argv=None):
             for d in args.denominator:
                 report_band_decomposition(*pooled_band_decomposition(
                     args.groups, args.first_group, denominator=d,
-                    disturbances=args.disturbances),
+                    disturbances=args.disturbances, hausman=args.hausman,
+                    circular_fan=args.circular_fan,
+                    own_transient=not args.instruments_without_own_transient),
                     first_group=args.first_group, denominator=d)
             return
         if args.band_forms:

@@ -218,3 +218,50 @@ def test_pooling_decomposition_rebuilds_identify_band():
     assert np.all(cover["c_dof c_S"] >= cover["c_dof"] - 1e-12)
     assert np.all(cover["production (all)"] >= cover["c_dof c_P"] - 1e-12)
     assert np.all((0 <= flagged) & (flagged <= 1))
+
+
+def test_pooling_decomposition_hausman_rows_widen_their_base():
+    """--decompose --hausman: the Hausman term of pooled least squares against pooled IV
+    (b2H >= 0) is added to a band, so each such row covers at least what its base row
+    covers; the halves' shared error and difference are reported (finite means)."""
+    module = _load("pooling")
+    bands, cover, flagged, medians = module.pooled_band_decomposition(groups=1, n_exp=4,
+                                                                      hausman=True)
+    for name, base in (("prod. + b2_H", "production (all)"),
+                       ("c_dof c_P + P_bias + b2_H", "c_dof c_P + P_bias"),
+                       ("prod., c_S 2nd order + b2_H", "prod., c_S 2nd order")):
+        assert np.all(cover[name] >= cover[base] - 1e-12)
+    shared = medians["shared Re(e_a e_b*) / (c_dof^2 v) (mean)"]
+    spread = medians["w |e_a - e_b|^2 / (c_dof^2 v) (mean)"]
+    assert np.all(np.isfinite(shared[:, 1:])) and np.all(spread[:, 1:] > 0)
+
+
+def test_pooling_decomposition_variants():
+    """The measurement variants of --decompose (benchmarks/pooling.py _variant): the
+    circular fan vibration is its filter's periodic steady state (its DFT is the filter's
+    FRF times the noise's DFT, its standard deviation the stationary one, 3.0 nm); the
+    pooled instruments without their own transient are G1 R; both undone on exit."""
+    from lcmr_xr.hdd import benchmark as hb, disturbances as hd
+    from lcmr_xr.kernels import identification as kid
+    from lcmr_xr.kernels.lti import frequency_response
+
+    module = _load("pooling")
+    fan, prediction = hb.fan_vibration, kid._prediction
+    n = 1 << 16
+    with module._variant(circular_fan=True, own_transient=False):
+        x = hb.fan_vibration(n, np.random.default_rng(3))
+        e = hd.NOISE_SCALE * np.random.default_rng(3).uniform(-0.5, 0.5, size=n)
+        H = frequency_response(hd.fan_filter(), np.fft.rfftfreq(n, d=hd.FAST_PERIOD))[:, 0, 0]
+        np.testing.assert_allclose(np.fft.rfft(x), H * np.fft.rfft(e), atol=1e-9 * np.abs(H).max())
+        std = hd.stationary_std(hd.fan_filter(), hd.NOISE_SCALE * hd.UNIFORM_STD)[0]
+        assert abs(x.std() / std - 1) < 0.05
+        rng = np.random.default_rng(0)
+        G = rng.standard_normal((5, 2, 3)) + 0j
+        R = rng.standard_normal((4, 5, 3)) + 0j
+        T = rng.standard_normal((4, 5, 2)) + 0j
+        Z = np.full((4, 5, 2), np.nan + 0j)
+        zhat = kid._prediction(G, T, R, Z, circular=False, experiment_axis=0)
+        np.testing.assert_allclose(zhat, np.einsum("mip,emp->emi", G, R))
+        np.testing.assert_allclose(kid._prediction(G, T[0], R[0], Z[0], circular=False),
+                                   np.einsum("mip,mp->mi", G, R[0]) + T[0])  # one record: as before
+    assert hb.fan_vibration is fan and kid._prediction is prediction

@@ -25,6 +25,7 @@ from lcmr_xr.kernels.identification import (
     identify_spectra,
     finish_packed_auto,
     first_fit_window,
+    _prediction,
     identify_spectra_auto,
     identify_window0_arrays,
     packed_width,
@@ -94,9 +95,10 @@ def identify(experiment: xr.Dataset, *, method: str = "lrm", window=DEFAULT_WIND
         also fitted by instrumental variables with its own prediction as instruments, and
         the two estimates' difference (a Hausman comparison) adds a noise-inflated upper
         term for least squares' errors-in-variables bias to ``P_bias`` at every bin.
-        ``"auto"`` needs ``covariance=True`` (and ``frequency_chunks`` at least twice the
-        widest candidate, 60, with that comparison; else the widest plus the halo of
-        ``denominator="iv"``'s first fit if any: 42, or 30); with repeated periods
+        ``"auto"`` needs ``covariance=True`` (and ``frequency_chunks`` of at least the
+        widest candidate, 30, plus the halo of ``denominator="iv"``'s first fit if any:
+        42; the comparison's instruments come from the widest candidate's own chunks);
+        with repeated periods
         each candidate's band uses the noise covariance from the periods.
         An integer window is a whole number (``30.0`` is 30; ``30.5`` is refused, not
         rounded).  The default is :data:`lcmr_xr.settings.DEFAULT_WINDOW`.
@@ -512,33 +514,34 @@ def _estimate(r: xr.DataArray, u: xr.DataArray, y: xr.DataArray, s, *, factor: i
         n_exp = r.sizes[cv.EXPERIMENT] if pooled else None
         windows = _candidate_windows(s, factor * nu, n // factor) if auto else (s.window,)
         # window="auto" with a least-squares denominator: the widest window's IV twin
-        # (kernels.adaptive.denominator_bias), whose instruments come from that window
+        # (kernels.adaptive.denominator_bias), whose instruments are that window's own
+        # least-squares prediction G R + T, from the widest candidate's chunked fit (as the
+        # eager path takes it from that candidate: no first fit of its own)
         twin = auto and checks_denominator_bias(_kernel_denominator(s), s.degrees,
                                                 s.closed_loop, n_exp,
                                                 known_noise=noise is not None)
-        halo = max(windows) + (max(windows) if twin else _first_fit_halo(s, factor * nu))
+        halo = max(windows) + _first_fit_halo(s, factor * nu)
         if halo > s.frequency_chunks:
             what = (f"the widest candidate window of window='auto' ({max(windows)} bins"
                     if auto else f"the window ({s.window} bins")
-            if twin:
-                what += (f" plus {max(windows)} for the first fit of the instruments that "
-                         f"check the least-squares denominator's bias")
-            elif halo > max(windows):
+            if halo > max(windows):
                 what += f" plus {halo - max(windows)} for the first fit of denominator='iv'"
             raise ValueError(
                 f"frequency_chunks={s.frequency_chunks} is smaller than the halo of {what} on "
                 f"each side); use frequency_chunks >= {halo}."
             )
+        # the spectra once, for every candidate (and the twin)
+        R, Z = _chunked_spectra(r, u, y, factor=factor, closed_loop=s.closed_loop,
+                                check_rank=check_rank)
         # one chunked fit per candidate window (one for a fixed window), stacked in front
-        packed = xr.concat([_fit_frequency_chunked(r, u, y, s._replace(window=w), factor=factor,
-                                                   check_rank=check_rank and i == 0,
-                                                   noise=noise, pooled=pooled)
-                            for i, w in enumerate(windows)]
-                           + ([_fit_frequency_chunked(r, u, y, s._replace(window=max(windows),
-                                                                          denominator="iv"),
-                                                      factor=factor, check_rank=False,
-                                                      pooled=pooled, first_window=max(windows))]
-                              if twin else []), "_candidate")
+        fits = [_fit_frequency_chunked(R, Z, s._replace(window=w), factor=factor, noise=noise,
+                                       pooled=pooled) for w in windows]
+        if twin:
+            zhat = _chunked_prediction(fits[-1], R, Z, chunk=s.frequency_chunks)
+            fits.append(_fit_frequency_chunked(R, Z, s._replace(window=max(windows),
+                                                                denominator="iv"),
+                                               factor=factor, pooled=pooled, instruments=zhat))
+        packed = xr.concat(fits, "_candidate")
         nz_, nr_ = packed.attrs["nz"], packed.attrs["nr"]
         shape = dict(nz=nz_, nr=nr_, n_fast=n, factor=factor, nu=nu, ny=ny,
                      closed_loop=s.closed_loop)
@@ -607,30 +610,15 @@ def _candidate_windows(s, n_excitation: int, n_bins: int) -> tuple[int, ...]:
     return candidate_windows(*auto_window_range(s.degrees, n_excitation, n_bins))
 
 
-def _fit_frequency_chunked(r, u, y, s, *, factor, check_rank, noise=None, pooled=False,
-                           first_window=None):
-    """Lazy local-model fit in chunks along ``slow_frequency`` with wrapped halos.
-
-    On eager data the spectra are computed here, once, and the excitation rank is checked
-    on them (``check_rank``).  ``noise`` (..., ``slow_frequency``, ``_z``, ``_z2``),
-    optional: the noise covariance known per bin (periods), haloed like the spectra.
-    ``pooled``: one local model over the ``experiment`` dim (kept in one chunk; the fitted
-    blocks drop it).  ``first_window``: the half-width of the first fit of
-    ``denominator="iv"`` (default :func:`lcmr_xr.kernels.identification.first_fit_window`);
-    the halo is ``window`` plus it.
-
-    Returns a DataArray (..., ``slow_frequency``, ``_packed``) of :func:`fit_packed` columns.
-    """
-    import dask.array as da
-
-    chunk, window, closed_loop = s.frequency_chunks, s.window, s.closed_loop
+def _chunked_spectra(r, u, y, *, factor, closed_loop, check_rank):
+    """The spectra ``R`` (..., ``slow_frequency``, ``_r``) and ``Z`` (..., ``_z``) of
+    :func:`_fit_frequency_chunked`, lazy for lazy data, with the NaN/inf and magnitude
+    checks of the chunked path; on eager data the excitation rank is checked on them
+    (``check_rank``)."""
     m = y.sizes[cv.SLOW_TIME]
     nu, ny = r.sizes[cv.INPUT], y.sizes[cv.OUTPUT]
     nr = factor * nu
-    # the instruments' first fit needs its own
-    halo = window + (_first_fit_halo(s, nr) if first_window is None else int(first_window))
     nz = nr + ny if closed_loop == "indirect" else ny
-    SF = cv.SLOW_FREQUENCY
     th = even_spacing(r[cv.TIME].values, cv.TIME)[1]
 
     def spectra(r, u, y):
@@ -654,6 +642,52 @@ def _fit_frequency_chunked(r, u, y, s, *, factor, check_rank, noise=None, pooled
     )
     if check_rank and R.chunks is None:
         _check_excitation_rank(R.values, "r" if closed_loop == "indirect" else "u")
+    return R, Z
+
+
+def _chunked_prediction(packed, R, Z, *, chunk):
+    """The instruments ``G R + T`` (:func:`lcmr_xr.kernels.identification._prediction`,
+    not circular) from a least-squares chunked fit ``packed`` of :func:`_fit_frequency_chunked`
+    (one record), lazily, chunk by chunk along ``slow_frequency`` (``chunk`` bins)."""
+    nz, nr = packed.attrs["nz"], packed.attrs["nr"]
+
+    def predict(p, r_, z_):
+        p = np.ascontiguousarray(p).view(complex)
+        G = p[..., : nz * nr].reshape(p.shape[:-1] + (nz, nr))
+        return _prediction(G, p[..., nz * nr: nz * nr + nz], r_, z_, circular=False)
+
+    def along(x):
+        return x.chunk({SF: chunk})
+
+    return xr.apply_ufunc(predict, packed, along(R), along(Z),
+                          input_core_dims=[["_packed"], ["_r"], ["_z"]],
+                          output_core_dims=[["_z"]], dask="parallelized",
+                          output_dtypes=[complex])
+
+
+def _fit_frequency_chunked(R, Z, s, *, factor, noise=None, pooled=False, first_window=None,
+                           instruments=None):
+    """Lazy local-model fit in chunks along ``slow_frequency`` with wrapped halos.
+
+    ``R``, ``Z``: the spectra of :func:`_chunked_spectra`.  ``noise`` (..., ``slow_frequency``,
+    ``_z``, ``_z2``), optional: the noise covariance known per bin (periods), haloed like
+    the spectra.  ``pooled``: one local model over the ``experiment`` dim (kept in one
+    chunk; the fitted blocks drop it).  ``first_window``: the half-width of the first fit of
+    ``denominator="iv"`` (default :func:`lcmr_xr.kernels.identification.first_fit_window`);
+    the halo is ``window`` plus it.  ``instruments`` (..., ``slow_frequency``, ``_z``),
+    optional, one record: those of ``denominator="iv"`` (:func:`_chunked_prediction`),
+    haloed like the spectra; then there is no first fit and the halo is ``window``.
+
+    Returns a DataArray (..., ``slow_frequency``, ``_packed``) of :func:`fit_packed` columns.
+    """
+    import dask.array as da
+
+    chunk, window, closed_loop = s.frequency_chunks, s.window, s.closed_loop
+    nr, nz = R.sizes["_r"], Z.sizes["_z"]
+    # the instruments' first fit needs its own
+    halo = window + (0 if instruments is not None else
+                     _first_fit_halo(s, nr) if first_window is None else int(first_window))
+
     def one_chunk(d, x):  # pooled: every experiment in each block (one local model)
         return -1 if (pooled and d == cv.EXPERIMENT) or x.chunks is None \
             else x.chunks[x.get_axis_num(d)]
@@ -672,6 +706,10 @@ def _fit_frequency_chunked(r, u, y, s, *, factor, check_rank, noise=None, pooled
     n_exp = R.sizes[cv.EXPERIMENT] if pooled else 1
     width = packed_width(nz, nr, s.covariance, n_exp, closed_loop)
     blocks = [Rg, Zg]
+    if instruments is not None:
+        Wd = instruments.transpose(*R.dims[:-1], "_z").chunk(
+            {**dict(zip(R.dims[:-1], Rd.chunks[:-1])), "_z": -1}).data
+        blocks.append(da.overlap.overlap(Wd, depth=depth, boundary=boundary))
     if noise is not None:  # (..., SF, nz nz) flat, so its blocks line up with R's and Z's
         if pooled:  # one noise covariance for all experiments: repeated along their dim
             noise = noise.expand_dims({cv.EXPERIMENT: n_exp})
@@ -681,13 +719,17 @@ def _fit_frequency_chunked(r, u, y, s, *, factor, check_rank, noise=None, pooled
         blocks.append(da.overlap.overlap(Nd, depth=depth, boundary=boundary))
 
     def fit_block(rb, zb, *nb):
+        wb = None
+        if instruments is not None:
+            wb, nb = nb[0], nb[1:]
         known = nb[0].reshape(nb[0].shape[:-1] + (nz, nz)) if nb else None
         if known is not None and pooled:
             known = np.take(known, 0, axis=exp_ax)
         return fit_packed(rb, zb, half_width=window, degrees=s.degrees, circular=False,
                           covariance=s.covariance, noise_covariance=known,
                           experiment_axis=exp_ax, denominator=_kernel_denominator(s),
-                          closed_loop=closed_loop, first_window=first_window)
+                          closed_loop=closed_loop, first_window=first_window,
+                          instruments=wb)
 
     chunks = Rg.chunks[:-1] + ((width,),)
     if pooled:  # the fit pools the experiment axis away

@@ -47,7 +47,7 @@ class IndirectResult(NamedTuple):
 
 def indirect_first_row(G: np.ndarray, n_lifted_inputs: int, G_cov: np.ndarray | None = None,
                        s_condition_limit: float = S_CONDITION_LIMIT,
-                       mirrors: bool = True) -> IndirectResult:
+                       mirrors: bool = True, s_vectors: bool = True) -> IndirectResult:
     """First block row of the lifted plant from ``G = [S; PS_1]``.
 
     Parameters
@@ -66,6 +66,10 @@ def indirect_first_row(G: np.ndarray, n_lifted_inputs: int, G_cov: np.ndarray | 
         whole circle) and compute on half the bins then.  False: the bins are a block of
         the circle (``lcmr_xr.kernels.identification`` fits long records in blocks and
         mirrors the results itself); every bin is computed.
+    s_vectors : bool, default True
+        With ``G_cov``, also keep the singular vectors of ``S`` (``s_svd``, for the weak
+        direction).  False: only the singular values (the condition number) are computed,
+        for a caller that needs ``P_1`` and its covariance alone (``s_svd`` is then None).
 
     Returns
     -------
@@ -82,7 +86,8 @@ def indirect_first_row(G: np.ndarray, n_lifted_inputs: int, G_cov: np.ndarray | 
     PS = G[..., nr:, :]
     finite = np.isfinite(G).all(axis=(-2, -1))
     S_safe = np.where(finite[..., None, None], S, np.eye(nr))
-    cond_s, svd = _condition(S_safe, vectors=G_cov is not None, mirrors=mirrors)
+    cond_s, svd = _condition(S_safe, vectors=G_cov is not None and s_vectors,
+                              mirrors=mirrors)
     cond = np.where(finite, cond_s, np.inf)
     singular = ~(cond < s_condition_limit)
     S_safe = np.where(singular[..., None, None], np.eye(nr), S_safe)

@@ -242,7 +242,8 @@ def slow_bin_terms(G, G_cov, *, nr: int, closed_loop: str = "indirect",
     """
     G = np.asarray(G)
     if closed_loop == "indirect":
-        ind = indirect_first_row(G, nr, G_cov, mirrors=mirrors)
+        # (first_row_only: no weak direction, so the SVD of S without its vectors)
+        ind = indirect_first_row(G, nr, G_cov, mirrors=mirrors, s_vectors=not first_row_only)
         P1, P1_cov, s_cond, s_sing = ind.first_row, ind.first_row_cov, ind.s_condition, ind.singular
     else:
         P1, P1_cov = G, G_cov
@@ -375,7 +376,8 @@ def packed_width(nz: int, nr: int, covariance: bool, n_exp: int = 1,
 def fit_packed(R, Z, *, half_width: int, degrees=(3, 3, 3), circular: bool = True,
                covariance: bool = True, noise_covariance=None,
                experiment_axis: int | None = None, denominator: str = "ls",
-               closed_loop: str = "indirect", first_window: int | None = None) -> np.ndarray:
+               closed_loop: str = "indirect", first_window: int | None = None,
+               instruments=None) -> np.ndarray:
     """Local model per bin, reduced to what the recovery reads and packed into one complex
     array ``(..., M, K)``.
 
@@ -405,7 +407,10 @@ def fit_packed(R, Z, *, half_width: int, degrees=(3, 3, 3), circular: bool = Tru
     ``circular=False`` its first fit needs :func:`first_fit_window` more halo bins: the
     ``half_width + first_fit_window`` bins at each end are not those of the circular fit
     (trim them).  ``first_window``: the first fit's half-width (default
-    :func:`first_fit_window`; the halo then grows by it instead).
+    :func:`first_fit_window`; the halo then grows by it instead).  ``instruments``
+    (..., M, nz), optional: those of ``denominator="iv"`` on the same (haloed) bins when
+    the caller has them (the Hausman twin of ``window="auto"`` takes the widest candidate's
+    prediction); then there is no first fit and the halo is ``half_width``.
     """
     known = None
     if covariance and noise_covariance is not None:
@@ -413,7 +418,8 @@ def fit_packed(R, Z, *, half_width: int, degrees=(3, 3, 3), circular: bool = Tru
     terms = _fit_terms(R, Z, half_width=half_width, degrees=degrees, circular=circular,
                        covariance=covariance, known_covariance=known,
                        experiment_axis=experiment_axis, denominator=denominator,
-                       closed_loop=closed_loop, first_window=first_window)
+                       closed_loop=closed_loop, first_window=first_window,
+                       instruments=instruments)
     lead_m = terms["G"].shape[:-2]
     names = ["G", "T", "noise_variance", "condition", "ill_posed", "spread_ratio", "half_weight",
              "P1_half_a", "P1_half_b", "P1", "s_condition", "s_singular"]
@@ -1085,10 +1091,11 @@ def finish_packed_auto(packed, *, windows, nz: int, nr: int, n_fast: int, factor
     ``packed`` (J, ..., M, K): :func:`fit_packed` of every candidate half-width in
     ``windows`` (ascending, with covariance), e.g. fitted in frequency chunks.  ``twin``
     (..., M, K), where :func:`checks_denominator_bias`: :func:`fit_packed` of the widest
-    window with ``denominator="iv"`` and ``first_window`` that window (the Hausman twin
-    of :func:`identify_spectra_auto`).  ``known_noise``: the fits' covariance was built
-    from a known noise covariance (periods), not from their residuals.  Returns the dict of
-    :func:`identify_spectra_auto`.
+    window with ``denominator="iv"`` and as ``instruments`` the widest candidate's own
+    prediction ``G R + T`` (:func:`_prediction`; or ``first_window`` that window, which fits
+    it once more: the same to rounding), the Hausman twin of :func:`identify_spectra_auto`.
+    ``known_noise``: the fits' covariance was built from a known noise covariance
+    (periods), not from their residuals.  Returns the dict of :func:`identify_spectra_auto`.
     """
     windows = np.asarray(windows, dtype=int)
     if np.any(np.diff(windows) <= 0) or len(windows) != len(packed):
