@@ -20,7 +20,9 @@ Everything issue 12 asks for, in one run, with the user's default thread setting
   against lcmr_xr's own steps; the processes have Python's bytecode, as an installed
   package has; the compile time of
   each version of the compiled loop (least squares, instrumental variables, pooled, pooled
-  with instrumental variables: what a cold ``make test`` pays); the kernel alone on plain
+  with instrumental variables: what a cold ``make test`` pays; least squares and IV are
+  one version), the first ``identify`` with the default window (``"auto"``: least
+  squares and the IV twin); the kernel alone on plain
   arrays, without xarray (``--only-start`` runs only this part);
 * ``identify`` with a second process keeping one core busy vs without (``--no-busy``
   skips it);
@@ -250,7 +252,22 @@ for call in calls:
     c0 = time.process_time()
     call()
     out.append(time.process_time() - c0)
-print(*out)
+from lcmr_xr.kernels import local_model_bins
+print(*out, len(local_model_bins.fit_bins.signatures))
+"""
+#: An empty cache, the HDD experiment's first ``identify`` with the default window
+#: (``"auto"``: the least-squares fit and the instrumental-variables twin of its widest
+#: window, both through the one compiled version of the loop): CPU seconds of the call.
+_COLD_DEFAULT = """
+import time
+import numpy as np
+import lcmr_xr
+d = np.load(PATH)
+exp = lcmr_xr.experiment(d["r"], d["u"], d["y"], factor=int(d["factor"]),
+                         sampling_period=float(d["th"]))
+c0 = time.process_time()
+lcmr_xr.identify(exp)
+print(time.process_time() - c0)
 """
 
 
@@ -319,11 +336,22 @@ def start_times(rows, exp, repeat=5):
                "warm cache", _FIRST_KERNEL_STEPS, np.array(kernel), " (goal < 1)")
     with tempfile.TemporaryDirectory() as tmp:
         env = _start_env(tmp)
-        cold = [float(x) for x in subprocess.run(
+        *cold, versions = [float(x) for x in subprocess.run(
             [sys.executable, "-c", _COLD_VERSIONS], env=env, check=True, capture_output=True,
             text=True).stdout.split()]
     rows.append(("empty cache, first call CPU [s]: least squares / IV / pooled / pooled IV "
-                 "(one process, in this order)", " / ".join(f"{t:.1f}" for t in cold)))
+                 "(one process, in this order; IV shares the version of least squares)",
+                 " / ".join(f"{t:.1f}" for t in cold) + f" ({versions:.0f} compiled versions)"))
+    with tempfile.TemporaryDirectory() as tmp:
+        data = os.path.join(tmp, "exp.npz")
+        np.savez(data, r=exp.r.values, u=exp.u.values, y=exp.y.values,
+                 factor=int(exp.attrs["factor"]), th=float(exp.time[1] - exp.time[0]))
+        env = _start_env(tmp)
+        cold = float(subprocess.run(
+            [sys.executable, "-c", _COLD_DEFAULT.replace("PATH", repr(data))], env=env,
+            check=True, capture_output=True, text=True).stdout)
+    rows.append(("empty cache, first identify with the default window (auto: least squares "
+                 "and its IV twin) CPU [s] (goal < 15)", f"{cold:.1f}"))
 
 
 def busy_section(rows, exp):

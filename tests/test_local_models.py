@@ -634,6 +634,28 @@ def test_chunking_and_batch_grouping_do_not_change_results(monkeypatch):
 
 
 
+
+def test_least_squares_and_iv_share_one_compiled_version():
+    """Least squares and instrumental variables call the compiled loop with the same
+    argument types (empty instrument tables for least squares, run-time branches), for
+    one record and for pooled experiments alike: an IV fit after a least-squares one
+    compiles no further version (``identify``'s default, a least-squares fit and the IV
+    twin of its widest window, compiles the loop once on a new install)."""
+    rng = np.random.default_rng(7)
+    R = np.exp(2j * np.pi * rng.random((2, 80, 2)))
+    Z = rng.standard_normal((2, 80, 2)) + 1j * rng.standard_normal((2, 80, 2))
+    kw = {"half_width": 6, "degrees": (2, 1, 1)}
+    ls = [local_model(R[0], Z[0], covariance=cov, **kw) for cov in (None, "diag", "full")]
+    pooled = local_model(R, Z, experiment_axis=0, covariance="full", **kw)
+    before = set(lmb.fit_bins.signatures)
+    for cov, fit in zip((None, "diag", "full"), ls):
+        iv = local_model(R[0], Z[0], instruments=0.9 * Z[0] + 0.1 * Z[1], covariance=cov, **kw)
+        assert not np.allclose(iv.G, fit.G)  # (the IV branches ran)
+    iv = local_model(R, Z, experiment_axis=0, instruments=Z[::-1], covariance="full", **kw)
+    assert not np.allclose(iv.G, pooled.G)
+    assert set(lmb.fit_bins.signatures) == before
+
+
 @pytest.mark.parametrize("circular", [True, False])
 def test_chunks_as_views_of_read_only_data_same_fit_no_new_compilation(monkeypatch, circular):
     """Chunks take their bins as views of the data (a copy only at the ends, or of
@@ -650,6 +672,7 @@ def test_chunks_as_views_of_read_only_data_same_fit_no_new_compilation(monkeypat
     R_ro, Z_ro = R.copy(), Z.copy()
     R_ro.flags.writeable = Z_ro.flags.writeable = False
     ro = local_model(R_ro, Z_ro, **kw)
+    assert lmb.fit_bins.signatures, "the fits above compiled (or loaded) no version of the loop"
     assert all(sig[0].mutable and sig[1].mutable for sig in lmb.fit_bins.signatures)
     for fit in (many, ro):
         for name in ("G", "T", "noise_covariance", "condition", "ill_posed"):

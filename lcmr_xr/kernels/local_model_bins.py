@@ -717,24 +717,26 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
     covariance stacks the experiments' windows (``E W`` rows, transient leverage added).
     One experiment is the single-record path (``pool=None``).
 
-    ``iv``: None for least squares; instrumental variables for the denominator columns:
-    ``(wx_index, ww_index, weak_limit)``.  ``zt`` then holds ``Z`` and after it the
+    ``iv``: ``(wx_index, ww_index, weak_limit)``; empty index tables (shape
+    ``(0, 1, 1)``) for least squares, else instrumental variables for the denominator
+    columns.  ``zt`` then holds ``Z`` and after it the
     instruments ``Zhat`` (nbat, K + 2n, 2 nz); ``aug_index`` (q, q + nx + nw) indexes
     ``[Gaa | A^H X | A^H W]`` (``W`` columns ``rho^s Zhat_i`` at ``i (Rd+1) + s``, ``nw =
     nx``), ``wx_index``, ``ww_index`` (nz, Rd+1, Rd+1) the moments ``W_s^H X_t``,
     ``W_s^H W_t``.  Rows whose geometric-mean canonical correlation between projected
     instruments and regressors is below ``weak_limit`` flag the bin (weak instruments);
-    a singular IV system fails it.  Compiled apart from the least-squares version
-    (``iv is None`` is tested on the argument: numba drops the IV branches there).
+    a singular IV system fails it.  Least squares and instrumental variables are one
+    compiled version (the same argument types, the branches taken at run time):
+    ``identify``'s default fits both (the IV twin of the widest window), and one version
+    with both compiles in much less than two versions with one each (measured:
+    ``docs/architecture.md``, "A new process to its first result").
     """
     q = aug_index.shape[0]
     nz = zz_index.shape[0]
     rd1 = zz_index.shape[2]
     # instruments: their columns follow X in [Gaa | A^H X | A^H W] (nw = 0 without)
-    if iv is None:
-        nw = 0
-    else:
-        nw = nz * rd1
+    has_iv = iv[0].shape[0] > 0
+    nw = nz * rd1 if has_iv else 0
     nx = aug_index.shape[1] - q - nw
     rd = rd1 - 1
     nr = out_g.shape[2]
@@ -747,7 +749,8 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
     # experiment; the shared solve below sees the other qs columns only (indices sh)
     # ``pool is None`` / ``pool is not None`` on the argument itself: numba then drops
     # the pooled branches when compiling for one record (pool=None), which keeps that
-    # version (everybody's first call) free of the pooled code: less to compile
+    # version (everybody's first call) free of the pooled code: less to compile (one
+    # version with the pooled branches as well took about as long as both: measured)
     if pool is None:
         n_exp = 1
     else:
@@ -778,7 +781,8 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
                     acc += rho_pow[r, a_pow[tr[t1]]] * rho_pow[r, a_pow[tr[t2]]]
                 tg[t1, t2] = acc
             tg[t1, qt + t1] = 1.0
-        cholesky_augmented(tg, qt)  # rows [L^H | L^-1]: inverse = L^-H L^-1
+        # rows [L^H | L^-1]: inverse = L^-H L^-1 (qt not a literal: one compiled version)
+        cholesky_augmented(tg, np.int64(qt))
         for t1 in range(qt):
             for t2 in range(qt):
                 acc = 0.0
@@ -966,7 +970,7 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
         # m: the scaled [L^H | L^-1 A~^H X] for what reads it whole (covariance, pooled
         # transients, instruments); otherwise only the trailing (T, G) block of L^H, which
         # the tail solves read
-        whole = cov or pool is not None or iv is not None
+        whole = cov or pool is not None or has_iv
         for a in range(0 if whole else q - nt, q):
             for c in range(a, q):
                 m[a, c] = complex(mr[a, c] * ds[c], mi[a, c] * ds[c])
@@ -985,7 +989,7 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
                         for t in range(rd1):
                             zf = zre[i, j, s, t]
                             xx[i, j, s, t] = complex(momf[zf], zsg[i, j, s, t] * momf[zf + 1])
-        if iv is not None:  # the instruments' moments W^H X, W^H W (same row only)
+        if has_iv:  # the instruments' moments W^H X, W^H W (same row only)
             if pool is None:
                 for i in range(nz):
                     for s in range(rd1):
@@ -1057,7 +1061,7 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
                         sens += abs(tail[nt - nr + p]) ** 2
                     if sens > sens_limit**2 * norm2:
                         ill = True
-                if iv is not None:  # the kept columns' coefficients by IV instead
+                if has_iv:  # the kept columns' coefficients by IV instead
                     corr = _iv_row(m, q, nx, i, rk, perm[i], low[i], tsc[i], wxm, wwm,
                                    twc[i], siv[i], ipiv[i], gwv, gws, dsol, delta[i],
                                    drop_tol)
@@ -1089,7 +1093,7 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
                 _pooled_transients(m, q, nx, ds, delta[i], i, rd1, sh, tr, wtx, out_t[o],
                                    v[i], wa)
 
-        if iv is not None:
+        if has_iv:
             if iv_failed:  # a singular IV system: the instruments do not determine D
                 _failed_bin(o, mode, out_g, out_t, out_ncov, out_cond, out_ill,
                             out_reduced, out_gcov, out_gvar)
@@ -1189,7 +1193,7 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
                 dwi[i, r] = acc.imag
             rk = rank[i]
             c0 = i * rd1
-            if iv is not None:
+            if has_iv:
                 _iv_row_gains(rt, zt, b, k, i, nz, rk, perm[i], tsc[i], twc[i], siv[i],
                               ipiv[i], m, q, nx, q_all, ds, dwr[i], dwi[i], qhr, qhi, rho_pow,
                               tpow, wtx, pool is not None, crow, ybk, ybw, wmr, wmi, sinv,
@@ -1251,13 +1255,13 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
                         hgr[x, r] += umr[i, j, r] * fr + umi[i, j, r] * fi
                         hgi[x, r] += umr[i, j, r] * fi - umi[i, j, r] * fr
                 _gain_scale(hgr, hgi, x, ds[g], dwr[i], dwi[i])
-        if iv is not None:  # the oblique residual projector's tau (_iv_tau)
+        if has_iv:  # the oblique residual projector's tau (_iv_tau)
             _iv_tau(rank, lev, dwr, dwi, umr, umi, ymr, ymi, ncr, nci, vmr, vmi, ehe, tau,
                     scov)
         # tau_ij and s_ij = raw_ij / tau_ij (i <= j, Hermitian).  Per row first: the
         # weights 1 - lev - nu_i, and V_i = U_i conj(d_i), so that the trace term's
         # U_i^H diag(d_i conj(d_j)) U_j is V_i^H V_j
-        for i in range(nz if iv is None else 0):
+        for i in range(0 if has_iv else nz):
             for r in range(width):
                 nuv[i, r] = 0.0
             for s in range(rank[i]):
@@ -1267,7 +1271,7 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
                     nuv[i, r] += ur * ur + ui * ui
                     vmr[i, s, r] = ur * dwr[i, r] + ui * dwi[i, r]
                     vmi[i, s, r] = ui * dwr[i, r] - ur * dwi[i, r]
-        for i in range(nz if iv is None else 0):
+        for i in range(0 if has_iv else nz):
             for j in range(i, nz):
                 accr = 0.0
                 acci = 0.0

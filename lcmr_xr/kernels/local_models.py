@@ -902,16 +902,29 @@ def _fit_chunk(rt, zt, n, degrees, mode, sel, out_offset, m, dof, out, n_exp=1, 
         slots, aug, zz = tab.slots, tab.aug_index, tab.zz_index
         iv_arg = (tab.wx_index, tab.ww_index, WEAK_INSTRUMENT_LIMIT)
     else:
-        slots, aug, zz, iv_arg = _slot_pairs(nr, nz, degrees), lay.aug_index, lay.zz_index, None
+        slots, aug, zz, iv_arg = _slot_pairs(nr, nz, degrees), lay.aug_index, lay.zz_index, _NO_IV
     mean_pow = _analytic_moments(n, 2 * rd) / (2 * n + 1)
     _bins().fit_bins(np.ascontiguousarray(rt), np.ascontiguousarray(zt), n, np.ascontiguousarray(sel),
                   out_offset, m, _restart_interval(n), *slots, aug, zz, lay.a_base, lay.a_pow, np.ascontiguousarray(mean_pow), float(dof), mode,
                   DROP_TOLERANCE, CONDITION_LIMIT, G_SENSITIVITY_LIMIT,
                   out["G"], out["T"], out["noise_covariance"], out["condition"],
                   out["ill_posed"], out["dropped"], out["G_cov"], out["G_var"],
-                  # (one record through the pooled code, E = 1, would spare the IV
-                  # single-record compilation but costs 2x per bin: measured)
+                  # one record is pool = 1 and least squares the empty index tables
+                  # (_NO_IV): the same argument types in every mode, so one compiled
+                  # version serves them all (the branches are taken at run time)
                   None if n_exp == 1 else int(n_exp), iv_arg)
+
+
+def _readonly(a):
+    a.flags.writeable = False
+    return a
+
+
+#: ``fit_bins``'s ``iv`` argument for least squares: empty instrument tables of the IV
+#: tables' type (read-only C int64 arrays), so that least squares and instrumental
+#: variables call one compiled version (``iv[0].shape[0] == 0`` selects least squares)
+_NO_IV = (_readonly(np.zeros((0, 1, 1), dtype=np.int64)),
+          _readonly(np.zeros((0, 1, 1), dtype=np.int64)), WEAK_INSTRUMENT_LIMIT)
 
 
 def _restart_interval(half_width: int) -> int:
