@@ -56,8 +56,8 @@ import xarray as xr
 
 import lcmr_xr
 from lcmr_xr import conventions as cv, hdd
-from lcmr_xr.kernels.adaptive import (K95, denominator_bias, nonlinearity_factor,
-                                      second_order_variance,
+from lcmr_xr.kernels.adaptive import (K95, UNDETERMINED_LIMIT, denominator_bias,
+                                      noise_share, nonlinearity_factor, second_order_variance,
                                       select_windows,
                                       small_sample_factor, weak_direction)
 from lcmr_xr.kernels.closed_loop import frf_variance_from_first_row, indirect_first_row
@@ -462,6 +462,23 @@ def _variant(circular_fan: bool = False, own_transient: bool = True):
         hb.fan_vibration, kid._prediction = fan, prediction
 
 
+def _widest_flag_kept(calls, q_widest, choice):
+    """Where ``identify`` carries the widest candidate's flag over (fast bins; as
+    ``kernels.identification._finish_choice``): its test with ``rho`` (``q_widest = K95
+    rho``, per fast bin) scaled to the share of its residual variance of the rows of ``S``
+    that can be noise (:func:`lcmr_xr.kernels.adaptive.noise_share`) against the chosen
+    candidate's (``choice`` per slow bin)."""
+    nr = calls[0][1]["factor"] * calls[0][1]["nu"]
+    m = choice.shape[-1]
+    var = np.stack([out["noise_variance"][..., :nr].sum(-1) for _, _, out in calls])
+    dof = np.stack([np.broadcast_to(kw["dof"], (m,)) for _, kw, _ in calls])
+    bins = np.arange(m)
+    share = noise_share(var[-1], var[choice, bins], dof[-1], dof[choice, bins])
+    q = np.asarray(q_widest).reshape(q_widest.shape[0], -1)[:, 0]
+    k = np.arange(q.size)
+    return ~(q * np.sqrt(share[k % m]) <= UNDETERMINED_LIMIT)
+
+
 def _band_pieces(fit, kw, out, ratio=None):
     """Per fast bin of one candidate: ``v``, ``v2``, ``q``, ``rho_v`` (broadcast to ``P``),
     the small-sample factor, and the calibration and undetermined flag it used.
@@ -571,7 +588,8 @@ def pooled_band_forms(groups: int, first_group: int = 0, n_exp: int = 8, denomin
                 pick = choice[k % m][None, :, None, None]
                 chosen = lambda a: np.take_along_axis(a, np.broadcast_to(pick, (1,) + a.shape[1:]),
                                                       axis=0)[0]
-                undetermined = chosen(und) | und[-1]
+                kept = _widest_flag_kept(calls, pieces[-1]["q"], choice)[:, None, None]
+                undetermined = chosen(und) | (und[-1] & kept)
                 var_c = np.where(undetermined, np.inf, chosen(var) + chosen(bias2))
                 P_c = chosen(P)
                 first = cal_name == "production" and name == PRODUCTION_FORM
@@ -823,7 +841,8 @@ def pooled_band_decomposition(groups: int, first_group: int = 0, n_exp: int = 8,
         choice, bias2 = select_windows(P, var, x["v"], m)
         pick = np.broadcast_to(choice[slow][None, :, None, None], (1,) + P.shape[1:])
         chosen = lambda a: np.take_along_axis(np.broadcast_to(a, P.shape), pick, axis=0)[0]  # noqa: E731
-        undetermined = chosen(und) | und[-1]
+        undetermined = chosen(und) | (und[-1] & _widest_flag_kept(calls, pieces[-1]["q"],
+                                                                  choice)[:, None, None])
         c = {key: chosen(val) for key, val in x.items()}
         c["b2"] = chosen(bias2)
         assert np.all(np.diff([np.min(kw["dof"]) for _, kw, _ in calls]) > 0)  # narrowest first

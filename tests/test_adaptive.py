@@ -10,8 +10,9 @@ from hypothesis import strategies as st
 from scipy import stats
 
 from lcmr_xr import hdd, identify
-from lcmr_xr.kernels.adaptive import (K95, UNDETERMINED_LIMIT, candidate_windows,
-                                      denominator_bias, nonlinearity_factor,
+from lcmr_xr.kernels.adaptive import (K95, MODEL_ERROR_LEVEL, UNDETERMINED_LIMIT,
+                                      candidate_windows, denominator_bias,
+                                      noise_share, nonlinearity_factor,
                                       second_order_factor, select_windows, small_sample_factor,
                                       weak_direction, whitened_weak_direction)
 
@@ -236,6 +237,100 @@ def test_auto_window_recovers_noiseless_truth_like_the_best_fixed_window():
     # and the band covers the truth (model error is all there is)
     k = np.abs(auto.P.values[1:-1] - truth[1:-1]) <= K95 * auto.P_std.values[1:-1]
     assert k.mean() > 0.9
+
+
+def test_noise_share_is_the_variance_ratio_f_test():
+    rng = np.random.default_rng(3)
+    dof_w, dof_n, n = 38, 2, 400_000
+    # residual variances of pure noise (variance 1): mean of dof |complex Gaussian|^2
+    var_w = rng.chisquare(2 * dof_w, n) / (2 * dof_w)
+    var_n = rng.chisquare(2 * dof_n, n) / (2 * dof_n)
+    rate = (noise_share(var_w, var_n, dof_w, dof_n) < 1.0).mean()
+    p = 1.0 - MODEL_ERROR_LEVEL  # false alarms of the test, binomial over n draws
+    assert abs(rate - p) < 4.0 * np.sqrt(p / n), rate
+    q = stats.f.ppf(MODEL_ERROR_LEVEL, 2 * dof_w, 2 * dof_n)
+    np.testing.assert_allclose(noise_share(np.array([0.5, 2.0, 10.0]) * q, np.ones(3), dof_w, dof_n),
+                               [1.0, 0.5, 0.1], rtol=1e-10)
+    # model error in the wide window's residuals (100x the noise): found with the F law's
+    # power (0.93 with 2 dof in the narrow window), and then the share left for noise
+    # bounds the noise's true share, 1/100, from above at the test's level
+    share = noise_share(100.0 * var_w, var_n, dof_w, dof_n)
+    power = (share < 1.0).mean()
+    exact = stats.f.sf(q / 100.0, 2 * dof_w, 2 * dof_n)
+    assert abs(power - exact) < 4.0 * np.sqrt(exact * (1 - exact) / n) and exact > 0.9
+    assert (share >= 0.01).mean() > MODEL_ERROR_LEVEL - 4.0 * np.sqrt(p / n)
+    # an exact narrow fit (residual 0) under a wide one with residuals: no noise; 0 / 0: all
+    assert noise_share(np.array([1e-30, 0.0]), np.zeros(2), dof_w, dof_n).tolist() == [0.0, 1.0]
+
+
+@pytest.mark.parametrize("n", [3600, pytest.param(36000, marks=pytest.mark.slow),
+                               pytest.param(180000, marks=pytest.mark.slow)])
+def test_noiseless_auto_flags_only_the_slow_dc_bin(n):
+    """Noiseless data determine ``P`` wherever ``S`` is invertible: ``auto`` flags at most
+    the fast bins 0 and N/2 of slow DC, where the VCM's double integrator makes ``P(0)``
+    infinite and the lifted ``S`` singular (at N = 180 000 not even those).  At N = 3600
+    the widest window's model error had flagged 28-84 Hz (its residual variance 1e3-4e4
+    times the chosen window 12's); at N = 180 000 a covariance at rounding level had
+    flagged 4 slow bins (:func:`whitened_weak_direction`)."""
+    exp = hdd.simulate(n, case=2, noise=False, seed=0)
+    f = np.arange(n // 2 + 1) * (100800.0 / n)
+    truth = np.full((n // 2 + 1, 1, 2), np.nan, complex)
+    truth[1:] = hdd.true_frf(f[1:], case=2).values
+    auto = identify(exp)
+    flagged = np.flatnonzero(auto.P_undetermined.values)
+    assert flagged.tolist() == ([] if n == 180000 else [0, n // 2])
+    ok = np.arange(n // 2 + 1)[1:-1]
+    rel = np.abs(auto.P.values[ok] - truth[ok]) / np.abs(truth[ok])
+    # measured: median 5.4e-5 (N = 3600), 6.1e-8 (36 000), 7.1e-10 (180 000); window 30:
+    # 2.3e-3, 1.8e-7, 2.3e-9
+    assert np.median(rel) < {3600: 1e-4, 36000: 2e-7, 180000: 2e-9}[n]
+    if n == 3600:
+        widest = identify(exp, window=30)
+        low = [1, 2, 3]  # 28, 56, 84 Hz: flagged by the widest window alone ...
+        assert widest.P_undetermined.values[low].all()
+        assert (auto.local_window.values[low] == 12).all()
+        # ... whose chosen window-12 estimate (off by 6-140 % there: model error) its band covers
+        err = np.abs(auto.P.values[low] - truth[low])
+        assert (err <= K95 * auto.P_std.values[low]).all()
+
+
+def test_whitened_ratio_of_a_covariance_at_rounding_level_is_zero():
+    """An exact fit of noiseless data leaves a covariance of rounding noise, indefinite:
+    its trace may cancel to nearly 0 or its entries exceed every variance.  No noise is
+    measured there (the HDD at N = 180 000 had read rho 0.43 and 8.1 and flagged the bins)."""
+    rng = np.random.default_rng(0)
+    S = np.diag([1.4, 1.0, 1.0, 0.46]).astype(complex) + 0.01 * rng.standard_normal((4, 4))
+    x = 1e-15 * (rng.standard_normal((16, 16)) + 1j * rng.standard_normal((16, 16)))
+    junk = x + x.conj().T  # Hermitian, indefinite
+    np.fill_diagonal(junk, 1e-33)  # variances far below the entries (a cancelled trace)
+    assert np.linalg.eigvalsh(junk)[0] < 0
+    assert whitened_weak_direction(S, junk) == 0.0
+    cancelled = 1e-15 * np.diag(np.r_[np.ones(8), -np.ones(8)] + 1e-18).astype(complex)
+    assert whitened_weak_direction(S, cancelled) == 0.0
+    # a covariance with the same entries, made positive definite, still measures its noise
+    psd = junk @ junk.conj().T / 1e-15
+    rho = whitened_weak_direction(S, psd)
+    assert 0.0 < rho < np.inf
+
+
+def test_noisy_auto_keeps_the_widest_windows_flag():
+    """With the disturbances the widest window's flag stands where the chosen window's own
+    test passes (its residual variance is noise: no model-error excess)."""
+    exp, truth, f = _hdd(True, 1)
+    auto = identify(exp)
+    m = auto.sizes["slow_frequency"]
+    below = np.flatnonzero((f > 0) & (f < 500))
+    assert auto.P_undetermined.values[below].all()
+    win = auto.local_window.values[below % m]
+    own = np.zeros(below.size, dtype=bool)
+    for w in np.unique(win):
+        fixed = identify(exp, window=int(w), errors="ignore")
+        own[win == w] = fixed.P_undetermined.values[below[win == w]]
+    # bins the chosen window alone would have left determined (measured: 476 Hz, window 12)
+    assert (~own).any()
+    # the widest window flags them
+    widest = identify(exp, window=30, errors="ignore")
+    assert widest.P_undetermined.values[below[~own]].all()
 
 
 def test_undetermined_bins_have_unbounded_bands():

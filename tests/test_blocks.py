@@ -240,7 +240,8 @@ def _old_auto(R, Z, windows, **kw):
                                 np.where(fitted, iv["P_var_linear"], np.nan),
                                 determined=np.isfinite(outs[-1]["P_var"]))
     return ki._choose_windows(outs, np.asarray(windows), R.shape[-2], twin=twin,
-                              nr=R.shape[-1], degrees=kw["degrees"])
+                              nr=R.shape[-1], degrees=kw["degrees"], n_exp=n_exp,
+                              known_noise=kw.get("noise_covariance") is not None)
 
 
 def _assert_identical(got: dict, want: dict):

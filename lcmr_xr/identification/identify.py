@@ -554,6 +554,7 @@ def _estimate(r: xr.DataArray, u: xr.DataArray, y: xr.DataArray, s, *, factor: i
                 return _split(finish_packed_auto(p[:len(windows)], windows=windows,
                                                  degrees=s.degrees, n_exp=n_exp,
                                                  twin=p[len(windows)] if twin else None,
+                                                 known_noise=noise is not None,
                                                  **shape), **split)
             return _split(finish_packed(p[0], covariance=s.covariance, n_exp=n_exp,
                                         dof=window_dof(s.window, nr_, s.degrees, n_exp or 1),

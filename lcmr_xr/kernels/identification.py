@@ -9,7 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from lcmr_xr.kernels.adaptive import (denominator_bias, nonlinearity_factor,
+from lcmr_xr.kernels.adaptive import (K95, UNDETERMINED_LIMIT, denominator_bias, noise_share,
+                                      nonlinearity_factor,
                                       pooled_nonlinearity_factor, second_order_factor,
                                       select_windows, small_sample_factor, weak_direction)
 from lcmr_xr.kernels.closed_loop import frf_variance_from_first_row, indirect_first_row
@@ -979,6 +980,10 @@ def identify_spectra_auto(R, Z, *, n_fast: int, factor: int, nu: int, windows,
     # ``out`` is the widest candidate's; the bins another window won are gathered from it
     # if it is held, else fitted again
     widest_undetermined = out["P_undetermined"].copy()
+    # its residual variance and rho (the test of its flag, _finish_choice; not with a
+    # known noise)
+    widest_noise = (out["noise_variance"].copy(), out["s_weak_rel_std"].copy()) \
+        if noise_covariance is None else None
     for j, o in held.items():
         for name, value in o.items():
             at = choice if value.shape[choice.ndim - 1] == m else fast_choice
@@ -995,7 +1000,8 @@ def identify_spectra_auto(R, Z, *, n_fast: int, factor: int, nu: int, windows,
                   where=np.isin(fast_choice, refit))
     out.update(fast)
     return _finish_choice(out, choice, fast_choice, bias2, widest_undetermined,
-                          np.asarray(windows, dtype=int), twin=twin, nr=nr, degrees=degrees)
+                          np.asarray(windows, dtype=int), twin=twin, nr=nr, degrees=degrees,
+                          widest_noise=widest_noise, n_exp=n_exp)
 
 
 #: ``window="auto"`` (:func:`identify_spectra_auto`) keeps the per-bin outputs of narrower
@@ -1119,7 +1125,7 @@ def _slow_axis(name, n_exp) -> int:
 
 def finish_packed_auto(packed, *, windows, nz: int, nr: int, n_fast: int, factor: int, nu: int,
                        ny: int, closed_loop: str = "indirect", degrees=(3, 3, 3),
-                       n_exp: int | None = None, twin=None) -> dict:
+                       n_exp: int | None = None, twin=None, known_noise: bool = False) -> dict:
     """The window choice of :func:`identify_spectra_auto` from its candidates' fits.
 
     ``packed`` (J, ..., M, K): :func:`fit_packed` of every candidate half-width in
@@ -1129,7 +1135,8 @@ def finish_packed_auto(packed, *, windows, nz: int, nr: int, n_fast: int, factor
     and as ``instruments`` the widest candidate's own
     prediction ``G R + T`` (:func:`_prediction`; or ``first_window`` that window, which fits
     it once more: the same to rounding), the Hausman twin of :func:`identify_spectra_auto`.
-    Returns the dict of :func:`identify_spectra_auto`.
+    ``known_noise``: the fits' covariance was built from a known noise covariance
+    (periods), not from their residuals.  Returns the dict of :func:`identify_spectra_auto`.
     """
     windows = np.asarray(windows, dtype=int)
     if np.any(np.diff(windows) <= 0) or len(windows) != len(packed):
@@ -1144,13 +1151,16 @@ def finish_packed_auto(packed, *, windows, nz: int, nr: int, n_fast: int, factor
         iv = finish_packed(twin, dof=None, n_exp=n_exp, **shape)
         bias = denominator_bias(outs[-1]["P"], iv["P"], outs[-1]["P_var_linear"],
                                 iv["P_var_linear"], determined=np.isfinite(outs[-1]["P_var"]))
-    return _choose_windows(outs, windows, packed.shape[-2], twin=bias, nr=nr, degrees=degrees)
+    return _choose_windows(outs, windows, packed.shape[-2], twin=bias, nr=nr, degrees=degrees,
+                           n_exp=n_exp, known_noise=known_noise)
 
 
-def _choose_windows(outs, windows, m, *, twin=None, nr=None, degrees=None) -> dict:
+def _choose_windows(outs, windows, m, *, twin=None, nr=None, degrees=None, n_exp=None,
+                    known_noise: bool = False) -> dict:
     """Choose per slow bin among the finished candidates ``outs`` (ascending ``windows``)
     and gather every array from the chosen one (module notes of ``kernels.adaptive``).
-    The candidates' arrays are released as they are gathered (``outs`` is emptied)."""
+    The candidates' arrays are released as they are gathered (``outs`` is emptied).
+    ``known_noise``: their covariance is built from a known noise covariance."""
     P = np.stack([o["P"] for o in outs])
     P_var = np.stack([o["P_var"] for o in outs])
     P_lin = np.stack([o["P_var_linear"] for o in outs])
@@ -1158,6 +1168,8 @@ def _choose_windows(outs, windows, m, *, twin=None, nr=None, degrees=None) -> di
     del P, P_var, P_lin
     fast_choice = np.take(choice, np.arange(bias2.shape[-3]) % m, axis=-1)
     widest_undetermined = outs[-1]["P_undetermined"]
+    widest_noise = None if known_noise else (outs[-1]["noise_variance"].copy(),
+                                             outs[-1]["s_weak_rel_std"].copy())
 
     def gather(name):
         """The chosen candidate's array, bin by bin (slow or fast bins), without a stack
@@ -1173,11 +1185,12 @@ def _choose_windows(outs, windows, m, *, twin=None, nr=None, degrees=None) -> di
 
     out = {name: gather(name) for name in list(outs[0])}
     return _finish_choice(out, choice, fast_choice, bias2, widest_undetermined, windows,
-                          twin=twin, nr=nr, degrees=degrees)
+                          twin=twin, nr=nr, degrees=degrees, widest_noise=widest_noise,
+                          n_exp=n_exp)
 
 
 def _finish_choice(out, choice, fast_choice, bias2, widest_undetermined, windows, *,
-                   twin=None, nr=None, degrees=None) -> dict:
+                   twin=None, nr=None, degrees=None, widest_noise=None, n_exp=None) -> dict:
     """The chosen candidate's outputs ``out`` (gathered bin by bin) with the model error
     ``bias2`` of :func:`lcmr_xr.kernels.adaptive.select_windows` added to ``P_var``,
     ``P_bias`` and ``window``.
@@ -1193,7 +1206,17 @@ def _finish_choice(out, choice, fast_choice, bias2, widest_undetermined, windows
     was covering that bias.  (Window-19 bins above 500 Hz, VCM/PZT per band, cases 1-9 x 4
     seeds: 0.84-0.94 covered with the term only where the widest window is chosen,
     0.86-1.00 with the bound form kept there, 0.94-0.98 with it everywhere;
-    docs/uncertainty.md.)  The window choice itself is made as before (same ``P``)."""
+    docs/uncertainty.md.)  The window choice itself is made as before (same ``P``).
+
+    ``widest_noise``: the widest candidate's residual noise variances (..., M, nz) and
+    ``rho`` (``s_weak_rel_std``, (..., M)); None where the covariance comes from a known
+    noise covariance.  Where the widest window's residual variance of the rows of ``S``
+    exceeds the chosen window's beyond noise, only a share of it can be noise
+    (:func:`lcmr_xr.kernels.adaptive.noise_share`), the rest is its model error, and its
+    weak-direction test is taken with ``rho`` scaled to that share: its flag is carried
+    over only where the noise alone leaves the weak direction undetermined (noiseless
+    HDD, N = 3600: the widest window flagged 28-84 Hz from its model error, where the
+    chosen window 12's estimate is covered by its own band)."""
     b2 = np.take_along_axis(
         bias2, fast_choice.reshape((1,) + fast_choice.shape + (1, 1)), axis=0)[0]
     if twin is not None:
@@ -1207,7 +1230,17 @@ def _finish_choice(out, choice, fast_choice, bias2, widest_undetermined, windows
             out["P_var"] = out["P_var_linear"] * (factor ** 2)[..., None, None]
     # The widest candidate has the most data: where even it cannot determine the weakest
     # direction of S, a narrower window that seems to is a lucky draw (choosing among noisy
-    # determinacy tests), so the bin stays undetermined.
+    # determinacy tests), so the bin stays undetermined; unless the widest window's residual
+    # variance is mostly its model error and the noise alone passes its test (above).
+    m = choice.shape[-1]
+    if widest_noise is not None and nr is not None and widest_noise[0].shape[-1] > nr:
+        dof = lambda w: window_dof(w, nr, degrees, n_exp or 1)  # noqa: E731
+        variance, rho = widest_noise
+        share = noise_share(variance[..., :nr].sum(-1), out["noise_variance"][..., :nr].sum(-1),
+                            dof(windows[-1]), dof(np.asarray(windows)[choice]))
+        noisy = ~(K95 * rho * np.sqrt(share) <= UNDETERMINED_LIMIT)  # its test, noise only
+        widest_undetermined = widest_undetermined & np.take(
+            noisy, np.arange(fast_choice.shape[-1]) % m, axis=-1)
     undetermined = out["P_undetermined"] | widest_undetermined
     out["P_undetermined"] = undetermined
     out["P_var"] = np.where(undetermined[..., None, None], np.inf, out["P_var"] + b2)
