@@ -41,7 +41,7 @@ from lcmr_xr.kernels.adaptive import (K95, candidate_windows,
 from lcmr_xr.kernels.closed_loop import frf_variance_from_first_row, indirect_first_row
 from lcmr_xr.kernels.identification import (_block_plan, denominator_instruments,
                                             experiment_spectra, identify_spectra,
-                                            identify_spectra_auto, window_dof)
+                                            identify_spectra_auto, twin_bins, window_dof)
 from lcmr_xr.kernels.local_models import hermitian, local_model
 from lcmr_xr.settings import auto_window_range
 SWEEP = (12, 16, 20, 24, 30, 40, 60)
@@ -546,7 +546,8 @@ def cost(*, n_samples=3600, case=2, seed=0, repeats=5, denominators=("ls", "iv")
     wall seconds, per ``denominators``.  Also the floor set by the local-model fits that
     ``auto`` (least squares) needs whatever else it does: each candidate window fitted
     with its covariance on the bins the blocks fit, and the widest window again by IV with
-    that candidate's own prediction as instruments (the Hausman comparison), against the
+    that candidate's own prediction as instruments at the slow bins of ``twin_bins`` (the
+    Hausman comparison), against the
     same ``identify(window=30)``.
 
     Returns
@@ -568,7 +569,7 @@ def cost(*, n_samples=3600, case=2, seed=0, repeats=5, denominators=("ls", "iv")
                                instruments=None)["edges"][-1]
             local_model(R, Z, half_width=w, covariance="full", bins=(0, stop))
         local_model(R, Z, half_width=windows[-1], covariance="full", instruments=zhat,
-                    bins=(0, stop))
+                    bins=(0, stop), select=twin_bins(m))
 
     calls = {(w, d): (lambda w=w, d=d: identify(exp, window=w, errors="ignore", denominator=d))
              for w in (30, "auto") for d in denominators}

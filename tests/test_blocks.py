@@ -147,6 +147,75 @@ def test_local_model_bins_are_those_of_the_whole_fit(record):
     local_model(R, bad, half_width=WINDOW, bins=(100, 200))
 
 
+def test_local_model_select_fits_those_bins_only(record):
+    """``select=``: the selected bins are the whole fit's, bit for bit in aligned blocks
+    (``bins=``, as the eager twin fits them), to rounding over the whole circle (nothing is
+    mirrored) and non-circular; the others NaN and flagged as not fitted."""
+    R, Z, _ = record
+    m = R.shape[-2]
+    select = ki.twin_bins(m)
+    assert select.sum() < 0.55 * m and np.array_equal(select[1:], select[:0:-1])
+    whole = local_model(R, Z, half_width=WINDOW)
+    fits = {(0, m): local_model(R, Z, half_width=WINDOW, select=select)}
+    for a, b in [(0, 48), (m // 2 - 15 - (m // 2 - 15) % 16, m // 2 + 1)]:
+        fits[a, b] = local_model(R, Z, half_width=WINDOW, bins=(a, b), select=select)
+    for (a, b), part in fits.items():
+        sel = select[a:b]
+        for name in ("G", "T", "noise_covariance", "G_cov", "condition", "ill_posed"):
+            got, want = getattr(part, name)[sel], getattr(whole, name)[a:b][sel]
+            if (a, b) != (0, m):
+                np.testing.assert_array_equal(got, want, err_msg=f"{name} {(a, b)}")
+            else:  # the recurrence's rounding: relative to the largest of its kind
+                want = np.asarray(want, dtype=complex)
+                np.testing.assert_allclose(got, want, rtol=1e-6,
+                                           atol=1e-9 * np.max(np.abs(want)), err_msg=name)
+        assert np.all(np.isnan(part.G[~sel])) and np.all(part.ill_posed[~sel])
+        assert np.all(np.isinf(part.condition[~sel]))
+    # not circular: the bins with a full window among those selected (to rounding)
+    flat = local_model(R, Z, half_width=WINDOW, circular=False, select=select)
+    full = local_model(R, Z, half_width=WINDOW, circular=False)
+    fitted = np.isfinite(flat.condition)
+    assert np.array_equal(fitted, select & np.isfinite(full.condition))
+    np.testing.assert_allclose(flat.G[fitted], full.G[fitted], rtol=1e-6,
+                               atol=1e-9 * np.max(np.abs(full.G[fitted])))
+    with pytest.raises(ValueError, match="select must have shape"):
+        local_model(R, Z, half_width=WINDOW, select=select[1:])
+
+
+def test_auto_fits_the_twin_at_every_third_slow_bin(monkeypatch, record):
+    """window='auto' fits its Hausman twin (the IV fit of the widest window) at the slow bins
+    of ``twin_bins`` only, every ``TWIN_STRIDE``-th of bins 0..M/2 (the others mirrored),
+    and its term is the mean of the finite terms within +-6 fast bins."""
+    R, Z, kw = record
+    m = R.shape[-2]
+    seen = []
+    real = ki.local_model
+
+    def spy(*args, **kwargs):
+        fit = real(*args, **kwargs)
+        if kwargs.get("instruments") is not None:
+            seen.append((kwargs["bins"], np.isfinite(fit.condition)))
+        return fit
+
+    monkeypatch.setattr(ki, "local_model", spy)
+    out = ki.identify_spectra_auto(R, Z, windows=(12, 19, WINDOW), degrees=(3, 3, 3), **kw)
+    assert seen and ki.TWIN_STRIDE == 3
+    half = m // 2 + 1
+    fitted = np.zeros(half, bool)
+    for (a, b), f in seen:
+        fitted[a:min(b, half)] = f[:max(0, min(b, half) - a)]
+    want = np.arange(half) % 3 == 0
+    assert np.array_equal(fitted & ~want, np.zeros(half, bool))  # only where selected
+    assert fitted.sum() >= 0.9 * want.sum() and want.sum() <= half // 3 + 1
+    assert np.array_equal(ki.twin_bins(m)[:half], want)
+    assert np.array_equal(ki.twin_bins(m)[half:], want[(m - 1) // 2:0:-1])
+    # the +-6 fast bins around every fast bin hold 4-5 fitted ones (13 with every bin)
+    k = out["P_bias"].shape[-3]
+    on = ki.twin_bins(m)[np.arange(-6, k + 6) % m].astype(int)
+    per_mean = np.convolve(on, np.ones(13, int), mode="valid")
+    assert per_mean.shape == (k,) and per_mean.min() >= 4 and per_mean.max() <= 5
+
+
 def _old_auto(R, Z, windows, **kw):
     """``window="auto"`` as it was before the refits: every candidate finished whole (one
     block over all bins), then gathered bin by bin (``_choose_windows``, which
@@ -163,8 +232,13 @@ def _old_auto(R, Z, windows, **kw):
                                 instruments=zhat, experiment_axis=kw.get("experiment_axis"),
                                 noise_covariance=None, closed_loop="indirect",
                                 **{k: kw[k] for k in ("degrees", "n_fast", "factor", "nu")})
-        twin = denominator_bias(outs[-1]["P"], iv["P"], outs[-1]["P_var_linear"],
-                                iv["P_var_linear"], determined=np.isfinite(outs[-1]["P_var"]))
+        # fitted at the slow bins of twin_bins only: the whole fit there, NaN elsewhere
+        m, n_fast = R.shape[-2], kw["n_fast"]
+        fitted = ki.twin_bins(m)[np.arange(n_fast // 2 + 1) % m][:, None, None]
+        twin = denominator_bias(outs[-1]["P"], np.where(fitted, iv["P"], np.nan),
+                                outs[-1]["P_var_linear"],
+                                np.where(fitted, iv["P_var_linear"], np.nan),
+                                determined=np.isfinite(outs[-1]["P_var"]))
     return ki._choose_windows(outs, np.asarray(windows), R.shape[-2], twin=twin,
                               nr=R.shape[-1], degrees=kw["degrees"], n_exp=n_exp,
                               known_noise=kw.get("noise_covariance") is not None)
@@ -284,3 +358,20 @@ def test_auto_refit_runs_on_the_restart_grid():
     need[:] = False
     need[[66, 80, 90, 97]] = True  # within a block, consecutive intervals make one run
     assert ki._chosen_runs(need, [0, 32, 64, 100], 8) == [(64, 72), (80, 100)]
+
+
+def test_frf_variance_at_some_fast_bins_is_the_whole_calls():
+    """``frf_variance_from_first_row`` at a subset of fast bins (the twin's) reads only
+    their slow bins: the values of the call at every bin there, bit for bit."""
+    from lcmr_xr.kernels.closed_loop import frf_variance_from_first_row
+
+    rng = np.random.default_rng(1)
+    m, f, ny, nu = 20, 3, 2, 1
+    a = rng.standard_normal((m, ny * f * nu, 7)) + 1j * rng.standard_normal((m, ny * f * nu, 7))
+    cov = a @ a.conj().swapaxes(-1, -2)
+    every = np.arange(m * f // 2 + 1)
+    whole = frf_variance_from_first_row(cov, m * f, f, every, ny, nu)
+    some = every[ki.twin_bins(m)[every % m]]
+    got = frf_variance_from_first_row(cov, m * f, f, some, ny, nu)
+    assert got.shape == (some.size, ny, nu) and np.all(whole > 0)
+    np.testing.assert_array_equal(got, whole[some])

@@ -18,6 +18,7 @@ from lcmr_xr import conventions as cv
 from lcmr_xr.identification import pooling
 from lcmr_xr.kernels.identification import (
     checks_denominator_bias,
+    twin_bins,
     excitation_rank,
     experiment_spectra,
     finish_packed,
@@ -540,7 +541,8 @@ def _estimate(r: xr.DataArray, u: xr.DataArray, y: xr.DataArray, s, *, factor: i
             zhat = _chunked_prediction(fits[-1], R, Z, chunk=s.frequency_chunks)
             fits.append(_fit_frequency_chunked(R, Z, s._replace(window=max(windows),
                                                                 denominator="iv"),
-                                               factor=factor, pooled=pooled, instruments=zhat))
+                                               factor=factor, pooled=pooled, instruments=zhat,
+                                               select=twin_bins(R.sizes[SF])))
         packed = xr.concat(fits, "_candidate")
         nz_, nr_ = packed.attrs["nz"], packed.attrs["nr"]
         shape = dict(nz=nz_, nr=nr_, n_fast=n, factor=factor, nu=nu, ny=ny,
@@ -666,7 +668,7 @@ def _chunked_prediction(packed, R, Z, *, chunk):
 
 
 def _fit_frequency_chunked(R, Z, s, *, factor, noise=None, pooled=False, first_window=None,
-                           instruments=None):
+                           instruments=None, select=None):
     """Lazy local-model fit in chunks along ``slow_frequency`` with wrapped halos.
 
     ``R``, ``Z``: the spectra of :func:`_chunked_spectra`.  ``noise`` (..., ``slow_frequency``,
@@ -677,6 +679,8 @@ def _fit_frequency_chunked(R, Z, s, *, factor, noise=None, pooled=False, first_w
     the halo is ``window`` plus it.  ``instruments`` (..., ``slow_frequency``, ``_z``),
     optional, one record: those of ``denominator="iv"`` (:func:`_chunked_prediction`),
     haloed like the spectra; then there is no first fit and the halo is ``window``.
+    ``select`` (``slow_frequency``,) bool, optional: fit only those bins, the others NaN
+    (the twin's :func:`lcmr_xr.kernels.identification.twin_bins`).
 
     Returns a DataArray (..., ``slow_frequency``, ``_packed``) of :func:`fit_packed` columns.
     """
@@ -718,7 +722,15 @@ def _fit_frequency_chunked(R, Z, s, *, factor, noise=None, pooled=False, first_w
         Nd = flat.chunk({**dict(zip(R.dims[:-1], Rd.chunks[:-1])), "_zz": -1}).data
         blocks.append(da.overlap.overlap(Nd, depth=depth, boundary=boundary))
 
-    def fit_block(rb, zb, *nb):
+    starts = np.cumsum((0,) + Rd.chunks[ax])  # of the chunks along the bins, unhaloed
+    m = R.sizes[SF]
+
+    def fit_block(rb, zb, *nb, block_id=None):
+        sb = None
+        if select is not None:  # this block's bins, haloed (wrapped) like the spectra
+            # (block_id is the output block's: pooled, without the experiment axis)
+            first = starts[block_id[ax - (pooled and exp_ax < ax)]] - halo
+            sb = np.take(select, np.arange(first, first + rb.shape[ax]) % m)
         wb = None
         if instruments is not None:
             wb, nb = nb[0], nb[1:]
@@ -729,7 +741,7 @@ def _fit_frequency_chunked(R, Z, s, *, factor, noise=None, pooled=False, first_w
                           covariance=s.covariance, noise_covariance=known,
                           experiment_axis=exp_ax, denominator=_kernel_denominator(s),
                           closed_loop=closed_loop, first_window=first_window,
-                          instruments=wb)
+                          instruments=wb, select=sb)
 
     chunks = Rg.chunks[:-1] + ((width,),)
     if pooled:  # the fit pools the experiment axis away

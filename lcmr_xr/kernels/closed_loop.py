@@ -217,9 +217,15 @@ def frf_variance_from_first_row(first_row_cov: np.ndarray, n_fast: int, factor: 
     bins = np.asarray(bins)
     C = np.asarray(first_row_cov)
     C = C.reshape(C.shape[:-2] + (ny, f_, nu, ny, f_, nu))
+    # only the slow bins the fast ones read (all of them when every fast bin is asked)
+    slow, at = np.unique(bins % m, return_inverse=True)
+    if slow.size < m:
+        C = np.take(C, slow, axis=-7)
+    else:
+        at = bins % m
     # only same-(a, b) entries are needed: C[a, j, b, a, j', b]
     diag = np.einsum("...ajbAkB,aA,bB->...abjk", C, np.eye(ny), np.eye(nu))  # (..., M, ny, nu, F, F)
-    diag = np.take(diag, bins % m, axis=-5)  # (..., K, ny, nu, F, F)
+    diag = np.take(diag, at, axis=-5)  # (..., K, ny, nu, F, F)
     w = first_block_row_weights(n_fast, f_, bins)  # (K, F)
     var = np.einsum("kj,...kabjl,kl->...kab", w, diag, w.conj())
     return np.maximum(var.real, 0.0)

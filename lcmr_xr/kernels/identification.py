@@ -49,6 +49,22 @@ def check_denominator(denominator: str, degrees) -> bool:
     return denominator == "iv"
 
 
+#: The Hausman twin of ``window="auto"`` is fitted at every ``TWIN_STRIDE``-th slow bin
+#: only (:func:`twin_bins`): its term is a local mean over the finite terms within
+#: :data:`lcmr_xr.kernels.adaptive.BIAS_SMOOTHING` fast bins (4-5 of them instead of 13;
+#: measured in docs/uncertainty.md, "The twin at every third bin").
+TWIN_STRIDE = 3
+
+
+def twin_bins(m: int) -> np.ndarray:
+    """The slow bins (of ``m``) at which the Hausman twin of ``window="auto"`` is fitted:
+    every :data:`TWIN_STRIDE`-th from bin 0 up to ``M/2`` and their mirrors ``M - k``
+    (bool, shape (m,)), so that a fit of bins ``0..M/2`` mirrored (spectra of real
+    signals) and a fit of every bin (frequency chunks) fit the same bins."""
+    k = np.arange(m)
+    return np.minimum(k, m - k) % TWIN_STRIDE == 0
+
+
 def checks_denominator_bias(denominator: str, degrees, closed_loop: str = "indirect",
                             n_exp=None, known_noise: bool = False) -> bool:
     """Whether ``window="auto"`` estimates the bias of a least-squares denominator by the
@@ -377,7 +393,7 @@ def fit_packed(R, Z, *, half_width: int, degrees=(3, 3, 3), circular: bool = Tru
                covariance: bool = True, noise_covariance=None,
                experiment_axis: int | None = None, denominator: str = "ls",
                closed_loop: str = "indirect", first_window: int | None = None,
-               instruments=None) -> np.ndarray:
+               instruments=None, select=None) -> np.ndarray:
     """Local model per bin, reduced to what the recovery reads and packed into one complex
     array ``(..., M, K)``.
 
@@ -410,7 +426,9 @@ def fit_packed(R, Z, *, half_width: int, degrees=(3, 3, 3), circular: bool = Tru
     :func:`first_fit_window`; the halo then grows by it instead).  ``instruments``
     (..., M, nz), optional: those of ``denominator="iv"`` on the same (haloed) bins when
     the caller has them (the Hausman twin of ``window="auto"`` takes the widest candidate's
-    prediction); then there is no first fit and the halo is ``half_width``.
+    prediction); then there is no first fit and the halo is ``half_width``.  ``select``
+    (M,) bool, optional: fit only those bins (of the haloed bins given), the others NaN
+    (:func:`lcmr_xr.kernels.local_models.local_model`; the twin fits :func:`twin_bins`).
     """
     known = None
     if covariance and noise_covariance is not None:
@@ -419,7 +437,7 @@ def fit_packed(R, Z, *, half_width: int, degrees=(3, 3, 3), circular: bool = Tru
                        covariance=covariance, known_covariance=known,
                        experiment_axis=experiment_axis, denominator=denominator,
                        closed_loop=closed_loop, first_window=first_window,
-                       instruments=instruments)
+                       instruments=instruments, select=select)
     lead_m = terms["G"].shape[:-2]
     names = ["G", "T", "noise_variance", "condition", "ill_posed", "spread_ratio", "half_weight",
              "P1_half_a", "P1_half_b", "P1", "s_condition", "s_singular"]
@@ -432,7 +450,7 @@ def fit_packed(R, Z, *, half_width: int, degrees=(3, 3, 3), circular: bool = Tru
 def _fit_terms(R, Z, *, half_width, degrees, circular, covariance, known_covariance,
                experiment_axis, closed_loop, denominator="ls", instruments=None,
                halves_instruments=None, bins=None, spread=True, first_window=None,
-               first_row_only=False) -> dict:
+               first_row_only=False, select=None) -> dict:
     """The local model at every bin (``bins``: those of the circle) reduced by
     :func:`slow_bin_terms`: ``G``, ``T`` (pooled: (..., M, E, nz)), ``noise_variance``,
     ``condition``, ``ill_posed`` and the terms; ``G_cov`` is dropped.  ``G_cov`` is
@@ -440,14 +458,16 @@ def _fit_terms(R, Z, *, half_width, degrees, circular, covariance, known_covaria
     the fitted bins) when given.  ``instruments``: those of ``denominator="iv"`` when the
     caller has them already.  ``spread``: also the pooled fits' split-half spread ratio
     (on these bins: the caller does it otherwise).  ``first_row_only``: of the terms only
-    those of :func:`slow_bin_terms` with ``first_row_only``."""
+    those of :func:`slow_bin_terms` with ``first_row_only``.  ``select`` (M,) bool (of the
+    circle with ``bins``): fit and reduce only those bins, the others NaN (not fitted)."""
     if check_denominator(denominator, degrees) and instruments is None:
         instruments = denominator_instruments(R, Z, degrees=degrees, circular=circular,
                                               experiment_axis=experiment_axis,
                                               half_width=first_window)
     fit = local_model(R, Z, half_width=half_width, degrees=tuple(degrees), circular=circular,
                       covariance="full" if covariance else None, experiment_axis=experiment_axis,
-                      instruments=instruments if denominator == "iv" else None, bins=bins)
+                      instruments=instruments if denominator == "iv" else None, bins=bins,
+                      select=select)
     G_cov = fit.G_cov
     if covariance and known_covariance is not None:
         G_cov = rescale_covariance(G_cov, fit.noise_covariance, known_covariance)
@@ -456,8 +476,23 @@ def _fit_terms(R, Z, *, half_width, degrees, circular, covariance, known_covaria
            "noise_variance": fit.noise_variance, "condition": fit.condition,
            "ill_posed": fit.ill_posed}
     # (a block of the circle or a chunk: no mirror there, the caller mirrors)
-    out.update(slow_bin_terms(fit.G, G_cov, nr=np.shape(R)[-1], closed_loop=closed_loop,
-                              mirrors=False, first_row_only=first_row_only))
+    terms = dict(nr=np.shape(R)[-1], closed_loop=closed_loop, mirrors=False,
+                 first_row_only=first_row_only)
+    on = None if select is None else np.asarray(select, dtype=bool)
+    if on is not None and bins is not None:
+        on = on[bins[0]:bins[1]]
+    if on is None or on.all():
+        out.update(slow_bin_terms(fit.G, G_cov, **terms))
+    else:  # the terms of the bins fitted; the others those of a bin not fitted (NaN)
+        cut = lambda x, at: None if x is None else x[..., at, :, :]  # noqa: E731
+        blank = slow_bin_terms(cut(fit.G, [0]) * np.nan, None if G_cov is None
+                               else cut(G_cov, [0]) * np.nan, **terms)
+        fitted = slow_bin_terms(cut(fit.G, on), cut(G_cov, on), **terms) if on.any() else {}
+        for name, value in blank.items():
+            ax = _BIN_AXES[name]
+            out[name] = np.repeat(value, on.size, axis=ax)
+            if name in fitted:
+                out[name][_bins_at(ax, on)] = fitted[name]
     del G_cov, fit
     if spread and covariance and not first_row_only and (n_exp or 0) >= MIN_SPLIT_EXPERIMENTS:
         out.update(_spread_ratio(R, Z, out, half_width=half_width, degrees=degrees,
@@ -515,7 +550,8 @@ def _block_plan(R, Z, *, half_width, degrees, covariance, noise_covariance, expe
 
 
 def _block_terms(R, Z, a, b, *, known, covariance, half_width, degrees, experiment_axis,
-                 closed_loop, denominator, instruments, first_row_only=False) -> dict:
+                 closed_loop, denominator, instruments, first_row_only=False,
+                 select=None) -> dict:
     """:func:`_fit_terms` of the slow bins ``a..b-1`` of the circle (a block of
     :func:`_fit_blocks`, or a refit of :func:`_refit_chosen`), with those bins' window
     mean ``known`` of a known noise covariance; without the split-half spread, which
@@ -525,12 +561,12 @@ def _block_terms(R, Z, a, b, *, known, covariance, half_width, degrees, experime
                       known_covariance=None if known is None else known[..., a:b, :, :],
                       experiment_axis=experiment_axis, closed_loop=closed_loop,
                       denominator=denominator, instruments=instruments, bins=(a, b),
-                      spread=False, first_row_only=first_row_only)
+                      spread=False, first_row_only=first_row_only, select=select)
 
 
 def _fit_blocks(R, Z, *, half_width, degrees, covariance, noise_covariance, experiment_axis,
                 closed_loop, denominator="ls", instruments=None, halves_instruments=None,
-                first_row_only=False) -> dict:
+                first_row_only=False, select=None) -> dict:
     """:func:`_fit_terms` of every slow bin of the circle, fitted in blocks of bins
     (:data:`BLOCK_BYTES`).  Spectra of real signals: the blocks cover bins ``0..M/2``
     and the others are their mirrors, as in one fit over all bins
@@ -553,7 +589,7 @@ def _fit_blocks(R, Z, *, half_width, degrees, covariance, noise_covariance, expe
                              half_width=half_width, degrees=degrees,
                              experiment_axis=experiment_axis, closed_loop=closed_loop,
                              denominator=denominator, instruments=instruments,
-                             first_row_only=first_row_only)
+                             first_row_only=first_row_only, select=select)
         if out is None:  # every per-bin output, all M bins: the bin axis of each
             axes = {k: _bin_axis(k, n_exp) for k, v in block.items() if v is not None}
             out = {k: (None if v is None else
@@ -857,7 +893,8 @@ def identify_spectra_auto(R, Z, *, n_fast: int, factor: int, nu: int, windows,
     (a fast bin ``k`` from the choice at slow bin ``k mod M``).  The squared model-error
     estimate of the chosen window is added to ``P_var``.  Where
     :func:`checks_denominator_bias` (one least-squares LRM record), the widest window is
-    also fitted by IV with its own least-squares prediction as instruments, and the
+    also fitted by IV with its own least-squares prediction as instruments (at the slow
+    bins of :func:`twin_bins` only: the term is a local mean), and the
     Hausman upper term for least squares' bias (:func:`lcmr_xr.kernels.adaptive.
     denominator_bias`) joins the model error at every bin, with the
     second-order nonlinearity factor (:func:`_finish_choice`).
@@ -926,12 +963,15 @@ def identify_spectra_auto(R, Z, *, n_fast: int, factor: int, nu: int, windows,
         iv = _fit_blocks(R, Z, half_width=windows[-1], degrees=degrees, covariance=True,
                          noise_covariance=None, experiment_axis=experiment_axis,
                          closed_loop=closed_loop, denominator="iv", instruments=zhat,
-                         first_row_only=True)
-        bins = np.arange(n_fast // 2 + 1)
+                         first_row_only=True, select=twin_bins(m))
+        # the variance at the fast bins of the slow bins fitted only (NaN elsewhere)
+        bins = np.flatnonzero(twin_bins(m)[np.arange(n_fast // 2 + 1) % m])
+        var_iv = np.full(fast["P_var_linear"][-1].shape, np.nan)
+        var_iv[..., bins, :, :] = frf_variance_from_first_row(iv["P1_cov"], n_fast, factor,
+                                                              bins, ny, nu)
         twin = denominator_bias(
             fast["P"][-1], frf_from_first_block_row(iv["P1"], factor)[..., : n_fast // 2 + 1, :, :],
-            fast["P_var_linear"][-1],
-            frf_variance_from_first_row(iv["P1_cov"], n_fast, factor, bins, ny, nu),
+            fast["P_var_linear"][-1], var_iv,
             determined=np.isfinite(fast["P_var"][-1]))
         del iv, zhat
     idx = fast_choice[None, ..., None, None]
@@ -1091,7 +1131,8 @@ def finish_packed_auto(packed, *, windows, nz: int, nr: int, n_fast: int, factor
     ``packed`` (J, ..., M, K): :func:`fit_packed` of every candidate half-width in
     ``windows`` (ascending, with covariance), e.g. fitted in frequency chunks.  ``twin``
     (..., M, K), where :func:`checks_denominator_bias`: :func:`fit_packed` of the widest
-    window with ``denominator="iv"`` and as ``instruments`` the widest candidate's own
+    window with ``denominator="iv"``, ``select`` :func:`twin_bins` (NaN at the other bins)
+    and as ``instruments`` the widest candidate's own
     prediction ``G R + T`` (:func:`_prediction`; or ``first_window`` that window, which fits
     it once more: the same to rounding), the Hausman twin of :func:`identify_spectra_auto`.
     ``known_noise``: the fits' covariance was built from a known noise covariance

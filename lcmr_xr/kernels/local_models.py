@@ -341,7 +341,8 @@ def _check_half_width(half_width, batch, m, nr, degrees, n_exp=1):
 
 def local_model(R, Z, *, half_width, degrees=(3, 3, 3), circular: bool = True,
                 covariance: str | None = "full", experiment_axis: int | None = None,
-                instruments=None, bins: tuple[int, int] | None = None) -> LocalModelFit:
+                instruments=None, bins: tuple[int, int] | None = None,
+                select=None) -> LocalModelFit:
     """Fit the local rational (LRM) or polynomial (LPM, ``Rd = 0``) model at every bin.
 
     Parameters
@@ -402,6 +403,13 @@ def local_model(R, Z, *, half_width, degrees=(3, 3, 3), circular: bool = True,
         rounding otherwise.  Every bin of the range is fitted by its own window: spectra
         of real signals are NOT mirrored (:func:`fits_half` says whether the whole fit
         would mirror; fit bins ``0..M/2`` then and mirror them).  Needs ``circular=True``.
+    select : ndarray, bool, shape (M,), optional
+        Fit only the bins of the ``M`` where ``select`` is True (with ``bins``: of
+        ``start..stop-1``); the others are NaN and flagged as not fitted (as the bins
+        without a full window of ``circular=False``), and nothing is mirrored.  A fitted
+        bin's values are those of the fit of every bin (the moment recurrence still
+        steps through the bins skipped).  E.g. a smoothed per-bin term that needs the fit
+        at every second bin only (:func:`lcmr_xr.kernels.identification.twin_bins`).
 
     Returns
     -------
@@ -540,8 +548,14 @@ def local_model(R, Z, *, half_width, degrees=(3, 3, 3), circular: bool = True,
         raise ValueError(
             f"covariance must be 'full', 'diag' or None, got {covariance!r}."
         )
+    if select is not None:
+        select = np.asarray(select, dtype=bool)
+        if select.shape != (m,):
+            raise ValueError(f"select must have shape (M,) = ({m},), one flag per bin; got "
+                             f"{select.shape}.")
     if bins is not None:  # the block and its wrapped halo only, from here on
         start, stop = _check_bins(bins, m, circular)
+        select = None if select is None else select[start:stop]
         widths = widths[:, start:stop]
         halo = int(widths.max())
         near = np.arange(start - halo, stop + halo) % m
@@ -580,12 +594,14 @@ def local_model(R, Z, *, half_width, degrees=(3, 3, 3), circular: bool = True,
         mirror = False
     elif circular:
         todo = np.ones((n_batch, m), dtype=bool)
-        mirror = _mirrors(rt, zt, widths)
+        mirror = select is None and _mirrors(rt, zt, widths)
         if mirror:  # real signals: fit 0..M/2, the rest is the conjugate
             todo[:, m // 2 + 1:] = False
     else:
         todo = (k - widths >= 0) & (k + widths <= m - 1)
         mirror = False
+    if select is not None:
+        todo &= select
 
     out = _allocate(n_batch, m, nz, nr, covariance, n_exp)
     bins = _bins()
