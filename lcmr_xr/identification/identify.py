@@ -722,7 +722,10 @@ def _fit_frequency_chunked(R, Z, s, *, factor, noise=None, pooled=False, first_w
         Nd = flat.chunk({**dict(zip(R.dims[:-1], Rd.chunks[:-1])), "_zz": -1}).data
         blocks.append(da.overlap.overlap(Nd, depth=depth, boundary=boundary))
 
-    starts = np.cumsum((0,) + Rd.chunks[ax])  # of the chunks along the bins, unhaloed
+    # where each haloed block's own bins start: from the overlapped chunks, not Rd's, since
+    # dask's overlap re-chunks chunks smaller than the halo (e.g. a last chunk of 8 bins
+    # is merged), which shifts every later block's first bin
+    starts = np.cumsum((0,) + tuple(c - 2 * halo for c in Rg.chunks[ax]))
     m = R.sizes[SF]
 
     def fit_block(rb, zb, *nb, block_id=None):

@@ -519,7 +519,7 @@ def select_windows(P: np.ndarray, P_var: np.ndarray, P_var_lin: np.ndarray, n_sl
     bias2 : ndarray, shape (J, ..., K, ny, nu)
         Estimated squared model error of every candidate, for the band.  For a wider
         candidate ``n``: Lepski's term, the mean over the neighbours of ``|P_n - P_0|^2 -
-        4 (var_0 - var_n)`` (floored at 0).  For the pilot (``n = 0``), whose distance to
+        4 max(0, var_0 - var_n)`` (floored at 0).  For the pilot (``n = 0``), whose distance to
         itself is 0 by construction: the check by the next-wider candidate, the mean of
         ``|P_1 - P_0|^2`` without the threshold (module notes; 0 when ``J = 1``).  The
         choice reads the pilot's term as 0 (Lepski's rule: the pilot is the reference).

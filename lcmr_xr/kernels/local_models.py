@@ -409,7 +409,7 @@ def local_model(R, Z, *, half_width, degrees=(3, 3, 3), circular: bool = True,
         without a full window of ``circular=False``), and nothing is mirrored.  A fitted
         bin's values are those of the fit of every bin (the moment recurrence still
         steps through the bins skipped).  E.g. a smoothed per-bin term that needs the fit
-        at every second bin only (:func:`lcmr_xr.kernels.identification.twin_bins`).
+        at every third bin only (:func:`lcmr_xr.kernels.identification.twin_bins`).
 
     Returns
     -------
@@ -925,9 +925,9 @@ def _fit_chunk(rt, zt, n, degrees, mode, sel, out_offset, m, dof, out, n_exp=1, 
                   DROP_TOLERANCE, CONDITION_LIMIT, G_SENSITIVITY_LIMIT,
                   out["G"], out["T"], out["noise_covariance"], out["condition"],
                   out["ill_posed"], out["dropped"], out["G_cov"], out["G_var"],
-                  # one record is pool = 1 and least squares the empty index tables
-                  # (_NO_IV): the same argument types in every mode, so one compiled
-                  # version serves them all (the branches are taken at run time)
+                  # least squares passes the empty index tables (_NO_IV): the same
+                  # argument types as IV, so one compiled version serves both (branches
+                  # taken at run time); one record (None) and pooled (int) compile apart
                   None if n_exp == 1 else int(n_exp), iv_arg)
 
 
