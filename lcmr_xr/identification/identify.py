@@ -667,16 +667,15 @@ def _chunked_prediction(packed, R, Z, *, chunk):
                           output_dtypes=[complex])
 
 
-def _fit_frequency_chunked(R, Z, s, *, factor, noise=None, pooled=False, first_window=None,
-                           instruments=None, select=None):
+def _fit_frequency_chunked(R, Z, s, *, factor, noise=None, pooled=False, instruments=None,
+                           select=None):
     """Lazy local-model fit in chunks along ``slow_frequency`` with wrapped halos.
 
     ``R``, ``Z``: the spectra of :func:`_chunked_spectra`.  ``noise`` (..., ``slow_frequency``,
     ``_z``, ``_z2``), optional: the noise covariance known per bin (periods), haloed like
     the spectra.  ``pooled``: one local model over the ``experiment`` dim (kept in one
-    chunk; the fitted blocks drop it).  ``first_window``: the half-width of the first fit of
-    ``denominator="iv"`` (default :func:`lcmr_xr.kernels.identification.first_fit_window`);
-    the halo is ``window`` plus it.  ``instruments`` (..., ``slow_frequency``, ``_z``),
+    chunk; the fitted blocks drop it).  With ``denominator="iv"`` the halo is ``window`` plus
+    that of the instruments' first fit (:func:`_first_fit_halo`).  ``instruments`` (..., ``slow_frequency``, ``_z``),
     optional, one record: those of ``denominator="iv"`` (:func:`_chunked_prediction`),
     haloed like the spectra; then there is no first fit and the halo is ``window``.
     ``select`` (``slow_frequency``,) bool, optional: fit only those bins, the others NaN
@@ -688,9 +687,8 @@ def _fit_frequency_chunked(R, Z, s, *, factor, noise=None, pooled=False, first_w
 
     chunk, window, closed_loop = s.frequency_chunks, s.window, s.closed_loop
     nr, nz = R.sizes["_r"], Z.sizes["_z"]
-    # the instruments' first fit needs its own
-    halo = window + (0 if instruments is not None else
-                     _first_fit_halo(s, nr) if first_window is None else int(first_window))
+    # the instruments' first fit (IV without given instruments) needs its own halo
+    halo = window + (0 if instruments is not None else _first_fit_halo(s, nr))
 
     def one_chunk(d, x):  # pooled: every experiment in each block (one local model)
         return -1 if (pooled and d == cv.EXPERIMENT) or x.chunks is None \
@@ -743,8 +741,7 @@ def _fit_frequency_chunked(R, Z, s, *, factor, noise=None, pooled=False, first_w
         return fit_packed(rb, zb, half_width=window, degrees=s.degrees, circular=False,
                           covariance=s.covariance, noise_covariance=known,
                           experiment_axis=exp_ax, denominator=_kernel_denominator(s),
-                          closed_loop=closed_loop, first_window=first_window,
-                          instruments=wb, select=sb)
+                          closed_loop=closed_loop, instruments=wb, select=sb)
 
     chunks = Rg.chunks[:-1] + ((width,),)
     if pooled:  # the fit pools the experiment axis away

@@ -351,15 +351,9 @@ def denominator_bias(P_ls, P_iv, var_ls, var_iv, smoothing: int = None, axis: in
     with np.errstate(invalid="ignore", over="ignore"):
         raw = np.abs(np.asarray(P_ls) - np.asarray(P_iv)) ** 2 \
             - np.maximum(np.asarray(var_iv) - np.asarray(var_ls), 0.0)
-    use = np.isfinite(raw)
-    if determined is not None:
-        use = use & np.broadcast_to(np.asarray(determined, dtype=bool), raw.shape)
-    ax = axis % raw.ndim
-    total = _running_mean(np.where(use, raw, 0.0), half, ax)
-    count = _running_mean(use.astype(float), half, ax)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        mean = np.where(count > 0, total / np.where(count > 0, count, 1.0), 0.0)
-    return np.maximum(mean, 0.0)
+    use = None if determined is None else \
+        np.broadcast_to(np.asarray(determined, dtype=bool), raw.shape)
+    return np.maximum(_finite_running_mean(raw, half, axis % raw.ndim, use=use), 0.0)
 
 
 def _kron(a, b):

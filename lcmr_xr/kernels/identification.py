@@ -392,8 +392,7 @@ def packed_width(nz: int, nr: int, covariance: bool, n_exp: int = 1,
 def fit_packed(R, Z, *, half_width: int, degrees=(3, 3, 3), circular: bool = True,
                covariance: bool = True, noise_covariance=None,
                experiment_axis: int | None = None, denominator: str = "ls",
-               closed_loop: str = "indirect", first_window: int | None = None,
-               instruments=None, select=None) -> np.ndarray:
+               closed_loop: str = "indirect", instruments=None, select=None) -> np.ndarray:
     """Local model per bin, reduced to what the recovery reads and packed into one complex
     array ``(..., M, K)``.
 
@@ -422,8 +421,7 @@ def fit_packed(R, Z, *, half_width: int, degrees=(3, 3, 3), circular: bool = Tru
     ``denominator="iv"``: instrumental variables (:func:`denominator_instruments`).  With
     ``circular=False`` its first fit needs :func:`first_fit_window` more halo bins: the
     ``half_width + first_fit_window`` bins at each end are not those of the circular fit
-    (trim them).  ``first_window``: the first fit's half-width (default
-    :func:`first_fit_window`; the halo then grows by it instead).  ``instruments``
+    (trim them).  ``instruments``
     (..., M, nz), optional: those of ``denominator="iv"`` on the same (haloed) bins when
     the caller has them (the Hausman twin of ``window="auto"`` takes the widest candidate's
     prediction); then there is no first fit and the halo is ``half_width``.  ``select``
@@ -436,8 +434,7 @@ def fit_packed(R, Z, *, half_width: int, degrees=(3, 3, 3), circular: bool = Tru
     terms = _fit_terms(R, Z, half_width=half_width, degrees=degrees, circular=circular,
                        covariance=covariance, known_covariance=known,
                        experiment_axis=experiment_axis, denominator=denominator,
-                       closed_loop=closed_loop, first_window=first_window,
-                       instruments=instruments, select=select)
+                       closed_loop=closed_loop, instruments=instruments, select=select)
     lead_m = terms["G"].shape[:-2]
     names = ["G", "T", "noise_variance", "condition", "ill_posed", "spread_ratio", "half_weight",
              "P1_half_a", "P1_half_b", "P1", "s_condition", "s_singular"]
@@ -449,8 +446,8 @@ def fit_packed(R, Z, *, half_width: int, degrees=(3, 3, 3), circular: bool = Tru
 
 def _fit_terms(R, Z, *, half_width, degrees, circular, covariance, known_covariance,
                experiment_axis, closed_loop, denominator="ls", instruments=None,
-               halves_instruments=None, bins=None, spread=True, first_window=None,
-               first_row_only=False, select=None) -> dict:
+               halves_instruments=None, bins=None, spread=True, first_row_only=False,
+               select=None) -> dict:
     """The local model at every bin (``bins``: those of the circle) reduced by
     :func:`slow_bin_terms`: ``G``, ``T`` (pooled: (..., M, E, nz)), ``noise_variance``,
     ``condition``, ``ill_posed`` and the terms; ``G_cov`` is dropped.  ``G_cov`` is
@@ -462,8 +459,7 @@ def _fit_terms(R, Z, *, half_width, degrees, circular, covariance, known_covaria
     circle with ``bins``): fit and reduce only those bins, the others NaN (not fitted)."""
     if check_denominator(denominator, degrees) and instruments is None:
         instruments = denominator_instruments(R, Z, degrees=degrees, circular=circular,
-                                              experiment_axis=experiment_axis,
-                                              half_width=first_window)
+                                              experiment_axis=experiment_axis)
     fit = local_model(R, Z, half_width=half_width, degrees=tuple(degrees), circular=circular,
                       covariance="full" if covariance else None, experiment_axis=experiment_axis,
                       instruments=instruments if denominator == "iv" else None, bins=bins,
@@ -1133,8 +1129,7 @@ def finish_packed_auto(packed, *, windows, nz: int, nr: int, n_fast: int, factor
     (..., M, K), where :func:`checks_denominator_bias`: :func:`fit_packed` of the widest
     window with ``denominator="iv"``, ``select`` :func:`twin_bins` (NaN at the other bins)
     and as ``instruments`` the widest candidate's own
-    prediction ``G R + T`` (:func:`_prediction`; or ``first_window`` that window, which fits
-    it once more: the same to rounding), the Hausman twin of :func:`identify_spectra_auto`.
+    prediction ``G R + T`` (:func:`_prediction`), the Hausman twin of :func:`identify_spectra_auto`.
     ``known_noise``: the fits' covariance was built from a known noise covariance
     (periods), not from their residuals.  Returns the dict of :func:`identify_spectra_auto`.
     """
