@@ -642,6 +642,18 @@ API = [
     Case("sweep_to_disk_overwrite_text", lambda e: sweep_to_disk(open_archive("arc1.nc"), "frf.nc", window=[12],
                                                                  degrees=["2-2-2"], overwrite="no"),
          TypeError, ("overwrite", "True or False")),
+    # the API wrote the consolidated file inside the directory it read (the directory then
+    # no longer opened: a file of another structure), and with overwrite=True over one of
+    # its experiment files (that experiment lost); the command line refused both
+    Case("consolidate_output_inside_directory_api", lambda e: consolidate_archive("arc", "arc/all.nc"),
+         ValueError, ("refusing to write", "arc/all.nc", "inside the archive directory arc",
+                      "another path")),
+    Case("consolidate_output_over_own_file_api",
+         lambda e: consolidate_archive("arc", "arc/e0.nc", overwrite=True),
+         ValueError, ("refusing to write", "arc/e0.nc", "inside the archive directory arc")),
+    Case("consolidate_output_is_the_directory_api",
+         lambda e: consolidate_archive("arc", "./arc", overwrite=True),
+         ValueError, ("refusing to write", "the archive directory arc")),
     Case("save_archive_not_datasets", lambda e: save_archive([e.small.r], "newarc"), TypeError, ("not an experiment Dataset",)),
     # --- sweep / select ------------------------------------------------------------------------
     Case("sweep_window_too_small", lambda e: sweep(e.small, window=[3]), ValueError, ("Use window >=",)),

@@ -608,7 +608,9 @@ def consolidate_archive(directory, path, *, overwrite: bool = False, progress=No
     directory : str or os.PathLike
         Archive directory (``*.nc`` experiment files).
     path : str or os.PathLike
-        The consolidated archive to write (atomically: temporary file, then rename).
+        The consolidated archive to write (atomically: temporary file, then rename); not
+        ``directory`` itself nor inside it (refused, even with ``overwrite``: the file
+        would break the directory archive or replace one of its experiments).
     overwrite : bool, default False
         Replace ``path`` if it exists (otherwise an existing ``path`` is refused).  True or
         False only.
@@ -645,8 +647,17 @@ def consolidate_archive(directory, path, *, overwrite: bool = False, progress=No
     """
     from lcmr_xr.io._atomic import atomic_write
 
+    from lcmr_xr.io._guards import same_or_inside
+
     directory, path = Path(directory), Path(path)
     overwrite = as_bool(overwrite, "overwrite")  # "no" must not replace a file
+    if directory.is_dir() and same_or_inside(path, directory):
+        # inside, the file breaks the directory archive (a file of another structure);
+        # over one of its files, that experiment is lost: even with overwrite
+        where = "the archive directory" if same_or_inside(directory, path) else \
+            "inside the archive directory"
+        raise ValueError(f"refusing to write {path}: it is {where} {directory}, which "
+                         "consolidate_archive reads; choose another path, outside it.")
     if path.exists() and not overwrite:
         raise FileExistsError(f"{path} exists; pass overwrite=True (--overwrite) to replace it, "
                               "or choose another path.")
