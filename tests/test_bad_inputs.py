@@ -654,6 +654,21 @@ API = [
     Case("consolidate_output_is_the_directory_api",
          lambda e: consolidate_archive("arc", "./arc", overwrite=True),
          ValueError, ("refusing to write", "the archive directory arc")),
+    # workers=-1 failed inside concurrent.futures ("max_workers must be greater than 0")
+    # after the parts directory was made (left behind); 0 ran on every CPU and 2.5 on 2
+    # threads without a word; progress="no" (truthy) silently showed nothing
+    Case("sweep_to_disk_workers_negative", lambda e: sweep_to_disk(open_archive("arc1.nc"), "out.nc", window=[12],
+                                                                   degrees=["2-2-2"], workers=-1),
+         ValueError, ("workers must be >= 1", "-1")),
+    Case("sweep_to_disk_workers_zero", lambda e: sweep_to_disk(open_archive("arc1.nc"), "out.nc", window=[12],
+                                                               degrees=["2-2-2"], workers=0),
+         ValueError, ("workers must be >= 1", "0")),
+    Case("sweep_to_disk_workers_fractional", lambda e: sweep_to_disk(open_archive("arc1.nc"), "out.nc",
+                                                                     window=[12], degrees=["2-2-2"], workers=2.5),
+         ValueError, ("workers must be an integer", "2.5", "not rounded")),
+    Case("sweep_to_disk_progress_text", lambda e: sweep_to_disk(open_archive("arc1.nc"), "out.nc", window=[12],
+                                                                degrees=["2-2-2"], progress="no"),
+         TypeError, ("progress must be True", "False or a callable", "'no'")),
     Case("save_archive_not_datasets", lambda e: save_archive([e.small.r], "newarc"), TypeError, ("not an experiment Dataset",)),
     # --- sweep / select ------------------------------------------------------------------------
     Case("sweep_window_too_small", lambda e: sweep(e.small, window=[3]), ValueError, ("Use window >=",)),

@@ -485,8 +485,8 @@ def sweep_to_disk(experiments: xr.Dataset, output, *, window=(30,), degrees=None
         workers need no access to ``output``.  Default: a pool of ``workers`` threads in
         this process.
     workers : int, optional
-        Tasks run at once in this process (default: the number of CPUs); ignored with
-        ``client``.
+        Tasks run at once in this process, at least 1 (default: the number of CPUs);
+        ignored with ``client``.
     scheduler : {"threads", "processes", "synchronous"}, default "threads"
         Without ``client``: run the tasks on threads, on dask's process pool, or one at a
         time in this thread.
@@ -542,12 +542,19 @@ def sweep_to_disk(experiments: xr.Dataset, output, *, window=(30,), degrees=None
     from lcmr_xr.io import save
     from lcmr_xr.io._guards import check_outputs, same_or_inside
     from lcmr_xr.scaleout import sweep as sweep_lazily
-    from lcmr_xr.settings import degrees_label
+    from lcmr_xr.settings import as_integer, degrees_label
     from lcmr_xr.scaleout.sweep import _chunked, _sources, sweep_settings
 
     if scheduler not in ("threads", "processes", "synchronous"):
         raise ValueError(f"scheduler must be 'threads', 'processes' or 'synchronous', got "
                          f"{scheduler!r}; for a cluster pass client=distributed.Client(...).")
+    if workers is not None:  # 0 meant "all CPUs", -1 failed in the pool after the parts were made
+        workers = as_integer(workers, "workers", minimum=1, example=2)
+    if not (isinstance(progress, (bool, np.bool_)) or callable(progress)):
+        raise TypeError(f"progress must be True (a bar on stderr), False or a callable "
+                        f"progress(done, total, experiments_per_second), got {progress!r} "
+                        f"({type(progress).__name__}).")
+    progress = bool(progress) if isinstance(progress, np.bool_) else progress
     output = Path(output)
     if not isinstance(experiments, xr.Dataset) or cv.EXPERIMENT not in experiments.dims:
         raise ValueError("sweep_to_disk needs experiments with an 'experiment' dim (e.g. from "
