@@ -669,6 +669,9 @@ API = [
     Case("sweep_to_disk_progress_text", lambda e: sweep_to_disk(open_archive("arc1.nc"), "out.nc", window=[12],
                                                                 degrees=["2-2-2"], progress="no"),
          TypeError, ("progress must be True", "False or a callable", "'no'")),
+    # failed after the first batch was copied, with "'bool' object is not callable"
+    Case("consolidate_progress_not_callable", lambda e: consolidate_archive("arc", "all.nc", progress=True),
+         TypeError, ("progress must be None or a callable", "progress(done, total)", "True")),
     Case("save_archive_not_datasets", lambda e: save_archive([e.small.r], "newarc"), TypeError, ("not an experiment Dataset",)),
     # --- sweep / select ------------------------------------------------------------------------
     Case("sweep_window_too_small", lambda e: sweep(e.small, window=[3]), ValueError, ("Use window >=",)),

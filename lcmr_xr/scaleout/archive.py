@@ -651,6 +651,9 @@ def consolidate_archive(directory, path, *, overwrite: bool = False, progress=No
 
     directory, path = Path(directory), Path(path)
     overwrite = as_bool(overwrite, "overwrite")  # "no" must not replace a file
+    if progress is not None and not callable(progress):  # else "'bool' object is not callable" mid-copy
+        raise TypeError(f"progress must be None or a callable progress(done, total), got "
+                        f"{progress!r} ({type(progress).__name__}).")
     if directory.is_dir() and same_or_inside(path, directory):
         # inside, the file breaks the directory archive (a file of another structure);
         # over one of its files, that experiment is lost: even with overwrite
