@@ -98,6 +98,29 @@ def test_frf_for_matlab_frd(tmp_path):
     assert sorted(os.listdir(tmp_path)) == ["frf.mat"]
 
 
+def _v73(path, exp):
+    """A MATLAB -v7.3 file of ``exp`` at ``path`` (HDF5 with MATLAB's 128-byte header)."""
+    with h5py.File(path, "w", userblock_size=512) as fh:
+        fh["r"], fh["u"], fh["y"] = exp.r.values.T, exp.u.values.T, exp.y.values.T
+        fh["Ts"], fh["F"] = np.array([[TH]]), np.array([[2.0]])
+    with open(path, "r+b") as fh:
+        text = b"MATLAB 7.3 MAT-file, Platform: GLNXA64, Created on: Mon Nov 23 04:00:00 2026 HDF5 schema 1.00 ."
+        fh.write(text.ljust(116) + b"\x00" * 8 + b"\x00\x02" + b"IM")
+    return path
+
+
+@pytest.mark.parametrize("damage", ["truncated", "header only"])
+def test_damaged_v73_file_is_named(exp, tmp_path, damage):
+    """A -v7.3 file that HDF5 cannot open (an incomplete copy) raised h5py's OSError
+    ("Unable to synchronously open file (truncated file ...)"), naming no file and no
+    remedy; now a ValueError names the file, as for a damaged v5 file."""
+    path = _v73(tmp_path / "run.mat", exp)
+    data = path.read_bytes()
+    path.write_bytes(data[: len(data) // 2] if damage == "truncated" else data[:512] + b"junk" * 64)
+    with pytest.raises(ValueError, match=r"cannot read .*run.mat as a MATLAB -v7.3 file.*save it again"):
+        lcmr_xr.open_experiment(path)
+
+
 def test_clear_errors(exp, tmp_path):
     path = tmp_path / "x.mat"
     scipy.io.savemat(path, {"r": exp.r.values, "u": exp.u.values, "y": exp.y.values,

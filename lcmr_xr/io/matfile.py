@@ -60,6 +60,17 @@ def _load(path: Path) -> dict:
 def _load_hdf5(path: Path) -> dict:
     import h5py
 
+    try:
+        return _read_hdf5(h5py, path)
+    except (OSError, ValueError, KeyError) as err:  # HDF5 refuses a truncated or damaged file
+        raise ValueError(
+            f"cannot read {path} as a MATLAB -v7.3 file: HDF5 cannot read it ({err}): an "
+            "incomplete copy or a damaged file. Copy it again, or save it again in MATLAB "
+            "with save(..., '-v7.3') or '-v7'."
+        ) from err
+
+
+def _read_hdf5(h5py, path: Path) -> dict:
     out = {}
     with h5py.File(path, "r") as fh:
         for name, item in fh.items():
