@@ -121,6 +121,17 @@ def test_damaged_v73_file_is_named(exp, tmp_path, damage):
         lcmr_xr.open_experiment(path)
 
 
+def test_errors_name_the_file_once(exp, tmp_path):
+    """A bad (1, 1) variable was reported as 'x.mat: x.mat: variable ...'."""
+    path = tmp_path / "x.mat"
+    scipy.io.savemat(path, {"r": exp.r.values, "u": exp.u.values, "y": exp.y.values,
+                            "Ts": np.array([TH, TH]), "F": 2.0})
+    for kwargs in ({}, {"sampling_period": "missing"}):
+        with pytest.raises(ValueError) as info:
+            lcmr_xr.open_experiment(path, **kwargs)
+        assert str(info.value).count("x.mat") == 1, str(info.value)
+
+
 def test_clear_errors(exp, tmp_path):
     path = tmp_path / "x.mat"
     scipy.io.savemat(path, {"r": exp.r.values, "u": exp.u.values, "y": exp.y.values,

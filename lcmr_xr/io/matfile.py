@@ -223,18 +223,20 @@ def open_mat_experiment(path, *, r="r", u="u", y="y", factor=FACTOR_NAME,
     signals = [_signal(data, name, path, what) for name, what in
                ((r, "r, the fast excitation"), (u, "u, the fast plant input"),
                 (y, "y, the slow output"))]
+    # read before the call: their messages name the file already
+    f = _scalar(data, factor, path, "multirate factor F", "factor")
+    th = _scalar(data, sampling_period, path, "fast sampling period Th", "sampling_period")
     try:
         return experiment(
             *signals,
-            factor=_scalar(data, factor, path, "multirate factor F", "factor"),
-            sampling_period=_scalar(data, sampling_period, path, "fast sampling period Th",
-                                    "sampling_period"),
+            factor=f,
+            sampling_period=th,
             inputs=_labels(data, inputs, INPUT_NAME, path),
             outputs=_labels(data, outputs, OUTPUT_NAME, path),
             input_units=_text(data, input_units, INPUT_UNITS),
             output_units=_text(data, output_units, OUTPUT_UNITS),
         )
-    except ValueError as err:
+    except ValueError as err:  # experiment()'s checks do not know the file
         raise ValueError(f"{path}: {err}") from err
 
 
