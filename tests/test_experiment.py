@@ -196,8 +196,30 @@ def test_validate_experiment_on_dask_computes_once_and_stays_lazy():
     assert dask.is_dask_collection(out["r"].data) and dask.is_dask_collection(out["y"].data)
     poisoned = ds.copy()
     poisoned["y"] = ds["y"].where(ds.experiment != 2)  # NaN in one experiment, still lazy
-    with pytest.raises(ValueError, match=r"\['y'\] contain NaN"):
+    with pytest.raises(ValueError, match=r"y contains 4 NaN or inf value\(s\) \(experiment=2, output='y0'\)"):
         validate_experiment(poisoned)
+
+
+def test_validate_experiment_on_dask_says_where_the_bad_samples_are():
+    """Lazy data with NaN were refused naming only the variables (``['u'] contain NaN or
+    inf``): not which experiment, channel or time.  Now the message is the one for the
+    same data in memory (count, channels, experiments, samples and time range)."""
+    r, u, y = _arrays(lead=(4,))
+    ds = experiment(r, u, y, factor=F, sampling_period=TH)
+    u_bad = ds["u"].values.copy()
+    u_bad[2, 5:8, 1] = np.nan
+    u_bad[3, 7, 1] = np.inf
+    bad = ds.assign(u=ds["u"].copy(data=u_bad))
+    with pytest.raises(ValueError) as eager:
+        validate_experiment(bad)
+    for chunks in ({"experiment": 1}, {"time": 4}):
+        with pytest.raises(ValueError) as lazy:
+            validate_experiment(bad.chunk(chunks))
+        assert str(lazy.value) == str(eager.value)
+    message = str(eager.value)
+    for words in ("u contains 4 NaN or inf value(s)", "experiment in [2, 3]", f"input='{ds.input.values[1]}'",
+                  "at 3 of its", f"from time = {5 * TH:.6g} s to {7 * TH:.6g} s", "(indices 5..7)"):
+        assert words in message, message
 
 
 def test_experiment_keeps_dask_inputs_lazy():

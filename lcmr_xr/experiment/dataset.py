@@ -27,7 +27,7 @@ from lcmr_xr.conventions import (
 )
 from lcmr_xr.settings import as_bool
 from lcmr_xr.transforms._coords import even_spacing
-from lcmr_xr.transforms._finite import channel_labels, describe_non_finite
+from lcmr_xr.transforms._finite import channel_labels, describe_lazy_non_finite, describe_non_finite
 
 __all__ = ["experiment", "validate_experiment"]
 
@@ -453,7 +453,9 @@ def validate_experiment(ds: xr.Dataset, *, check_values: bool = True) -> xr.Data
     -----
     Everything but the NaN/inf check reads metadata only.  The NaN/inf check has to look
     at the data: for dask-backed variables it computes the three ``isfinite(...).all()``
-    reductions in a single ``dask.compute`` call (one pass over the data, nothing kept).
+    reductions in a single ``dask.compute`` call (one pass over the data, nothing kept);
+    only when one fails is that variable read once more, to name where its bad samples are
+    (times, channels, experiments), as for data in memory.
 
     Examples
     --------
@@ -550,12 +552,9 @@ def validate_experiment(ds: xr.Dataset, *, check_values: bool = True) -> xr.Data
         values = checks
     bad = [name for name, ok in values.items() if not bool(ok)]
     if bad:
-        # in memory: the message of dft and identify's lazy guard (variable, count, channels,
-        # samples and time range); lazy: the names (the reductions computed no positions)
-        lazy = [name for name in bad if _is_lazy(ds[name].data)]
-        said = [_bad_samples(ds[name]) for name in bad if name not in lazy]
-        if lazy:
-            said.append(f"{lazy} contain NaN or inf")
+        # the message of dft and identify's lazy guard (variable, count, channels, samples
+        # and time range); lazy variables are read once more to find them
+        said = [_bad_samples(ds[name]) for name in bad]
         how = ", ".join(f"ds[{name!r}].interpolate_na({TIME if TIME in ds[name].dims else SLOW_TIME!r})"
                         for name in bad)
         _fail("; ".join(said), f"Remove or interpolate the bad samples before identification "
@@ -567,6 +566,8 @@ def _bad_samples(var: xr.DataArray) -> str:
     """What :func:`lcmr_xr.dft` says of the non-finite values of an in-memory variable
     (:func:`lcmr_xr.transforms._finite.describe_non_finite`)."""
     dim = TIME if TIME in var.dims else SLOW_TIME
+    if _is_lazy(var.data):
+        return describe_lazy_non_finite(var, dim)
     bad = ~np.isfinite(var.transpose(..., dim).values)
     return describe_non_finite(var.name, bad, dim=dim, coord=np.asarray(var[dim].values),
                                where=channel_labels(var, dim, bad))

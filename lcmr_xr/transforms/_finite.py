@@ -18,19 +18,22 @@ IN_A_BLOCK = " (in one dask block; lazy data are checked when computed)"
 
 
 def describe_non_finite(name, bad: np.ndarray, *, dim: str, coord=None, unit: str = "s",
-                        noun: str = "samples", where: str = "") -> str:
+                        noun: str = "samples", where: str = "", count: int | None = None) -> str:
     """``"<name> contains <count> NaN or inf value(s)<where> at <rows> of its <n> <dim>
     <noun>, from <dim> = <a> <unit> to <b> <unit> (indices i..j)"``.
 
     ``bad`` is the mask of non-finite values with ``dim`` last (leading axes: channels,
     records); ``coord`` the coordinate along ``dim`` (the range is left out without one);
     ``where`` e.g. the channels (:func:`channel_labels`).  At least one value must be bad.
+    ``count``: the number of bad values when ``bad`` is already reduced over the leading
+    axes (:func:`describe_lazy_non_finite`); default ``bad.sum()``.
     """
     bad = np.asarray(bad, dtype=bool)
     rows = np.flatnonzero(bad.reshape(-1, bad.shape[-1]).any(axis=0))
     span = "" if coord is None else (
         f", from {dim} = {float(coord[rows[0]]):.6g} {unit} to {float(coord[rows[-1]]):.6g} {unit}")
-    return (f"{name or 'the input'} contains {int(bad.sum())} NaN or inf value(s){where} at "
+    count = int(bad.sum()) if count is None else int(count)
+    return (f"{name or 'the input'} contains {count} NaN or inf value(s){where} at "
             f"{rows.size} of its {bad.shape[-1]} {dim} {noun}{span} (indices "
             f"{rows[0]}..{rows[-1]})")
 
@@ -39,12 +42,37 @@ def channel_labels(da, dim: str, bad: np.ndarray) -> str:
     """``" (input='pzt', output in ['a', 'b'])"``: the labels (or indices) of the other dims
     of ``da`` at which ``bad`` (``da``'s mask transposed to ``dim`` last) holds a value."""
     others = [d for d in da.dims if d != dim]
+    hits = [bad.any(axis=tuple(j for j in range(bad.ndim) if j != i)) for i in range(len(others))]
+    return _labels_at(da, others, hits)
+
+
+def _labels_at(da, others, hits) -> str:
     where = []
-    for i, d in enumerate(others):
-        hit = np.flatnonzero(bad.any(axis=tuple(j for j in range(bad.ndim) if j != i)))
+    for d, hit in zip(others, hits):
+        hit = np.flatnonzero(hit)
         labels = da[d].values[hit].tolist() if d in da.coords else hit.tolist()
         where.append(f"{d}={labels[0]!r}" if len(labels) == 1 else f"{d} in {labels}")
     return f" ({', '.join(where)})" if where else ""
+
+
+def describe_lazy_non_finite(da, dim: str, *, unit: str = "s", noun: str = "samples") -> str:
+    """:func:`describe_non_finite` with :func:`channel_labels` of a lazy (dask) DataArray
+    known to hold NaN/inf: the count, the bad samples along ``dim`` and the bad labels of
+    each other dim, reduced in one ``dask.compute`` (a pass over the data; no mask of the
+    whole array is kept)."""
+    import dask
+
+    bad = ~np.isfinite(da.data)
+    others = [d for d in da.dims if d != dim]
+    axes = {d: da.get_axis_num(d) for d in da.dims}
+
+    def any_but(keep):
+        return bad.any(axis=tuple(a for d, a in axes.items() if d != keep))
+
+    count, rows, *hits = dask.compute(bad.sum(), any_but(dim), *(any_but(d) for d in others))
+    coord = np.asarray(da[dim].values) if dim in da.coords else None
+    return describe_non_finite(da.name, rows, dim=dim, coord=coord, unit=unit, noun=noun,
+                               where=_labels_at(da, others, hits), count=count)
 
 
 def refuse_non_finite(da, dim: str, *, consequence: str, remedy: str, unit: str = "s",
