@@ -298,6 +298,31 @@ def test_fast_spectrum_from_lifted_errors():
         fast_spectrum_from_lifted(dft(lift(_signal(12), 3), dim="slow_time", one_sided=True))
 
 
+@pytest.mark.parametrize("select", [[0, 1], slice(0, 3), [1, 0, 2, 3], [3, 2, 1, 0]],
+                         ids=["first two", "first three", "swapped", "reversed"])
+def test_selected_or_reordered_phases_are_refused(select):
+    """``unlift`` and ``fast_spectrum_from_lifted`` read position ``j`` of ``lift_phase`` as
+    phase ``j`` of a lifting by its length.  The first phases of a lifting by 4
+    (``isel(lift_phase=[0, 1])``, labels 0..1 in order) came out as a signal lifted by 2:
+    samples 0, 1, 4, 5, ... on uneven times, and a fast spectrum on a wrong grid; a
+    reordered selection gave fast_spectrum_from_lifted a wrong spectrum (unlift refused
+    it).  Both are refused now; the whole lifting still round-trips."""
+    x = _signal(24, th=0.1, extra=[("input", 2)])
+    lifted = lift(x, 4)
+    slow = dft(lifted, dim="slow_time")
+    for call in (lambda: unlift(lifted.isel(lift_phase=select)),
+                 lambda: unlift(lifted.to_dataset(name="x").isel(lift_phase=select)),
+                 lambda: fast_spectrum_from_lifted(slow.isel(lift_phase=select))):
+        with pytest.raises(ValueError, match="lift_phase") as info:
+            call()
+        assert "every phase" in str(info.value) or "of the 4 phases" in str(info.value)
+    xr.testing.assert_identical(unlift(lifted), x)
+    xr.testing.assert_allclose(fast_spectrum_from_lifted(slow), dft(x), rtol=1e-12, atol=1e-12)
+    # a lifted array built by hand (no lift_factor) is read as a whole lifting
+    bare = xr.DataArray(np.arange(8.0).reshape(4, 2), dims=("slow_time", "lift_phase"))
+    assert unlift(bare).values.tolist() == list(range(8))
+
+
 def test_dft_identify_and_validate_experiment_say_the_same_of_nan():
     """One message builder (lcmr_xr.transforms._finite) for dft, identify's lazy guard and
     validate_experiment: the same samples, range and indices for the same bad value (there

@@ -26,6 +26,10 @@ __all__ = ["lift", "unlift"]
 _TMP_NAME = "__lcmr_xr_lift__"
 _LIFTED_DIM = "lifted_dim"
 _CREATED_SLOW = "lift_created_slow_coord"
+#: The factor F on the ``lift_phase`` coordinate: a selection of phases keeps the
+#: coordinate's attributes, so a partial one (``isel(lift_phase=[0, 1])`` of F = 4, whose
+#: labels are ``0..1`` in order) is told from a whole lifting.
+LIFT_FACTOR = "lift_factor"
 
 
 def _as_dataset(x):
@@ -159,6 +163,7 @@ def lift(x, factor: int | None = None, *, dim: str = TIME):
             "long_name": "lifting phase (fast sample within a slow period)",
             _LIFTED_DIM: dim,
             _CREATED_SLOW: int(not has_slow),
+            LIFT_FACTOR: int(factor),
         },
     )
     coord_names.add(LIFT_PHASE)
@@ -166,6 +171,35 @@ def lift(x, factor: int | None = None, *, dim: str = TIME):
     coords = {k: v for k, v in variables.items() if k in coord_names}
     out = xr.Dataset(data_vars, coords=coords, attrs=ds.attrs)
     return _back(out, isinstance(x, xr.DataArray), name)
+
+
+def check_all_phases(x, what: str, remedy: str) -> None:
+    """Refuse a ``lift_phase`` dim of ``x`` (Dataset or DataArray) that is not the lifting's
+    phases ``0..F-1`` in order: fewer phases than the lifting made (the ``lift_factor`` its
+    coordinate records; coordinates without it, made by hand or by an earlier version,
+    pass), or labels reordered (``sortby``, ``isel``).  ``what`` reads position ``j`` as
+    phase ``j`` of a lifting by the dim's length, so either would give wrong values."""
+    n_phases = x.sizes[LIFT_PHASE]
+    if LIFT_PHASE not in x.coords:
+        return
+    # position j is read as phase j: the labels must be 0..F-1 in order, or a reordered
+    # (sortby, isel) or partial selection would come out scrambled
+    phases = np.asarray(x[LIFT_PHASE].values)
+    if phases.shape != (n_phases,) or not np.array_equal(phases, np.arange(n_phases)):
+        shown = phases.tolist() if phases.size <= 8 else f"{phases[:8].tolist()[:-1]} ..."
+        raise ValueError(
+            f"cannot {what}: the {LIFT_PHASE!r} coordinate is {shown}, but every phase "
+            f"0..{n_phases - 1} is needed in order (element [l, j] is the fast sample l F + j). "
+            f"Sort it with x.sortby({LIFT_PHASE!r}), or {remedy}."
+        )
+    recorded = x[LIFT_PHASE].attrs.get(LIFT_FACTOR)
+    if recorded is not None and int(recorded) != n_phases:
+        raise ValueError(
+            f"cannot {what}: the {LIFT_PHASE!r} dim holds {n_phases} of the {int(recorded)} "
+            f"phases of the lifting (F = {int(recorded)}, recorded in its coordinate's "
+            f"{LIFT_FACTOR!r}); the result would be a lifting by {n_phases}, with wrong times "
+            f"and frequencies. Keep every phase: {remedy}."
+        )
 
 
 def unlift(x, *, dim: str = "slow_time"):
@@ -190,7 +224,8 @@ def unlift(x, *, dim: str = "slow_time"):
     ValueError
         If ``dim`` or ``lift_phase`` is missing, the fast dim already exists, a variable has
         ``lift_phase`` without ``dim``, or the ``lift_phase`` coordinate is not ``0..F-1`` in
-        order (reordered or selected phases would come out scrambled).
+        order or holds fewer phases than the lifting made (its ``lift_factor``): reordered
+        or selected phases would come out scrambled.
     TypeError
         If ``x`` is not a DataArray or Dataset.
 
@@ -216,18 +251,8 @@ def unlift(x, *, dim: str = "slow_time"):
         )
     factor = ds.sizes[LIFT_PHASE]
     m = ds.sizes[dim]
-    if LIFT_PHASE in ds.coords:
-        # the reshape puts position j at time l F + j: the labels must be 0..F-1 in order,
-        # or a reordered (sortby, isel) or partial selection would come out scrambled
-        phases = np.asarray(ds[LIFT_PHASE].values)
-        if phases.shape != (factor,) or not np.array_equal(phases, np.arange(factor)):
-            shown = phases.tolist() if phases.size <= 8 else f"{phases[:8].tolist()[:-1]} ..."
-            raise ValueError(
-                f"cannot unlift: the {LIFT_PHASE!r} coordinate is {shown}, but unlift needs every "
-                f"phase 0..{factor - 1} in order (element [l, j] is the fast sample l F + j). "
-                f"Sort it with x.sortby({LIFT_PHASE!r}), or unlift the whole lifted signal "
-                f"and select time samples afterwards."
-            )
+    check_all_phases(ds, "unlift", f"unlift the whole lifted signal and select {fast} samples "
+                     "afterwards")
 
     variables = {}
     for var_name, var in ds.variables.items():

@@ -25,6 +25,7 @@ from lcmr_xr.kernels import lifting as lifting_kernels
 from lcmr_xr.settings import as_bool
 from lcmr_xr.transforms._coords import even_spacing, rebuild_time, time_inverse_attrs
 from lcmr_xr.transforms._finite import checked_blocks, refuse_non_finite
+from lcmr_xr.transforms.lifting import check_all_phases
 
 __all__ = ["dft", "idft", "fast_spectrum_from_lifted"]
 
@@ -353,7 +354,9 @@ def fast_spectrum_from_lifted(X, dim: str = SLOW_FREQUENCY, factor: int | None =
     TypeError
         ``X`` not a DataArray.
     ValueError
-        Missing dims, a ``factor`` other than the number of phases, a one-sided slow
+        Missing dims, a ``factor`` other than the number of phases, phases that are not
+        the lifting's ``0..F-1`` in order (reordered, or fewer than its ``lift_factor``,
+        as :func:`lcmr_xr.unlift` refuses them), a one-sided slow
         spectrum, a core dim split into dask chunks; NaN or inf in ``X`` (each would make
         ``F`` fast bins NaN; the message names the variable, channels and frequency range as
         :func:`dft`'s; lazy data are checked when computed, block by block).
@@ -377,6 +380,8 @@ def fast_spectrum_from_lifted(X, dim: str = SLOW_FREQUENCY, factor: int | None =
             "dft(lift(x), dim='slow_time')."
         )
     f_ = X.sizes[LIFT_PHASE]
+    check_all_phases(X, "form the fast spectrum", "transform every phase and select bins "
+                     "afterwards")
     if factor is not None and (isinstance(factor, (bool, np.bool_)) or factor != f_):  # 2.5 != 2
         raise ValueError(
             f"factor={factor} does not match the {f_} lifting phases of the input; omit factor."
