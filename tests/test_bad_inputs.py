@@ -672,6 +672,18 @@ API = [
     # failed after the first batch was copied, with "'bool' object is not callable"
     Case("consolidate_progress_not_callable", lambda e: consolidate_archive("arc", "all.nc", progress=True),
          TypeError, ("progress must be None or a callable", "progress(done, total)", "True")),
+    # a time coordinate in ms was read as seconds: frequencies off by 1000 without a word
+    # (experiment() even labelled its slow_time 's' with the ms numbers)
+    Case("dft_time_in_ms", lambda e: lcmr_xr.dft(e.small.r.assign_coords(time=e.small.time * 1e3).assign_coords(
+        time=lambda x: x.time.assign_attrs(units="ms"))), ValueError,
+         ("'time' is in 'ms'", "seconds", "factor 1000", "* 0.001")),
+    Case("experiment_time_in_ms", lambda e: validate_experiment(e.small.assign_coords(
+        time=(e.small.time * 1e3).assign_attrs(units="ms"),
+        slow_time=(e.small.slow_time * 1e3).assign_attrs(units="ms"))), ValueError,
+         ("invalid experiment dataset", "'time' is in 'ms'", "factor 1000")),
+    Case("experiment_built_from_time_in_minutes", lambda e: experiment(
+        e.small.r.assign_coords(time=(e.small.time / 60).assign_attrs(units="min")), e.small.u.values,
+        e.small.y.values, factor=2, inputs=["vcm", "pzt"]), ValueError, ("'time' is in 'min'", "* 60")),
     Case("save_archive_not_datasets", lambda e: save_archive([e.small.r], "newarc"), TypeError, ("not an experiment Dataset",)),
     # --- sweep / select ------------------------------------------------------------------------
     Case("sweep_window_too_small", lambda e: sweep(e.small, window=[3]), ValueError, ("Use window >=",)),

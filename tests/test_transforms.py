@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import re
+
 import dask
 import dask.array as da
 import numpy as np
@@ -321,6 +323,21 @@ def test_selected_or_reordered_phases_are_refused(select):
     # a lifted array built by hand (no lift_factor) is read as a whole lifting
     bare = xr.DataArray(np.arange(8.0).reshape(4, 2), dims=("slow_time", "lift_phase"))
     assert unlift(bare).values.tolist() == list(range(8))
+
+
+@pytest.mark.parametrize("units,scale", [("ms", 1e-3), ("us", 1e-6), ("min", 60.0)])
+def test_dft_refuses_a_time_coordinate_in_other_units(units, scale):
+    """A time coordinate declared in ms (or us, min) was read as seconds: the frequencies
+    came out off by the factor, without a word.  Refused, with the conversion; the same
+    coordinate converted to seconds gives the right bins.  Other dims keep their units."""
+    x = _signal(16, th=0.5)
+    other = x.assign_coords(time=(x.time / scale).assign_attrs(units=units))
+    with pytest.raises(ValueError, match=rf"'time' is in '{units}'.*seconds.*factor {re.escape(f'{1 / scale:g}')}"):
+        dft(other)
+    converted = other.assign_coords(time=(other["time"] * scale).assign_attrs(units="s"))
+    np.testing.assert_allclose(dft(converted).frequency.values, np.arange(16) / (16 * 0.5))
+    space = xr.DataArray(np.ones(4), dims="x", coords={"x": ("x", np.arange(4.0), {"units": "m"})})
+    assert dft(space, dim="x").sizes["freq_x"] == 4
 
 
 def test_dft_identify_and_validate_experiment_say_the_same_of_nan():

@@ -357,7 +357,7 @@ def _check_time(ds, dim: str, expected_spacing: float | None, hint: str = "") ->
     if values.size < 2:
         _fail(f"{dim!r} has {values.size} sample(s)", "an experiment needs at least 2 samples on each time axis.")
     try:
-        start, spacing = even_spacing(values, dim)
+        start, spacing = even_spacing(values, dim, ds[dim].attrs.get("units"))
     except ValueError as err:
         _fail(str(err).rstrip("."), "Fix the coordinate.")
     if abs(start) > _START_RTOL * spacing:
@@ -441,7 +441,8 @@ def validate_experiment(ds: xr.Dataset, *, check_values: bool = True) -> xr.Data
         Naming the problem and the fix, for: wrong ``conventions``; missing or invalid
         ``factor``; missing ``r``/``u``/``y``; wrong dims; missing ``time``, ``slow_time``,
         ``input``, ``output`` coordinates; ``N`` not a multiple of ``F`` or
-        ``N != M F``; uneven spacing; time not starting at 0; slow spacing not ``F`` times
+        ``N != M F``; uneven spacing; time not starting at 0; a time coordinate whose
+        ``units`` are another time unit than seconds (``ms``, ``us``, ``min``, ...); slow spacing not ``F`` times
         the fast one; complex, boolean or non-numeric data; NaN or inf; duplicate or empty
         channel labels; ``units`` that are not a non-empty string; a ``period`` dim missing
         on ``u`` or ``y``, a ``period`` coordinate that is not increasing integers, or an

@@ -25,7 +25,31 @@ def slow_dim_for(dim: str) -> str:
     return f"slow_{dim}"
 
 
-def even_spacing(values, dim: str) -> tuple[float, float]:
+#: Time units other than the second, in seconds: a coordinate that declares one would be
+#: read as seconds (every frequency off by the factor), so it is refused.
+OTHER_TIME_UNITS = {
+    **dict.fromkeys(("ms", "msec", "millisecond", "milliseconds"), 1e-3),
+    **dict.fromkeys(("us", "\u00b5s", "\u03bcs", "usec", "microsecond", "microseconds"), 1e-6),
+    **dict.fromkeys(("ns", "nsec", "nanosecond", "nanoseconds"), 1e-9),
+    **dict.fromkeys(("min", "minute", "minutes"), 60.0),
+    **dict.fromkeys(("h", "hr", "hour", "hours"), 3600.0),
+}
+
+
+def check_seconds(units, dim: str) -> None:
+    """Refuse a coordinate whose ``units`` attribute names a time unit other than ``s``."""
+    if not isinstance(units, str) or units.strip().lower() not in OTHER_TIME_UNITS:
+        return
+    scale = OTHER_TIME_UNITS[units.strip().lower()]
+    raise ValueError(
+        f"coordinate {dim!r} is in {units!r}, but the time coordinates of this library are in "
+        f"seconds (docs/conventions.md): its values would be read as seconds, every frequency "
+        f"off by a factor {1 / scale:g}. Convert it, e.g. x = x.assign_coords("
+        f"{dim}=(x[{dim!r}] * {scale:g}).assign_attrs(units='s'))."
+    )
+
+
+def even_spacing(values, dim: str, units=None) -> tuple[float, float]:
     """``(start, spacing)`` of an evenly spaced, increasing coordinate; refuse anything else.
 
     Parameters
@@ -34,12 +58,16 @@ def even_spacing(values, dim: str) -> tuple[float, float]:
         Coordinate values (s).
     dim : str
         Its name, for messages.
+    units : str, optional
+        The coordinate's ``units`` attribute: a time unit other than seconds (``ms``,
+        ``us``, ``min``, ...) is refused (:func:`check_seconds`).
 
     Returns
     -------
     tuple of float
         First value and the mean spacing ``(t[-1] - t[0]) / (N - 1)``.
     """
+    check_seconds(units, dim)
     t = np.asarray(values)
     if t.dtype.kind in "mM":  # numpy counts timedelta64 as a number: read in its ticks (ns)
         c = f"x[{dim!r}]"

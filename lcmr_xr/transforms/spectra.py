@@ -134,7 +134,7 @@ def _dft_dataarray(da: xr.DataArray, dim: str, one_sided: bool) -> xr.DataArray:
             f"seconds first, e.g. x.assign_coords({dim}=np.arange(x.sizes[{dim!r}]) * T)."
         )
     n = da.sizes[dim]
-    _, spacing = even_spacing(da[dim].values, dim)
+    _, spacing = even_spacing(da[dim].values, dim, da[dim].attrs.get("units"))
     if one_sided and np.issubdtype(da.dtype, np.complexfloating):
         raise ValueError(
             f"one_sided=True needs a real signal, but {da.name or 'the input'} is complex; "
@@ -199,8 +199,9 @@ def dft(x, dim: str | None = None, *, one_sided: bool = False):
     Raises
     ------
     ValueError
-        Missing, unevenly spaced, non-increasing or single-sample coordinate; ``dim``
-        chunked by dask; ``one_sided`` on complex data; NaN or inf in the data (they would
+        Missing, unevenly spaced, non-increasing or single-sample coordinate, or one whose
+        ``units`` name a time unit other than seconds (``ms``, ``us``, ``min``: its values
+        would be read as seconds); ``dim`` chunked by dask; ``one_sided`` on complex data; NaN or inf in the data (they would
         make every bin NaN; the message names the variable, channels and time range; lazy
         data are checked when computed).
     TypeError
