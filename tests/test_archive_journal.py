@@ -1174,3 +1174,64 @@ def test_processes_forked_while_the_write_lock_is_held_wait_for_it(tmp_path):
     assert orders == list(range(6))
     got = _assert_same_as_oracle(d)
     assert sorted(got.seed.values.tolist()) == [0, 1, 10, 11, 20, 21]
+
+
+@pytest.mark.skipif(not hasattr(os, "fork"), reason="needs os.fork")
+def test_a_fork_between_opening_and_registering_the_lock_descriptor(tmp_path, monkeypatch):
+    """Another thread forking between ``os.open`` of the lock descriptor and its
+    registration left the child an unregistered copy, which the child's fork handler did
+    not close: the child kept the parent's ``flock`` alive after the parent released it
+    (writers then waited for a process that never wrote).  The fork now waits for the
+    registration; the child closes its copy, and the lock is free once the parent
+    releases it while the child still runs."""
+    import fcntl
+    import threading as th
+
+    d = tmp_path / "d"
+    _archive(d, 1)
+    real_open = os.open
+    opened, forked = th.Event(), th.Event()
+
+    def slow_open(path, flags, *args, **kwargs):
+        fd = real_open(path, flags, *args, **kwargs)
+        if os.fspath(path) == os.fspath(d):  # the write lock's descriptor: hold the window open
+            opened.set()
+            forked.wait(1.0)
+        return fd
+
+    monkeypatch.setattr(dirindex.os, "open", slow_open)
+    child = {}
+    go, ready = tmp_path / "go", tmp_path / "ready"
+
+    def fork_in_the_window():
+        opened.wait(10)
+        pid = os.fork()
+        if pid == 0:  # keep running (holding whatever it inherited) until told to stop
+            ready.touch()  # the fork handlers have run
+            deadline = time.monotonic() + 30
+            while not go.exists() and time.monotonic() < deadline:
+                time.sleep(0.01)
+            os._exit(0)
+        child["pid"] = pid
+        forked.set()
+
+    thread = th.Thread(target=fork_in_the_window)
+    thread.start()
+    try:
+        with dirindex.write_lock(d):
+            pass
+        thread.join()
+        monkeypatch.undo()
+        deadline = time.monotonic() + 30
+        while not ready.exists() and time.monotonic() < deadline:
+            time.sleep(0.01)
+        probe = os.open(d, os.O_RDONLY)
+        try:  # the parent released it: free, though the child still runs
+            fcntl.flock(probe, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        finally:
+            os.close(probe)
+    finally:
+        go.touch()
+        thread.join()
+        if "pid" in child:
+            assert _reap([child["pid"]], timeout=60) == [0]

@@ -730,6 +730,12 @@ _held = threading.local()  # {(st_dev, st_ino) of a directory: depth} of this th
 #: {descriptor: owning pid} of the lock descriptors (write and compaction locks) this process
 #: holds open; a child forked meanwhile closes its inherited copies (:func:`_forget_locks`).
 _lock_fds: dict[int, int] = {}
+#: Held while a lock descriptor is opened and registered, or unregistered and closed, and
+#: across ``fork``: a fork between ``os.open`` and the registration left the child an
+#: unregistered copy, which :func:`_forget_locks` did not close, so the child kept the
+#: parent's lock alive after the parent released it (a ``flock`` lasts until the last copy
+#: of its open file closes).
+_lock_fds_guard = threading.Lock()
 
 
 def _forget_locks() -> None:
@@ -748,16 +754,25 @@ def _forget_locks() -> None:
     _held.__dict__.pop("depths", None)  # the forking thread's, the only one in the child
 
 
+def _forget_locks_in_child() -> None:
+    _lock_fds_guard.release()  # taken by the forking thread before the fork
+    _forget_locks()
+
+
 if hasattr(os, "register_at_fork"):
-    os.register_at_fork(after_in_child=_forget_locks)
+    os.register_at_fork(before=_lock_fds_guard.acquire, after_in_parent=_lock_fds_guard.release,
+                        after_in_child=_forget_locks_in_child)
 
 
 def _release(fd: int | None) -> None:
     """Close a lock descriptor this process opened (releases the lock); nothing in a
     forked child, which closed its inherited copy already (the number may be reused)."""
-    if fd is not None and _lock_fds.get(fd) == os.getpid():
-        del _lock_fds[fd]
-        os.close(fd)
+    if fd is None:
+        return
+    with _lock_fds_guard:  # no fork between the two: the child would inherit an unlisted copy
+        if _lock_fds.get(fd) == os.getpid():
+            del _lock_fds[fd]
+            os.close(fd)
 
 
 @contextlib.contextmanager
@@ -838,9 +853,10 @@ def compaction_lock(directory: Path, blocking: bool):
 def _open_to_lock(directory: Path) -> int | None:
     """A descriptor of ``directory`` to ``flock``, or None where it cannot be opened
     (Windows, no permission): the lock is then not taken."""
-    try:
-        fd = os.open(directory, os.O_RDONLY)
-    except OSError:
-        return None
-    _lock_fds[fd] = os.getpid()
+    with _lock_fds_guard:  # no fork between the open and the registration (see _lock_fds_guard)
+        try:
+            fd = os.open(directory, os.O_RDONLY)
+        except OSError:
+            return None
+        _lock_fds[fd] = os.getpid()
     return fd
