@@ -928,6 +928,45 @@ def test_a_file_that_no_longer_opens_is_not_read_as_damaged(tmp_path, small, how
         assert all(w in str(info.value) for w in words), str(info.value)
         assert "NaN" not in str(info.value)
 
+
+def test_a_file_this_user_cannot_read_is_named_with_the_permission_remedy(tmp_path, small, monkeypatch):
+    """The branch of the archive's task reader for a file that exists but cannot be read
+    by this user (no read permission after the archive was opened) was never run by a
+    test.  It names the file and the remedy (read permission, or move it out), not NaN or
+    damage.  As root, whom permissions do not stop, the refusal is simulated where the
+    reader meets it (HDF5's open and os.access)."""
+    from lcmr_xr.scaleout import directory
+
+    arc = tmp_path / "arc"
+    save_archive(xr.concat([small, hdd.simulate(n_samples=400, noise=False, seed=2)],
+                           dim="experiment").assign_coords(experiment=["e0", "e1"]), arc,
+                 layout="files")
+    ds = open_archive(arc)
+    locked = arc / "e1.nc"
+    os.chmod(locked, 0)
+    if os.geteuid() == 0:
+        real_open_id, real_access = directory._open_id, os.access
+
+        def open_id(path):
+            if os.fspath(path) == os.fspath(locked):
+                raise PermissionError(13, "Permission denied", os.fspath(path))
+            return real_open_id(path)
+
+        monkeypatch.setattr(directory, "_open_id", open_id)
+        monkeypatch.setattr(directory.os, "access", lambda path, mode, *a, **k: (
+            False if os.fspath(path) == os.fspath(locked) else real_access(path, mode, *a, **k)))
+    try:
+        for run in (lambda: ds.r.values,
+                    lambda: sweep(ds, window=[12], degrees=["2-2-2"]).compute()):
+            with pytest.raises(ValueError) as info:
+                run()
+            message = str(info.value)
+            assert "arc/e1.nc cannot be opened for reading" in message, message
+            assert "give this user read permission" in message and "NaN" not in message
+    finally:
+        os.chmod(locked, 0o644)
+
+
 # ----------------------------------------------------------- interrupted writes (15.5)
 def test_stale_temporary_of_a_dead_writer_is_removed_on_next_save(tmp_path, small):
     target = tmp_path / "exp.nc"
