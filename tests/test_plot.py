@@ -489,6 +489,12 @@ def test_lifted_rejects_bad_arguments():
         lifted(frf.drop_vars("PS"), which="PS")
     with pytest.raises(TypeError, match="Dataset"):
         lifted(frf.S)
+    # a direct-loop estimate (no S) was told to "choose which='S' or 'PS'", S included
+    direct = frf.drop_vars(["S", "S_std"]).assign_attrs(closed_loop="direct")
+    with pytest.raises(ValueError) as info:
+        lifted(direct)
+    assert "closed_loop='direct' estimate has no lifted sensitivity: plot which='PS'" in str(info.value)
+    assert "which='S'" not in str(info.value)
     with pytest.raises(ValueError, match=r"isel\(experiment=0\)"):
         lifted(make_frf(leading="experiment"))
     _, axes = plt.subplots(2, 2)

@@ -149,9 +149,13 @@ def lifted(frf, *, ax=None, which="S", db=True, band=0.95, color=None, xlim=None
     db = as_bool(db, "db")  # bool("no") is True: a string would draw the opposite
     _require_dataset(frf, which)
     if which not in frf.data_vars:
+        other = next((w for w in sorted(_ROW_DIMS) if w != which and w in frf.data_vars), None)
+        direct = frf.attrs.get(cv.CLOSED_LOOP) == "direct"
         raise ValueError(
-            f"The dataset has no variable {which!r} (it has {sorted(frf.data_vars)}); "
-            "plot a dataset from lcmr_xr.identify, or choose which='S' or 'PS'."
+            f"The dataset has no variable {which!r} (it has {sorted(frf.data_vars)})"
+            + ("; a closed_loop='direct' estimate has no lifted sensitivity" if direct else "")
+            + (f": plot which={other!r}." if other else
+               "; plot a dataset from lcmr_xr.identify.")
         )
     dims = (SLOW_FREQUENCY,) + _ROW_DIMS[which] + _COLUMN_DIMS
     estimate = require_dims(frf[which], dims, which)
