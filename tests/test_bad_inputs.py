@@ -684,6 +684,12 @@ API = [
     Case("experiment_built_from_time_in_minutes", lambda e: experiment(
         e.small.r.assign_coords(time=(e.small.time / 60).assign_attrs(units="min")), e.small.u.values,
         e.small.y.values, factor=2, inputs=["vcm", "pzt"]), ValueError, ("'time' is in 'min'", "* 60")),
+    # attrs=[1] failed inside dict() ("cannot convert dictionary update sequence element");
+    # attrs={"conventions": ...} was told to "pass factor=... instead"
+    Case("experiment_attrs_not_a_dict", lambda e: e.build(attrs=[1]), TypeError,
+         ("attrs must be a dict", "[1]")),
+    Case("experiment_attrs_conventions", lambda e: e.build(attrs={"conventions": "CF-1.8"}), ValueError,
+         ("must not set 'conventions'", "always sets 'lcmr-xr-1'"), absent=("factor=",)),
     Case("save_archive_not_datasets", lambda e: save_archive([e.small.r], "newarc"), TypeError, ("not an experiment Dataset",)),
     # --- sweep / select ------------------------------------------------------------------------
     Case("sweep_window_too_small", lambda e: sweep(e.small, window=[3]), ValueError, ("Use window >=",)),

@@ -7,7 +7,7 @@ One closed-loop multirate experiment: fast excitation ``r`` and plant input ``u`
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 import xarray as xr
@@ -197,12 +197,16 @@ def experiment(
     >>> ds.sizes["time"], ds.sizes["slow_time"], ds.output.values.tolist(), ds.attrs["factor"]
     (8, 4, ['a', 'b'], 2)
     """
+    if attrs is not None and not isinstance(attrs, Mapping):  # dict([1]) fails inside Python
+        raise TypeError(f"attrs must be a dict of extra dataset attributes, got {attrs!r} "
+                        f"({type(attrs).__name__}); pass e.g. attrs={{'case': 2}}.")
     extra = dict(attrs or {})
-    for key in (FACTOR, "conventions"):
+    for key, remedy in ((FACTOR, "pass factor=F instead"),
+                        ("conventions", f"experiment() always sets {CONVENTIONS!r}; drop it")):
         if key in extra:
             raise ValueError(
                 f"attrs must not set {key!r}: it is part of the contract and set by experiment(); "
-                "pass factor=... instead."
+                f"{remedy}."
             )
     factor_value = _scalar(factor, "factor", "the multirate factor F = Tl/Th")
     if not np.isfinite(factor_value) or int(factor_value) != factor_value or factor_value < 1:
