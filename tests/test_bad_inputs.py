@@ -690,6 +690,19 @@ API = [
          ("attrs must be a dict", "[1]")),
     Case("experiment_attrs_conventions", lambda e: e.build(attrs={"conventions": "CF-1.8"}), ValueError,
          ("must not set 'conventions'", "always sets 'lcmr-xr-1'"), absent=("factor=",)),
+    # chunks=[1] failed inside with "'list' object has no attribute 'get'"; a consolidated
+    # archive took {'experiment': 0} without a word and failed inside dask on 1.5 (a
+    # directory refused both with the remedy)
+    Case("archive_chunks_not_a_dict", lambda e: open_archive("arc1.nc", chunks=[1]), TypeError,
+         ("chunks must be None or a dict", "[1]")),
+    Case("archive_directory_chunks_not_a_dict", lambda e: open_archive("arc", chunks=[1]), TypeError,
+         ("chunks must be None or a dict",)),
+    Case("archive_consolidated_chunks_zero", lambda e: open_archive("arc1.nc", chunks={"experiment": 0}),
+         ValueError, ("chunks['experiment'] = 0", "positive number of experiments")),
+    Case("archive_consolidated_chunks_fractional", lambda e: open_archive("arc1.nc", chunks={"experiment": 1.5}),
+         ValueError, ("chunks['experiment'] = 1.5", "positive number of experiments")),
+    Case("archive_consolidated_chunks_whole", lambda e: open_archive("arc1.nc", chunks={"experiment": -1}),
+         check=lambda ds, e: ds.r.chunks[0] == (1,) or pytest.fail(str(ds.r.chunks))),
     Case("save_archive_not_datasets", lambda e: save_archive([e.small.r], "newarc"), TypeError, ("not an experiment Dataset",)),
     # --- sweep / select ------------------------------------------------------------------------
     Case("sweep_window_too_small", lambda e: sweep(e.small, window=[3]), ValueError, ("Use window >=",)),

@@ -1191,8 +1191,8 @@ def open_archive(path, chunks=None) -> xr.Dataset:
         Dask chunks.  Default ``None``: :data:`EXPERIMENTS_PER_CHUNK` experiments (files
         of a directory) per chunk, whole records along ``time``, which
         :func:`lcmr_xr.identify` needs.  For a consolidated archive only the
-        ``experiment`` entry is used (``{"experiment": 64}``; a directory also takes -1
-        or None, one chunk, and ``"auto"``, the default).
+        ``experiment`` entry is used (``{"experiment": 64}``; also -1 or None, one chunk,
+        and ``"auto"``, the default, as for a directory); anything else is refused.
 
     Returns
     -------
@@ -1255,9 +1255,13 @@ def open_archive(path, chunks=None) -> xr.Dataset:
     from lcmr_xr.experiment import validate_experiment
 
     path = Path(path)
+    if chunks is not None and not isinstance(chunks, dict):  # [1] failed inside: 'list' has no .get
+        raise TypeError(f"chunks must be None or a dict such as {{'experiment': "
+                        f"{EXPERIMENTS_PER_CHUNK}}}, got {chunks!r} ({type(chunks).__name__}).")
     if path.is_file():
         _check_consolidated(path)
-        per_chunk = (chunks or {}).get(cv.EXPERIMENT, EXPERIMENTS_PER_CHUNK)
+        # checked as for a directory (0 passed, 1.5 failed inside dask); -1: one chunk
+        per_chunk = _files_per_chunk(chunks, -1)
         try:
             ds = con.open_consolidated(path, per_chunk)
         except (OSError, KeyError) as err:
@@ -1443,7 +1447,7 @@ def _files_per_chunk(chunks, n_files: int) -> int:
     dask reads it: -1 or None one chunk, "auto" the default."""
     value = (chunks or {}).get(cv.EXPERIMENT, EXPERIMENTS_PER_CHUNK)
     if value is None or (isinstance(value, (int, np.integer)) and value == -1):
-        return max(1, n_files)
+        return max(1, n_files) if n_files >= 0 else -1  # -1: dask's "one chunk" (consolidated)
     if isinstance(value, str) and value == "auto":
         return EXPERIMENTS_PER_CHUNK
     if isinstance(value, (int, np.integer)) and not isinstance(value, bool) and value > 0:
