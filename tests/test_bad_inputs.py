@@ -703,6 +703,14 @@ API = [
          ValueError, ("chunks['experiment'] = 1.5", "positive number of experiments")),
     Case("archive_consolidated_chunks_whole", lambda e: open_archive("arc1.nc", chunks={"experiment": -1}),
          check=lambda ds, e: ds.r.chunks[0] == (1,) or pytest.fail(str(ds.r.chunks))),
+    # chunks={'time': -2} was reported as "not a valid NetCDF-4 file (truncated, corrupt,
+    # ...)" (xarray's refusal of the argument); 0 silently meant the whole dim
+    Case("open_chunks_negative", lambda e: open_dataset("exp.nc", chunks={"time": -2}), ValueError,
+         ("chunks {'time': -2}", "whole number (>= 1)", "-1 (the whole dim)"), absent=("corrupt",)),
+    Case("open_chunks_zero", lambda e: open_experiment("exp.nc", chunks={"time": 0}), ValueError,
+         ("chunks {'time': 0}", "whole number (>= 1)")),
+    Case("open_chunks_zero_int", lambda e: open_dataset("exp.nc", chunks=0), ValueError,
+         ("chunks=0", "whole number (>= 1)")),
     Case("save_archive_not_datasets", lambda e: save_archive([e.small.r], "newarc"), TypeError, ("not an experiment Dataset",)),
     # --- sweep / select ------------------------------------------------------------------------
     Case("sweep_window_too_small", lambda e: sweep(e.small, window=[3]), ValueError, ("Use window >=",)),

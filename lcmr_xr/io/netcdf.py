@@ -215,7 +215,7 @@ def open_dataset(path, chunks=None) -> xr.Dataset:
         If the file does not exist.
     ValueError
         If it is not a readable NetCDF file (truncated, corrupt or another format), or a
-        chunk size is not a whole number, ``"auto"`` or None.
+        chunk size is not a whole number >= 1, -1 (the whole dim), ``"auto"`` or None.
     TypeError
         If ``chunks`` is neither None, ``"auto"``, an int nor a dict.
 
@@ -335,7 +335,10 @@ def _is_chunk_size(value) -> bool:
         except (ValueError, TypeError):
             return False
         return True
-    return isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_))
+    # a number of elements (>= 1) or -1 (the whole dim); -2 was reported as a corrupt file
+    # by xarray's error, 0 silently meant the whole dim
+    return (isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_))
+            and (value >= 1 or value == -1))
 
 
 def _check_chunks(chunks) -> None:
@@ -354,10 +357,14 @@ def _check_chunks(chunks) -> None:
         if not bad:
             return
         raise ValueError(
-            f"chunks {bad!r}: a chunk size must be a whole number of elements, 'auto', a size "
+            f"chunks {bad!r}: a chunk size must be a whole number (>= 1) of elements, 'auto', a size "
             "in bytes ('64MiB'), -1 (the whole dim) or None; pass e.g. "
             "chunks={'frequency': 100} or chunks={}."
         )
+    if isinstance(chunks, (int, np.integer)) and not isinstance(chunks, (bool, np.bool_)):
+        raise ValueError(f"chunks={chunks!r}: a chunk size must be a whole number (>= 1) of "
+                         "elements, or -1 (the whole dim); pass e.g. chunks={} (one chunk per "
+                         "variable) or chunks={'frequency': 100}.")
     raise TypeError(
         f"chunks must be None (load into memory), 'auto', an int or a dict of dim -> size, got "
         f"{chunks!r} ({type(chunks).__name__}); pass e.g. chunks={{}} (one chunk per variable)."
