@@ -164,6 +164,33 @@ def test_sweep_to_disk_survives_a_crash_and_resumes(tmp_path):
         sweep_to_disk(exps, tmp_path / "b.nc", window=[20])
 
 
+def test_sweep_to_disk_never_adopts_a_directory_it_did_not_make(tmp_path):
+    """A directory ``.OUTPUT.parts`` that a sweep did not make (no manifest) was taken as
+    the parts directory and removed with everything in it when the sweep was done: the
+    user's files in it were lost.  It is refused now (nothing run, nothing removed), as is
+    a file of that name; an empty one, or one left by an interrupted start (only the
+    manifest's temporary), is still used."""
+    exps = _stack(["e0", "e1"])
+    out = tmp_path / "sweep.nc"
+    parts = parts_directory(out)
+    parts.mkdir()
+    (parts / "notes.txt").write_text("mine")
+    with pytest.raises(FileExistsError, match=r"holds files of no sweep \(notes.txt\)"):
+        sweep_to_disk(exps, out, window=[12], progress=False)
+    assert (parts / "notes.txt").read_text() == "mine" and not out.exists()
+    (parts / "notes.txt").unlink()
+    parts.rmdir()
+    parts.write_text("a file")
+    with pytest.raises(FileExistsError, match="exists and is a file"):
+        sweep_to_disk(exps, out, window=[12], progress=False)
+    assert parts.read_text() == "a file"
+    parts.unlink()
+    parts.mkdir()
+    (parts / ".manifest.json.0badf00d-1.abcd1234.tmp").write_text("{")  # an interrupted start
+    sweep_to_disk(exps, out, window=[12], progress=False)
+    assert out.exists() and not parts.exists()
+
+
 def test_sweep_to_disk_identifies_each_experiment_once(tmp_path, monkeypatch):
     """Assembling the result from the parts must not run the identify tasks again (the
     archive's metadata coordinates once came back through them)."""

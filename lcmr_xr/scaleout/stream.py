@@ -98,6 +98,21 @@ def _check_parts(parts: Path, manifest: dict) -> str:
             )
         if run_id is not None:
             return run_id
+    if parts.exists() and not parts.is_dir():
+        raise FileExistsError(f"{parts} (where the sweep keeps its parts) exists and is a file; "
+                              "move it away, or choose another output path.")
+    if parts.is_dir() and not path.is_file():
+        # not made by a sweep (made by one, it holds the manifest, written first, or at most
+        # the manifest's temporary of an interrupted start): the sweep removes the directory
+        # when done, so it would delete these files
+        foreign = sorted(p.name for p in parts.iterdir()
+                         if not (p.name.startswith("." + _MANIFEST + ".") and p.name.endswith(".tmp")))
+        if foreign:
+            shown = ", ".join(foreign[:5]) + (", ..." if len(foreign) > 5 else "")
+            raise FileExistsError(
+                f"{parts} (where the sweep keeps its parts, and which it removes when done) "
+                f"exists and holds files of no sweep ({shown}); move them away, or choose "
+                "another output path.")
     run_id = uuid.uuid4().hex
     parts.mkdir(exist_ok=True)
     atomic_write(path, lambda tmp: Path(tmp).write_text(
@@ -510,7 +525,9 @@ def sweep_to_disk(experiments: xr.Dataset, output, *, window=(30,), degrees=None
     Raises
     ------
     FileExistsError
-        ``output`` exists and ``overwrite`` is False.
+        ``output`` exists and ``overwrite`` is False; ``.OUTPUT.parts`` exists and was not
+        made by a sweep (a file, or a directory of other files: the sweep removes its parts
+        directory when done).
     ValueError
         Invalid settings or ``variables`` (before anything runs), no ``experiment`` dim, an ``output`` that
         is the archive ``experiments`` were opened from or lies inside it, or parts of a
