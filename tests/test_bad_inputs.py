@@ -711,6 +711,11 @@ API = [
          ("chunks {'time': 0}", "whole number (>= 1)")),
     Case("open_chunks_zero_int", lambda e: open_dataset("exp.nc", chunks=0), ValueError,
          ("chunks=0", "whole number (>= 1)")),
+    # an address in place of a Client failed inside ("'str' object has no attribute
+    # 'compute'") after the parts directory was made (left behind)
+    Case("sweep_to_disk_client_address", lambda e: sweep_to_disk(open_archive("arc1.nc"), "out.nc", window=[12],
+                                                                  degrees=["2-2-2"], client="tcp://127.0.0.1:8786"),
+         TypeError, ("client must be a distributed.Client", "distributed.Client('tcp://")),
     Case("save_archive_not_datasets", lambda e: save_archive([e.small.r], "newarc"), TypeError, ("not an experiment Dataset",)),
     # --- sweep / select ------------------------------------------------------------------------
     Case("sweep_window_too_small", lambda e: sweep(e.small, window=[3]), ValueError, ("Use window >=",)),

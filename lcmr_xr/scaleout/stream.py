@@ -565,6 +565,12 @@ def sweep_to_disk(experiments: xr.Dataset, output, *, window=(30,), degrees=None
     if scheduler not in ("threads", "processes", "synchronous"):
         raise ValueError(f"scheduler must be 'threads', 'processes' or 'synchronous', got "
                          f"{scheduler!r}; for a cluster pass client=distributed.Client(...).")
+    if client is not None and not (callable(getattr(client, "compute", None))
+                                   and callable(getattr(client, "cancel", None))):
+        # an address failed inside ("'str' object has no attribute 'compute'"), parts made
+        raise TypeError(f"client must be a distributed.Client, got {client!r} "
+                        f"({type(client).__name__}); connect one first, e.g. "
+                        "client=distributed.Client('tcp://127.0.0.1:8786').")
     if workers is not None:  # 0 meant "all CPUs", -1 failed in the pool after the parts were made
         workers = as_integer(workers, "workers", minimum=1, example=2)
     if not (isinstance(progress, (bool, np.bool_)) or callable(progress)):
