@@ -204,6 +204,16 @@ def test_save_refuses_unstorable_attributes(tmp_path):
     ds.attrs["settings"] = (1, "a")
     with pytest.raises(TypeError, match="mixed types"):
         save(ds, tmp_path / "x.nc")
+    # complex values (a scalar, in a list, an array) failed inside netCDF4 ("illegal data
+    # type for attribute b'gain', must be one of dict_keys([...]), got c16")
+    for value in (1 + 2j, np.complex64(1j), [1.0, 2j], np.array([1j])):
+        ds.attrs["settings"] = value
+        with pytest.raises(TypeError, match="'settings' of the dataset is complex.*real and imaginary"):
+            save(ds, tmp_path / "x.nc")
+    ds.attrs.pop("settings")
+    ds["r"].attrs["gain"] = 2j  # on a variable as well
+    with pytest.raises(TypeError, match="'gain' of variable 'r' is complex"):
+        save(ds, tmp_path / "x.nc")
     assert os.listdir(tmp_path) == []
     with pytest.raises(TypeError, match="to_dataset"):
         save(ds["r"], tmp_path / "x.nc")

@@ -32,8 +32,21 @@ _TYPES_ATTR = "lcmr_attr_types"
 # --- attribute flattening -------------------------------------------------------------
 
 
+def _is_complex(value) -> bool:
+    if isinstance(value, (tuple, list)):
+        return any(_is_complex(v) for v in value)
+    return isinstance(value, (complex, np.complexfloating)) or (
+        isinstance(value, np.ndarray) and value.dtype.kind == "c")
+
+
 def _flatten_value(owner: str, key: str, value):
     """``(flat_value, type_tag or None)`` for one attribute value."""
+    if _is_complex(value):  # netCDF4 refused it mid-write: "illegal data type for attribute b'c'"
+        raise TypeError(
+            f"attribute {key!r} of {owner} is complex ({value!r}), which NetCDF attributes cannot "
+            "store; keep it as a (complex) variable instead, or as two attributes of its real "
+            "and imaginary parts."
+        )
     if isinstance(value, (bool, np.bool_)):
         return int(value), "bool"
     if value is None:
@@ -131,7 +144,8 @@ def save(ds: xr.Dataset, path) -> Path:
     ----------
     ds : xarray.Dataset
         Any dataset (experiment, FRF, spectra).  Attribute values that NetCDF cannot hold
-        (bool, tuple, list, None) are converted and restored by :func:`open_dataset`.
+        (bool, tuple, list, None) are converted and restored by :func:`open_dataset`;
+        complex attribute values are refused (TypeError: NetCDF has no complex attributes).
     path : str or os.PathLike
         Target file; its directory must exist.  An existing file is replaced.  A path
         ending in ``.mat`` writes an FRF or experiment dataset for MATLAB instead
