@@ -316,6 +316,21 @@ def test_bode_truth_missing_label_rejected():
         bode(frf, truth=np.ones(3))
 
 
+def test_bode_truth_in_rad_per_s_is_refused():
+    """The estimate's frequency had to be in Hz, the truth's was read as Hz whatever its
+    units: an exact FRF on rad/s (python-control's omega) was drawn at 2 pi times its
+    frequencies without a word.  Refused with the conversion, which then draws it right."""
+    frf = make_frf()
+    rad = frf.P.assign_coords(frequency=(frf.frequency * 2 * np.pi).assign_attrs(units="rad/s"))
+    with pytest.raises(ValueError, match=r"truth: coordinate 'frequency' has units 'rad/s'.*Hz"):
+        bode(frf, truth=rad)
+    hz = frf.P.assign_coords(frequency=frf.frequency.assign_attrs(units="Hz"))
+    drawn = bode(frf, truth=hz).lines
+    for (out, inp), pair in drawn.items():
+        np.testing.assert_allclose(pair["truth"][0].get_ydata(), pair["estimate"][0].get_ydata(),
+                                   rtol=1e-9, atol=1e-9)
+
+
 def test_bode_nyquist_line_position_and_sources():
     frf = make_frf()
     nyq = 1 / (2 * FACTOR * TH)

@@ -100,7 +100,8 @@ def bode(
         Exact FRF with dims ``frequency`` (Hz) and, optionally, ``output``/``input``
         containing the estimate's labels; linearly interpolated (real and imaginary
         parts) at the estimate's frequencies, NaN outside its frequency range.
-        A Dataset is read through its variable ``P``.  Drawn dashed.  Default None.
+        A Dataset is read through its variable ``P``.  Its ``frequency`` must be in Hz
+        (a ``units`` attribute other than ``Hz`` is refused).  Drawn dashed.  Default None.
     band : float or None, optional
         Confidence level (0 < band < 1) of the band on the magnitude, from the
         circular complex Gaussian error model: ``|P_hat - P| <= sqrt(-ln(1 - band)) * P_std``
@@ -327,6 +328,13 @@ def _truth_at(truth, estimate: xr.DataArray, f_plot: np.ndarray) -> np.ndarray:
         raise ValueError(
             f"truth has dims {truth.dims}; it needs a {FREQUENCY!r} dim with a coordinate in Hz "
             f"and may only have the dims {_P_DIMS} (select leading dims first)."
+        )
+    units = truth[FREQUENCY].attrs.get("units", "Hz")
+    if units != "Hz":  # read as Hz, a truth in rad/s was drawn at 2 pi times its frequencies
+        raise ValueError(
+            f"truth: coordinate {FREQUENCY!r} has units {units!r}, but plots need Hz (as P's); "
+            f"convert it, e.g. truth.assign_coords({FREQUENCY}=truth.{FREQUENCY} / (2 * np.pi)) "
+            "for rad/s, and set its attrs units='Hz'."
         )
     for dim in (OUTPUT, INPUT):
         if dim in truth.dims:
