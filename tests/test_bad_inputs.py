@@ -716,6 +716,12 @@ API = [
     Case("sweep_to_disk_client_address", lambda e: sweep_to_disk(open_archive("arc1.nc"), "out.nc", window=[12],
                                                                   degrees=["2-2-2"], client="tcp://127.0.0.1:8786"),
          TypeError, ("client must be a distributed.Client", "distributed.Client('tcp://")),
+    # astype drops encoding["source"]: the sweep wrote its result and parts inside the
+    # directory archive it read (which then no longer opened: a file of no experiment)
+    Case("sweep_to_disk_output_inside_archive_after_astype",
+         lambda e: sweep_to_disk(open_archive("arc").astype("float64"), "arc/out.nc", window=[12],
+                                 degrees=["2-2-2"], progress=False),
+         ValueError, ("refusing to write output arc/out.nc", "inside the input directory")),
     Case("save_archive_not_datasets", lambda e: save_archive([e.small.r], "newarc"), TypeError, ("not an experiment Dataset",)),
     # --- sweep / select ------------------------------------------------------------------------
     Case("sweep_window_too_small", lambda e: sweep(e.small, window=[3]), ValueError, ("Use window >=",)),

@@ -583,12 +583,15 @@ def sweep_to_disk(experiments: xr.Dataset, output, *, window=(30,), degrees=None
         raise ValueError("sweep_to_disk needs experiments with an 'experiment' dim (e.g. from "
                          "open_archive); for one experiment use sweep(...).compute().")
     source = experiments.encoding.get("source")
-    # never write over the archive or inside it: the result, and the parts next to it
-    check_outputs({"output": (output, None)}, inputs=[source] if source else [],
+    # never write over the archive or inside it: the result, and the parts next to it; the
+    # directories the lazy data read count too (astype, isel and the like drop the source)
+    archives = list(dict.fromkeys(([source] if source else []) + list(_sources(experiments))))
+    check_outputs({"output": (output, None)}, inputs=archives,
                   overwrite=overwrite, overwrite_hint="pass overwrite=True (--overwrite) to replace it")
-    if source and same_or_inside(parts_directory(output), source):
-        raise ValueError(f"refusing to keep the parts of {output} in {parts_directory(output)}: it is "
-                         f"inside the archive {source}; choose another output path.")
+    for archive in archives:
+        if same_or_inside(parts_directory(output), archive):
+            raise ValueError(f"refusing to keep the parts of {output} in {parts_directory(output)}: "
+                             f"it is inside the archive {archive}; choose another output path.")
     lazy = sweep_lazily(experiments, window=window, degrees=degrees, method=method,
                     closed_loop=closed_loop, covariance=covariance,
                     experiments_per_task=experiments_per_task, denominator=denominator)
