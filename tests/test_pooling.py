@@ -138,8 +138,15 @@ def test_validation_of_period_dim():
         validate_experiment(ds.assign(y=ds.y.isel(period=0, drop=True)))
     bad = ds.copy(deep=True)
     bad.r.values[1, 3, 0] += 1e-3
-    with pytest.raises(ValueError, match="r differs between periods.*'experiment' dim"):
+    with pytest.raises(ValueError, match="r differs between periods.*'experiment' dim") as eager:
         validate_experiment(bad)
+    # lazy (dask) r was not checked at all (the check_values docs promise it): a
+    # non-repeating excitation passed; now refused with the same message, one compute
+    for chunks in ({"period": 1}, {"time": 10}):
+        with pytest.raises(ValueError) as lazy:
+            validate_experiment(bad.chunk(chunks))
+        assert str(lazy.value) == str(eager.value)
+        assert validate_experiment(ds.chunk(chunks)).r.chunks is not None
 
 
 # ------------------------------------------------------------------ kernels

@@ -405,11 +405,18 @@ def _check_period_dims(ds):
             )
 
 
-def _check_periodic_excitation(r):
+def _periodic_spread(r):
+    """``(largest difference between periods, peak)`` of ``r``: floats, or dask scalars
+    for lazy data (computed with the other checks, in one pass)."""
+    x = r.transpose(PERIOD, ...).data
+    if not x.size:
+        return 0.0, 0.0
+    return abs(x - x[:1]).max(), abs(x).max()
+
+
+def _check_periodic_excitation(diff, peak):
     """Every period of ``r`` must be the same signal (averaging over periods relies on it)."""
-    x = np.asarray(r.transpose(PERIOD, ...).values)
-    peak = float(np.max(np.abs(x))) if x.size else 0.0
-    diff = float(np.max(np.abs(x - x[:1]))) if x.size else 0.0
+    diff, peak = float(diff), float(peak)
     if diff > PERIODIC_RTOL * peak:
         _fail(
             f"r differs between periods (largest difference {diff:.3g}, {diff / peak:.2g} of its "
@@ -458,7 +465,8 @@ def validate_experiment(ds: xr.Dataset, *, check_values: bool = True) -> xr.Data
     -----
     Everything but the NaN/inf check reads metadata only.  The NaN/inf check has to look
     at the data: for dask-backed variables it computes the three ``isfinite(...).all()``
-    reductions in a single ``dask.compute`` call (one pass over the data, nothing kept);
+    reductions (and, with a ``period`` dim, the largest difference of ``r`` between
+    periods) in a single ``dask.compute`` call (one pass over the data, nothing kept);
     only when one fails is that variable read once more, to name where its bad samples are
     (times, channels, experiments), as for data in memory.
 
@@ -545,16 +553,18 @@ def validate_experiment(ds: xr.Dataset, *, check_values: bool = True) -> xr.Data
 
     if not check_values:
         return ds
-    if PERIOD in ds["r"].dims and not _is_lazy(ds["r"].data):
-        _check_periodic_excitation(ds["r"])
     checks = {name: np.isfinite(ds[name].data).all() for name in required if ds[name].dtype.kind == "f"}
-    if any(_is_lazy(c) for c in checks.values()):
+    if PERIOD in ds["r"].dims:  # lazy r was not checked at all: it has to repeat as well
+        checks["periodic"] = _periodic_spread(ds["r"])
+    if any(_is_lazy(c) for c in checks.values()) or any(_is_lazy(c) for c in checks.get("periodic", ())):
         import dask
 
-        # One graph for the three reductions: the data are read once.
+        # One graph for the reductions: the data are read once.
         values = dict(zip(checks, dask.compute(*checks.values())))
     else:
         values = checks
+    if "periodic" in values:
+        _check_periodic_excitation(*values.pop("periodic"))
     bad = [name for name, ok in values.items() if not bool(ok)]
     if bad:
         # the message of dft and identify's lazy guard (variable, count, channels, samples
