@@ -501,6 +501,24 @@ def local_model(R, Z, *, half_width, degrees=(3, 3, 3), circular: bool = True,
     >>> fit.dof
     5
     """
+    return _local_model(R, Z, half_width=half_width, degrees=degrees, circular=circular,
+                        covariance=covariance, experiment_axis=experiment_axis,
+                        instruments=instruments, bins=bins, select=select)
+
+
+def _local_model(R, Z, *, half_width, degrees=(3, 3, 3), circular: bool = True,
+                 covariance: str | None = "full", experiment_axis: int | None = None,
+                 instruments=None, bins: tuple[int, int] | None = None, select=None,
+                 blank_covariance: bool = True, buffers: "CovarianceBuffer | None" = None
+                 ) -> LocalModelFit:
+    """:func:`local_model`.  ``blank_covariance=False`` (with ``select``): the ``G_cov``
+    of the bins not selected is left unwritten (uninitialised), for a caller that reads it
+    at the selected bins only (:func:`lcmr_xr.kernels.identification._fit_terms`): the
+    NaN it would hold is most of the outputs' size (the Hausman twin of
+    ``window="auto"`` fits every third bin: 2 of 3 rows of ``G_cov``, about 2.5 ms of its
+    30 ms at N = 3600).  ``buffers``: ``G_cov`` is written into this
+    :class:`CovarianceBuffer` (the caller no longer holds the previous fit's).  Every
+    other output is as :func:`local_model` returns it."""
     rn, rm, rd = _check_degrees(degrees)
     degrees = (rn, rm, rd)
     R = np.asarray(R)
@@ -603,7 +621,7 @@ def local_model(R, Z, *, half_width, degrees=(3, 3, 3), circular: bool = True,
     if select is not None:
         todo &= select
 
-    out = _allocate(n_batch, m, nz, nr, covariance, n_exp)
+    out = _allocate(n_batch, m, nz, nr, covariance, n_exp, buffers)
     bins = _bins()
     mode = {None: bins.COV_NONE, "diag": bins.COV_DIAG, "full": bins.COV_FULL}[covariance]
     elements = _chunk_elements(nr, nz, covariance)
@@ -656,7 +674,8 @@ def local_model(R, Z, *, half_width, degrees=(3, 3, 3), circular: bool = True,
             for piece in pieces:
                 _mirror_piece(piece)
     if not mirror:  # (mirrored: the bins not fitted are the mirror's)
-        _fill_not_fitted(out, todo)
+        _fill_not_fitted(out if blank_covariance or select is None
+                         else {k: v for k, v in out.items() if k != "G_cov"}, todo)
     shaped = {name: (v.reshape(batch + (m,) + v.shape[1:]) if v.shape[0] else None)
               for name, v in out.items()}
     # T: (..., M, E, nz) -> (..., E, M, nz) pooled, (..., M, nz) otherwise
@@ -878,13 +897,38 @@ _NOT_FITTED = {"G": complex(np.nan, np.nan), "T": complex(np.nan, np.nan),
                "G_var": np.nan}
 
 
-def _allocate(n_batch, m, nz, nr, covariance, n_exp=1):
+class CovarianceBuffer:
+    """One buffer for the ``G_cov`` of consecutive local-model fits, each consumed before
+    the next is fitted (``window="auto"``'s candidates and Hausman twin, fitted in blocks
+    of bins: :func:`lcmr_xr.kernels.identification.identify_spectra_auto`).  A fresh
+    buffer costs a page fault per 4 kB page on its first write (the system zero-fills
+    it): at N = 3600 about 1400 faults and 7 ms of system time per fit, a tenth of a
+    fixed-window ``identify``; reused, only the first fit pays them.  The buffer grows to
+    the largest request (with 1/16 to spare, so that blocks a few bins longer, e.g. on
+    another window's restart grid, fit in it)."""
+
+    def __init__(self):
+        self._buffer = None
+
+    def take(self, shape, dtype) -> np.ndarray:
+        """An uninitialised array of ``shape`` and ``dtype`` on the buffer (the array
+        taken before is overwritten)."""
+        dtype = np.dtype(dtype)
+        nbytes = int(np.prod(shape, dtype=np.int64)) * dtype.itemsize
+        if self._buffer is None or self._buffer.nbytes < nbytes:
+            self._buffer = empty_pages(nbytes + nbytes // 16, np.uint8)
+        return self._buffer[:nbytes].view(dtype).reshape(shape)
+
+
+def _allocate(n_batch, m, nz, nr, covariance, n_exp=1, buffers=None):
     """Outputs, not prefilled: every fitted bin writes its whole row (a failed one NaN),
     the mirror or :func:`_fill_not_fitted` the others (prefilling hundreds of MB at
     M = 2^19 cost about a tenth of the fit).  On pages numpy has not advised for huge
-    pages (:mod:`.pages`: their first write stalled on memory compaction)."""
+    pages (:mod:`.pages`: their first write stalled on memory compaction).  ``buffers``
+    (:class:`CovarianceBuffer`): ``G_cov`` on it."""
     size = n_batch * m
     ng = nz * nr
+    cov_shape = (size if covariance == "full" else 0, ng, ng)
     return {
         "G": empty_pages((size, nz, nr), complex),
         "T": empty_pages((size, n_exp, nz), complex),
@@ -892,7 +936,8 @@ def _allocate(n_batch, m, nz, nr, covariance, n_exp=1):
         "condition": empty_pages(size),
         "ill_posed": empty_pages(size, dtype=bool),
         "dropped": empty_pages(size, dtype=np.int64),
-        "G_cov": empty_pages((size if covariance == "full" else 0, ng, ng), complex),
+        "G_cov": (empty_pages(cov_shape, complex) if buffers is None or not cov_shape[0]
+                  else buffers.take(cov_shape, complex)),
         "G_var": empty_pages((size if covariance == "diag" else 0, nz, nr)),
     }
 
