@@ -15,8 +15,8 @@ from lcmr_xr.kernels.adaptive import (K95, UNDETERMINED_LIMIT, denominator_bias,
                                       select_windows, small_sample_factor, weak_direction)
 from lcmr_xr.kernels.closed_loop import frf_variance_from_first_row, indirect_first_row
 from lcmr_xr.kernels.lifting import frf_from_first_block_row, lift
-from lcmr_xr.kernels.local_models import (CovarianceBuffer, _local_model, _restart_interval,
-                                          fits_half, hermitian, local_model, parameters_per_row)
+from lcmr_xr.kernels.local_models import (CovarianceBuffer, _restart_interval, fits_half,
+                                          hermitian, local_model, parameters_per_row)
 from lcmr_xr.kernels.pooling import (MIN_SPLIT_EXPERIMENTS, group_weight, half_variances,
                                      mean_and_covariance, p_spread_factor, pooled_least_squares,
                                      rescale_covariance, split_halves, spread_calibration,
@@ -462,13 +462,12 @@ def _fit_terms(R, Z, *, half_width, degrees, circular, covariance, known_covaria
     if check_denominator(denominator, degrees) and instruments is None:
         instruments = denominator_instruments(R, Z, degrees=degrees, circular=circular,
                                               experiment_axis=experiment_axis)
-    # (the covariance of the bins ``select`` leaves out is never read: not blanked)
-    fit = _local_model(R, Z, half_width=half_width, degrees=tuple(degrees), circular=circular,
-                       covariance="full" if covariance else None,
-                       experiment_axis=experiment_axis,
-                       instruments=instruments if denominator == "iv" else None, bins=bins,
-                       select=select, blank_covariance=known_covariance is not None,
-                       buffers=buffers)
+    if known_covariance is not None:  # (rebuilt from every bin's: a fresh G_cov, blanked)
+        buffers = None
+    fit = local_model(R, Z, half_width=half_width, degrees=tuple(degrees), circular=circular,
+                      covariance="full" if covariance else None, experiment_axis=experiment_axis,
+                      instruments=instruments if denominator == "iv" else None, bins=bins,
+                      select=select, **({} if buffers is None else {"buffers": buffers}))
     G_cov = fit.G_cov
     if covariance and known_covariance is not None:
         G_cov = rescale_covariance(G_cov, fit.noise_covariance, known_covariance)

@@ -67,8 +67,8 @@ import numpy as np
 
 from .pages import empty_pages
 
-__all__ = ["CONDITION_LIMIT", "LocalModelFit", "fits_half", "hermitian", "local_model",
-           "parameters_per_row"]
+__all__ = ["CONDITION_LIMIT", "CovarianceBuffer", "LocalModelFit", "fits_half", "hermitian",
+           "local_model", "parameters_per_row"]
 
 #: Bins whose (column-scaled) regression matrix has a condition number estimate above
 #: this are flagged ``ill_posed``.  The normal equations lose about ``eps * cond**2`` of
@@ -342,7 +342,7 @@ def _check_half_width(half_width, batch, m, nr, degrees, n_exp=1):
 def local_model(R, Z, *, half_width, degrees=(3, 3, 3), circular: bool = True,
                 covariance: str | None = "full", experiment_axis: int | None = None,
                 instruments=None, bins: tuple[int, int] | None = None,
-                select=None) -> LocalModelFit:
+                select=None, buffers: CovarianceBuffer | None = None) -> LocalModelFit:
     """Fit the local rational (LRM) or polynomial (LPM, ``Rd = 0``) model at every bin.
 
     Parameters
@@ -410,6 +410,13 @@ def local_model(R, Z, *, half_width, degrees=(3, 3, 3), circular: bool = True,
         bin's values are those of the fit of every bin (the moment recurrence still
         steps through the bins skipped).  E.g. a smoothed per-bin term that needs the fit
         at every third bin only (:func:`lcmr_xr.kernels.identification.twin_bins`).
+    buffers : CovarianceBuffer, optional
+        Write ``G_cov`` (``covariance="full"``) into this reusable buffer instead of fresh
+        memory, for consecutive fits each of whose ``G_cov`` is used up before the next
+        (``window="auto"``'s candidates and twin): fresh memory costs a page fault per
+        4 kB page on its first write.  The returned ``G_cov`` is then a view of the
+        buffer, overwritten by the next fit that uses it, and with ``select`` its rows at
+        the bins not selected are left unwritten (not NaN; read the selected ones only).
 
     Returns
     -------
@@ -501,24 +508,6 @@ def local_model(R, Z, *, half_width, degrees=(3, 3, 3), circular: bool = True,
     >>> fit.dof
     5
     """
-    return _local_model(R, Z, half_width=half_width, degrees=degrees, circular=circular,
-                        covariance=covariance, experiment_axis=experiment_axis,
-                        instruments=instruments, bins=bins, select=select)
-
-
-def _local_model(R, Z, *, half_width, degrees=(3, 3, 3), circular: bool = True,
-                 covariance: str | None = "full", experiment_axis: int | None = None,
-                 instruments=None, bins: tuple[int, int] | None = None, select=None,
-                 blank_covariance: bool = True, buffers: "CovarianceBuffer | None" = None
-                 ) -> LocalModelFit:
-    """:func:`local_model`.  ``blank_covariance=False`` (with ``select``): the ``G_cov``
-    of the bins not selected is left unwritten (uninitialised), for a caller that reads it
-    at the selected bins only (:func:`lcmr_xr.kernels.identification._fit_terms`): the
-    NaN it would hold is most of the outputs' size (the Hausman twin of
-    ``window="auto"`` fits every third bin: 2 of 3 rows of ``G_cov``, about 2.5 ms of its
-    30 ms at N = 3600).  ``buffers``: ``G_cov`` is written into this
-    :class:`CovarianceBuffer` (the caller no longer holds the previous fit's).  Every
-    other output is as :func:`local_model` returns it."""
     rn, rm, rd = _check_degrees(degrees)
     degrees = (rn, rm, rd)
     R = np.asarray(R)
@@ -673,8 +662,9 @@ def _local_model(R, Z, *, half_width, degrees=(3, 3, 3), circular: bool = True,
                 run(task)
             for piece in pieces:
                 _mirror_piece(piece)
-    if not mirror:  # (mirrored: the bins not fitted are the mirror's)
-        _fill_not_fitted(out if blank_covariance or select is None
+    if not mirror:  # (mirrored: the bins not fitted are the mirror's; in ``buffers`` the
+        # covariance of the bins not selected stays unwritten: 2 of 3 rows for the twin)
+        _fill_not_fitted(out if buffers is None
                          else {k: v for k, v in out.items() if k != "G_cov"}, todo)
     shaped = {name: (v.reshape(batch + (m,) + v.shape[1:]) if v.shape[0] else None)
               for name, v in out.items()}
