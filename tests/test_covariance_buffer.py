@@ -31,7 +31,7 @@ def test_fits_in_one_buffer_equal_fresh_fits():
 def test_selected_bins_in_a_buffer_equal_the_fit_of_every_bin():
     R, Z = _data(seed=1)
     buf = CovarianceBuffer()
-    local_model(R, Z, half_width=3, degrees=(1, 1, 1), bins=(0, 64), buffers=buf)  # other values
+    local_model(R, Z, half_width=9, degrees=(1, 1, 1), bins=(0, 64), buffers=buf)  # other values
     select = np.arange(R.shape[0]) % 3 == 0
     got = local_model(R, Z, half_width=6, degrees=(1, 1, 1), bins=(0, 64), select=select,
                       buffers=buf)
