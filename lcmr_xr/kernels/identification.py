@@ -944,10 +944,17 @@ def identify_spectra_auto(R, Z, *, n_fast: int, factor: int, nu: int, windows,
     half = fits_half(R, Z, half_width=windows[0], instruments=instruments)
     fit = dict(degrees=degrees, noise_covariance=noise_covariance,
                experiment_axis=experiment_axis, closed_loop=closed_loop,
-               denominator=denominator, instruments=instruments, fitted_half=half,
-               # every fit's covariance in one buffer: each block's is reduced before
-               # the next fit (fresh pages: about 7 ms of system time per fit at N = 3600)
-               buffers=CovarianceBuffer())
+               denominator=denominator, instruments=instruments, fitted_half=half)
+    # a record whose fits take one block each (short records): every fit's covariance in
+    # one buffer, each reduced before the next fit (fresh pages: about 7 ms of system time
+    # per fit at N = 3600, a tenth of a fixed-window identify).  Longer records keep fresh
+    # blocks: the buffer, all of it resident, raised their peak of memory (the twin writes
+    # a third of its rows, the last block is shorter), and their fits outweigh the faults
+    fit["buffers"] = CovarianceBuffer() if all(
+        len(_block_plan(R, Z, half_width=w, degrees=degrees, covariance=True,
+                        noise_covariance=noise_covariance, experiment_axis=experiment_axis,
+                        instruments=instruments, fitted_half=half)["edges"]) == 2
+        for w in windows) else None
     fast = calibrations = None  # (J, ..., K, ny, nu) per fast name; per candidate or None
     held, held_bytes = {}, 0  # narrower candidates kept whole (within HELD_BYTES)
     for j, w in enumerate(windows):
@@ -992,6 +999,9 @@ def identify_spectra_auto(R, Z, *, n_fast: int, factor: int, nu: int, windows,
             fast["P_var_linear"][-1], var_iv,
             determined=np.isfinite(fast["P_var"][-1]))
         del iv, zhat
+    # the fits that share the buffer are done: the refits (long records) take fresh memory,
+    # as sized to their runs of bins, and the buffer does not raise the peak of the gather
+    fit["buffers"] = None
     idx = fast_choice[None, ..., None, None]
     for k in fast:  # the chosen candidate's, fast bin by fast bin
         fast[k] = np.take_along_axis(fast[k], idx, axis=0)[0]
