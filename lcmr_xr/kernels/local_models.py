@@ -889,11 +889,11 @@ _NOT_FITTED = {"G": complex(np.nan, np.nan), "T": complex(np.nan, np.nan),
 
 class CovarianceBuffer:
     """One buffer for the ``G_cov`` of consecutive local-model fits, each consumed before
-    the next is fitted (``window="auto"``'s candidates and Hausman twin, fitted in blocks
-    of bins: :func:`lcmr_xr.kernels.identification.identify_spectra_auto`).  A fresh
-    buffer costs a page fault per 4 kB page on its first write (the system zero-fills
-    it): at N = 3600 about 1400 faults and 7 ms of system time per fit, a tenth of a
-    fixed-window ``identify``; reused, only the first fit pays them.  The buffer grows to
+    the next is fitted (``window="auto"``'s candidates and Hausman twin where each fit
+    takes one block of bins, :func:`lcmr_xr.kernels.identification.identify_spectra_auto`).
+    A fresh buffer costs a page fault per 4 kB page on its first write (the system
+    zero-fills it): at N = 3600 about 1400 faults and 7 ms of system time per fit, a tenth
+    of a fixed-window ``identify``; reused, only the first fit pays them.  The buffer grows to
     the largest request (with 1/16 to spare, so that blocks a few bins longer, e.g. on
     another window's restart grid, fit in it)."""
 
