@@ -42,7 +42,7 @@ from lcmr_xr.kernels.closed_loop import frf_variance_from_first_row, indirect_fi
 from lcmr_xr.kernels.identification import (_block_plan, denominator_instruments,
                                             experiment_spectra, identify_spectra,
                                             identify_spectra_auto, twin_bins, window_dof)
-from lcmr_xr.kernels.local_models import hermitian, local_model
+from lcmr_xr.kernels.local_models import CovarianceBuffer, hermitian, local_model
 from lcmr_xr.settings import auto_window_range
 SWEEP = (12, 16, 20, 24, 30, 40, 60)
 
@@ -547,8 +547,8 @@ def cost(*, n_samples=3600, case=2, seed=0, repeats=5, denominators=("ls", "iv")
     ``auto`` (least squares) needs whatever else it does: each candidate window fitted
     with its covariance on the bins the blocks fit, and the widest window again by IV with
     that candidate's own prediction as instruments at the slow bins of ``twin_bins`` (the
-    Hausman comparison), against the
-    same ``identify(window=30)``.
+    Hausman comparison), their covariance in one ``CovarianceBuffer`` as ``auto`` has it,
+    against the same ``identify(window=30)``.
 
     Returns
     -------
@@ -562,14 +562,15 @@ def cost(*, n_samples=3600, case=2, seed=0, repeats=5, denominators=("ls", "iv")
     windows = candidate_windows(*auto_window_range((3, 3, 3), nr, m))
     zhat = denominator_instruments(R, Z, half_width=windows[-1])
 
-    def fits():
+    def fits():  # (their covariance in one buffer, as auto fits them)
+        buffers = CovarianceBuffer()
         for w in windows:
             stop = _block_plan(R, Z, half_width=w, degrees=(3, 3, 3), covariance=True,
                                noise_covariance=None, experiment_axis=None,
                                instruments=None)["edges"][-1]
-            local_model(R, Z, half_width=w, covariance="full", bins=(0, stop))
+            local_model(R, Z, half_width=w, covariance="full", bins=(0, stop), buffers=buffers)
         local_model(R, Z, half_width=windows[-1], covariance="full", instruments=zhat,
-                    bins=(0, stop), select=twin_bins(m))
+                    bins=(0, stop), select=twin_bins(m), buffers=buffers)
 
     calls = {(w, d): (lambda w=w, d=d: identify(exp, window=w, errors="ignore", denominator=d))
              for w in (30, "auto") for d in denominators}

@@ -15,8 +15,8 @@ from lcmr_xr.kernels.adaptive import (K95, UNDETERMINED_LIMIT, denominator_bias,
                                       select_windows, small_sample_factor, weak_direction)
 from lcmr_xr.kernels.closed_loop import frf_variance_from_first_row, indirect_first_row
 from lcmr_xr.kernels.lifting import frf_from_first_block_row, lift
-from lcmr_xr.kernels.local_models import (_restart_interval, fits_half, hermitian, local_model,
-                                          parameters_per_row)
+from lcmr_xr.kernels.local_models import (CovarianceBuffer, _restart_interval, fits_half,
+                                          hermitian, local_model, parameters_per_row)
 from lcmr_xr.kernels.pooling import (MIN_SPLIT_EXPERIMENTS, group_weight, half_variances,
                                      mean_and_covariance, p_spread_factor, pooled_least_squares,
                                      rescale_covariance, split_halves, spread_calibration,
@@ -447,7 +447,7 @@ def fit_packed(R, Z, *, half_width: int, degrees=(3, 3, 3), circular: bool = Tru
 def _fit_terms(R, Z, *, half_width, degrees, circular, covariance, known_covariance,
                experiment_axis, closed_loop, denominator="ls", instruments=None,
                halves_instruments=None, bins=None, spread=True, first_row_only=False,
-               select=None) -> dict:
+               select=None, buffers=None) -> dict:
     """The local model at every bin (``bins``: those of the circle) reduced by
     :func:`slow_bin_terms`: ``G``, ``T`` (pooled: (..., M, E, nz)), ``noise_variance``,
     ``condition``, ``ill_posed`` and the terms; ``G_cov`` is dropped.  ``G_cov`` is
@@ -456,14 +456,18 @@ def _fit_terms(R, Z, *, half_width, degrees, circular, covariance, known_covaria
     caller has them already.  ``spread``: also the pooled fits' split-half spread ratio
     (on these bins: the caller does it otherwise).  ``first_row_only``: of the terms only
     those of :func:`slow_bin_terms` with ``first_row_only``.  ``select`` (M,) bool (of the
-    circle with ``bins``): fit and reduce only those bins, the others NaN (not fitted)."""
+    circle with ``bins``): fit and reduce only those bins, the others NaN (not fitted).
+    ``buffers``: a :class:`lcmr_xr.kernels.local_models.CovarianceBuffer` for ``G_cov``
+    (nothing returned views it)."""
     if check_denominator(denominator, degrees) and instruments is None:
         instruments = denominator_instruments(R, Z, degrees=degrees, circular=circular,
                                               experiment_axis=experiment_axis)
+    if known_covariance is not None:  # (rebuilt from every bin's: a fresh G_cov, blanked)
+        buffers = None
     fit = local_model(R, Z, half_width=half_width, degrees=tuple(degrees), circular=circular,
                       covariance="full" if covariance else None, experiment_axis=experiment_axis,
                       instruments=instruments if denominator == "iv" else None, bins=bins,
-                      select=select)
+                      select=select, **({} if buffers is None else {"buffers": buffers}))
     G_cov = fit.G_cov
     if covariance and known_covariance is not None:
         G_cov = rescale_covariance(G_cov, fit.noise_covariance, known_covariance)
@@ -481,14 +485,17 @@ def _fit_terms(R, Z, *, half_width, degrees, circular, covariance, known_covaria
         out.update(slow_bin_terms(fit.G, G_cov, **terms))
     else:  # the terms of the bins fitted; the others those of a bin not fitted (NaN)
         cut = lambda x, at: None if x is None else x[..., at, :, :]  # noqa: E731
-        blank = slow_bin_terms(cut(fit.G, [0]) * np.nan, None if G_cov is None
-                               else cut(G_cov, [0]) * np.nan, **terms)
+        blank = slow_bin_terms(cut(fit.G, [0]) * np.nan, None if G_cov is None else
+                               np.full(cut(G_cov, [0]).shape, np.nan, G_cov.dtype), **terms)
         fitted = slow_bin_terms(cut(fit.G, on), cut(G_cov, on), **terms) if on.any() else {}
         for name, value in blank.items():
             ax = _BIN_AXES[name]
             out[name] = np.repeat(value, on.size, axis=ax)
             if name in fitted:
                 out[name][_bins_at(ax, on)] = fitted[name]
+    if buffers is not None:  # (G_var is a view of G_cov's diagonal: the next fit reuses it)
+        out = {k: v.copy() if isinstance(v, np.ndarray) and np.may_share_memory(v, fit.G_cov)
+               else v for k, v in out.items()}
     del G_cov, fit
     if spread and covariance and not first_row_only and (n_exp or 0) >= MIN_SPLIT_EXPERIMENTS:
         out.update(_spread_ratio(R, Z, out, half_width=half_width, degrees=degrees,
@@ -519,12 +526,14 @@ BLOCK_BYTES = 8 << 20
 
 
 def _block_plan(R, Z, *, half_width, degrees, covariance, noise_covariance, experiment_axis,
-                instruments) -> dict:
+                instruments, fitted_half=None) -> dict:
     """How :func:`_fit_blocks` cuts the circle for ``half_width`` (``instruments``: those of
     ``denominator="iv"``, None for least squares): ``known`` (the window mean of a known
     noise covariance, or None), ``half`` (the blocks cover bins ``0..M/2`` and the others
     are mirrored), ``last`` (bins fitted), ``align`` (the moment restart interval, on
-    which every block starts) and ``edges`` (of the blocks)."""
+    which every block starts) and ``edges`` (of the blocks).  ``fitted_half``: the
+    :func:`lcmr_xr.kernels.local_models.fits_half` of these spectra (and instruments) when
+    the caller has it (``window="auto"`` checks the spectra once for every candidate)."""
     known = None
     if covariance and noise_covariance is not None:
         known = window_mean(np.asarray(noise_covariance), half_width, axis=-3, circular=True)
@@ -532,7 +541,8 @@ def _block_plan(R, Z, *, half_width, degrees, covariance, noise_covariance, expe
     n_exp = _n_experiments(R, Z, experiment_axis)
     lead = np.broadcast_shapes(R.shape[:-2], Z.shape[:-2])
     records = int(np.prod(lead, dtype=int)) // (n_exp or 1)  # outputs per bin
-    half = fits_half(R, Z, half_width=half_width, instruments=instruments)
+    half = fits_half(R, Z, half_width=half_width, instruments=instruments) \
+        if fitted_half is None else bool(fitted_half)
     if half and known is not None:  # bin M - k rebuilt from its own known covariance unless mirrored
         half = hermitian(np.reshape(np.asarray(noise_covariance), (-1, m, nz * nz)))
     last = m // 2 + 1 if half else m  # bins fitted; the others mirrored
@@ -547,7 +557,7 @@ def _block_plan(R, Z, *, half_width, degrees, covariance, noise_covariance, expe
 
 def _block_terms(R, Z, a, b, *, known, covariance, half_width, degrees, experiment_axis,
                  closed_loop, denominator, instruments, first_row_only=False,
-                 select=None) -> dict:
+                 select=None, buffers=None) -> dict:
     """:func:`_fit_terms` of the slow bins ``a..b-1`` of the circle (a block of
     :func:`_fit_blocks`, or a refit of :func:`_refit_chosen`), with those bins' window
     mean ``known`` of a known noise covariance; without the split-half spread, which
@@ -557,17 +567,19 @@ def _block_terms(R, Z, a, b, *, known, covariance, half_width, degrees, experime
                       known_covariance=None if known is None else known[..., a:b, :, :],
                       experiment_axis=experiment_axis, closed_loop=closed_loop,
                       denominator=denominator, instruments=instruments, bins=(a, b),
-                      spread=False, first_row_only=first_row_only, select=select)
+                      spread=False, first_row_only=first_row_only, select=select,
+                      buffers=buffers)
 
 
 def _fit_blocks(R, Z, *, half_width, degrees, covariance, noise_covariance, experiment_axis,
                 closed_loop, denominator="ls", instruments=None, halves_instruments=None,
-                first_row_only=False, select=None) -> dict:
+                first_row_only=False, select=None, fitted_half=None, buffers=None) -> dict:
     """:func:`_fit_terms` of every slow bin of the circle, fitted in blocks of bins
     (:data:`BLOCK_BYTES`).  Spectra of real signals: the blocks cover bins ``0..M/2``
     and the others are their mirrors, as in one fit over all bins
     (:func:`lcmr_xr.kernels.local_models.fits_half`).  ``first_row_only``: the terms of
-    :func:`slow_bin_terms` with ``first_row_only``, no split-half spread."""
+    :func:`slow_bin_terms` with ``first_row_only``, no split-half spread.  ``fitted_half``
+    as :func:`_block_plan`; ``buffers`` as :func:`_fit_terms`."""
     R, Z = np.asarray(R), np.asarray(Z)
     iv = check_denominator(denominator, degrees)
     if iv and instruments is None:
@@ -575,7 +587,7 @@ def _fit_blocks(R, Z, *, half_width, degrees, covariance, noise_covariance, expe
                                               experiment_axis=experiment_axis)
     plan = _block_plan(R, Z, half_width=half_width, degrees=degrees, covariance=covariance,
                        noise_covariance=noise_covariance, experiment_axis=experiment_axis,
-                       instruments=instruments if iv else None)
+                       instruments=instruments if iv else None, fitted_half=fitted_half)
     known, half, last, edges = plan["known"], plan["half"], plan["last"], plan["edges"]
     m = R.shape[-2]
     n_exp = _n_experiments(R, Z, experiment_axis)
@@ -585,7 +597,7 @@ def _fit_blocks(R, Z, *, half_width, degrees, covariance, noise_covariance, expe
                              half_width=half_width, degrees=degrees,
                              experiment_axis=experiment_axis, closed_loop=closed_loop,
                              denominator=denominator, instruments=instruments,
-                             first_row_only=first_row_only, select=select)
+                             first_row_only=first_row_only, select=select, buffers=buffers)
         if out is None:  # every per-bin output, all M bins: the bin axis of each
             axes = {k: _bin_axis(k, n_exp) for k, v in block.items() if v is not None}
             out = {k: (None if v is None else
@@ -788,12 +800,14 @@ def _finish(fit: dict, *, n_fast, factor, nu, ny, closed_loop, dof) -> dict:
 
 def _fit_and_finish(R, Z, *, half_width, degrees, covariance, noise_covariance, experiment_axis,
                     n_fast, factor, nu, ny, closed_loop, n_exp, denominator="ls",
-                    instruments=None, halves_instruments=None) -> dict:
+                    instruments=None, halves_instruments=None, fitted_half=None,
+                    buffers=None) -> dict:
     """The local model in blocks of bins (:func:`_fit_blocks`), then :func:`_finish`."""
     fit = _fit_blocks(R, Z, half_width=half_width, degrees=degrees, covariance=covariance,
                       noise_covariance=noise_covariance, experiment_axis=experiment_axis,
                       closed_loop=closed_loop, denominator=denominator,
-                      instruments=instruments, halves_instruments=halves_instruments)
+                      instruments=instruments, halves_instruments=halves_instruments,
+                      fitted_half=fitted_half, buffers=buffers)
     return _finish(fit, n_fast=n_fast, factor=factor, nu=nu, ny=ny, closed_loop=closed_loop,
                    dof=window_dof(half_width, R.shape[-1], degrees, n_exp or 1))
 
@@ -925,9 +939,22 @@ def identify_spectra_auto(R, Z, *, n_fast: int, factor: int, nu: int, windows,
     halves = half_instruments(R, Z, degrees=degrees, experiment_axis=experiment_axis,
                               denominator=denominator) \
         if (n_exp or 0) >= MIN_SPLIT_EXPERIMENTS else None
+    # whether the blocks cover bins 0..M/2 and mirror (spectra of real signals): the same
+    # for every candidate (a scalar window is symmetric), checked once
+    half = fits_half(R, Z, half_width=windows[0], instruments=instruments)
     fit = dict(degrees=degrees, noise_covariance=noise_covariance,
                experiment_axis=experiment_axis, closed_loop=closed_loop,
-               denominator=denominator, instruments=instruments)
+               denominator=denominator, instruments=instruments, fitted_half=half)
+    # a record whose fits take one block each (short records): every fit's covariance in
+    # one buffer, each reduced before the next fit (fresh pages: about 7 ms of system time
+    # per fit at N = 3600, a tenth of a fixed-window identify).  Longer records keep fresh
+    # blocks: the buffer, all of it resident, raised their peak of memory (the twin writes
+    # a third of its rows, the last block is shorter), and their fits outweigh the faults
+    fit["buffers"] = CovarianceBuffer() if all(
+        len(_block_plan(R, Z, half_width=w, degrees=degrees, covariance=True,
+                        noise_covariance=noise_covariance, experiment_axis=experiment_axis,
+                        instruments=instruments, fitted_half=half)["edges"]) == 2
+        for w in windows) else None
     fast = calibrations = None  # (J, ..., K, ny, nu) per fast name; per candidate or None
     held, held_bytes = {}, 0  # narrower candidates kept whole (within HELD_BYTES)
     for j, w in enumerate(windows):
@@ -959,7 +986,9 @@ def identify_spectra_auto(R, Z, *, n_fast: int, factor: int, nu: int, windows,
         iv = _fit_blocks(R, Z, half_width=windows[-1], degrees=degrees, covariance=True,
                          noise_covariance=None, experiment_axis=experiment_axis,
                          closed_loop=closed_loop, denominator="iv", instruments=zhat,
-                         first_row_only=True, select=twin_bins(m))
+                         first_row_only=True, select=twin_bins(m),
+                         fitted_half=half and hermitian(zhat.reshape(-1, m, nz)),
+                         buffers=fit["buffers"])
         # the variance at the fast bins of the slow bins fitted only (NaN elsewhere)
         bins = np.flatnonzero(twin_bins(m)[np.arange(n_fast // 2 + 1) % m])
         var_iv = np.full(fast["P_var_linear"][-1].shape, np.nan)
@@ -970,6 +999,9 @@ def identify_spectra_auto(R, Z, *, n_fast: int, factor: int, nu: int, windows,
             fast["P_var_linear"][-1], var_iv,
             determined=np.isfinite(fast["P_var"][-1]))
         del iv, zhat
+    # the fits that share the buffer are done: the refits (long records) take fresh memory,
+    # as sized to their runs of bins, and the buffer does not raise the peak of the gather
+    fit["buffers"] = None
     idx = fast_choice[None, ..., None, None]
     for k in fast:  # the chosen candidate's, fast bin by fast bin
         fast[k] = np.take_along_axis(fast[k], idx, axis=0)[0]
@@ -1013,7 +1045,7 @@ _FAST = ("P", "P_var", "P_var_linear", "P_spread_calibration")
 
 def _refit_chosen(out, flags, chosen, R, Z, *, half_width, degrees, noise_covariance,
                   experiment_axis, closed_loop, denominator, instruments, n_exp, dof,
-                  calibration) -> None:
+                  calibration, fitted_half=None, buffers=None) -> None:
     """Write the per-slow-bin outputs of the candidate ``half_width`` into ``out`` (the
     outputs of :func:`_finish` of another candidate, over all bins) where ``chosen``
     (..., M), and its slow-bin ``P_bad`` and ``P_undetermined`` into ``flags``.
@@ -1026,12 +1058,13 @@ def _refit_chosen(out, flags, chosen, R, Z, *, half_width, degrees, noise_covari
     after the fit (:func:`slow_bin_terms`, :func:`_slow_recovery`) are bin by bin.
     Whether the bins past ``M/2`` are mirrors is decided for all records at once, as the
     first fit did.  ``calibration``: the candidate's pooled spread calibration per slow
-    bin (from its first fit; it is smoothed over bins).
+    bin (from its first fit; it is smoothed over bins).  ``fitted_half`` as
+    :func:`_block_plan`, ``buffers`` as :func:`_fit_terms`.
     """
     iv = check_denominator(denominator, degrees)
     plan = _block_plan(R, Z, half_width=half_width, degrees=degrees, covariance=True,
                        noise_covariance=noise_covariance, experiment_axis=experiment_axis,
-                       instruments=instruments if iv else None)
+                       instruments=instruments if iv else None, fitted_half=fitted_half)
     lead = chosen.shape[:-1]
     R, Z = _broadcast_leading(R, Z)  # (..., [E,] M, channels), ``...`` = ``lead``
     known = plan.pop("known")
@@ -1046,12 +1079,13 @@ def _refit_chosen(out, flags, chosen, R, Z, *, half_width, degrees, noise_covari
                       denominator=denominator,
                       instruments=None if instruments is None else instruments[i],
                       known=None if known is None else known[i], n_exp=n_exp, dof=dof,
-                      calibration=None if calibration is None else calibration[i], **plan)
+                      calibration=None if calibration is None else calibration[i],
+                      buffers=buffers, **plan)
 
 
 def _refit_record(out, flags, chosen, R, Z, *, half_width, degrees, experiment_axis,
                   closed_loop, denominator, instruments, known, n_exp, dof, calibration,
-                  half, last, align, edges) -> None:
+                  half, last, align, edges, buffers=None) -> None:
     """:func:`_refit_chosen` of one record (``chosen`` (M,); ``out``, ``flags`` its views)."""
     m = R.shape[-2]
     need = chosen[:last].copy()  # fitted bins whose own value is chosen ...
@@ -1063,7 +1097,8 @@ def _refit_record(out, flags, chosen, R, Z, *, half_width, degrees, experiment_a
         terms = _block_terms(R, Z, a, b, known=known, covariance=True,
                              half_width=half_width, degrees=degrees,
                              experiment_axis=experiment_axis, closed_loop=closed_loop,
-                             denominator=denominator, instruments=instruments)
+                             denominator=denominator, instruments=instruments,
+                             buffers=buffers)
         # its own bins a..min(b, last)-1; with ``half`` also bins t = M/2+1..M-1 whose
         # mirror M - t is in a..b-1 (their terms are the conjugates, as _fit_blocks has them)
         t = np.arange(max(m // 2 + 1, m - b + 1), min(m - 1, m - a) + 1) if half else np.arange(0)

@@ -67,8 +67,8 @@ import numpy as np
 
 from .pages import empty_pages
 
-__all__ = ["CONDITION_LIMIT", "LocalModelFit", "fits_half", "hermitian", "local_model",
-           "parameters_per_row"]
+__all__ = ["CONDITION_LIMIT", "CovarianceBuffer", "LocalModelFit", "fits_half", "hermitian",
+           "local_model", "parameters_per_row"]
 
 #: Bins whose (column-scaled) regression matrix has a condition number estimate above
 #: this are flagged ``ill_posed``.  The normal equations lose about ``eps * cond**2`` of
@@ -342,7 +342,7 @@ def _check_half_width(half_width, batch, m, nr, degrees, n_exp=1):
 def local_model(R, Z, *, half_width, degrees=(3, 3, 3), circular: bool = True,
                 covariance: str | None = "full", experiment_axis: int | None = None,
                 instruments=None, bins: tuple[int, int] | None = None,
-                select=None) -> LocalModelFit:
+                select=None, buffers: CovarianceBuffer | None = None) -> LocalModelFit:
     """Fit the local rational (LRM) or polynomial (LPM, ``Rd = 0``) model at every bin.
 
     Parameters
@@ -410,6 +410,13 @@ def local_model(R, Z, *, half_width, degrees=(3, 3, 3), circular: bool = True,
         bin's values are those of the fit of every bin (the moment recurrence still
         steps through the bins skipped).  E.g. a smoothed per-bin term that needs the fit
         at every third bin only (:func:`lcmr_xr.kernels.identification.twin_bins`).
+    buffers : CovarianceBuffer, optional
+        Write ``G_cov`` (``covariance="full"``) into this reusable buffer instead of fresh
+        memory, for consecutive fits each of whose ``G_cov`` is used up before the next
+        (``window="auto"``'s candidates and twin): fresh memory costs a page fault per
+        4 kB page on its first write.  The returned ``G_cov`` is then a view of the
+        buffer, overwritten by the next fit that uses it, and with ``select`` its rows at
+        the bins not selected are left unwritten (not NaN; read the selected ones only).
 
     Returns
     -------
@@ -603,7 +610,7 @@ def local_model(R, Z, *, half_width, degrees=(3, 3, 3), circular: bool = True,
     if select is not None:
         todo &= select
 
-    out = _allocate(n_batch, m, nz, nr, covariance, n_exp)
+    out = _allocate(n_batch, m, nz, nr, covariance, n_exp, buffers)
     bins = _bins()
     mode = {None: bins.COV_NONE, "diag": bins.COV_DIAG, "full": bins.COV_FULL}[covariance]
     elements = _chunk_elements(nr, nz, covariance)
@@ -655,8 +662,10 @@ def local_model(R, Z, *, half_width, degrees=(3, 3, 3), circular: bool = True,
                 run(task)
             for piece in pieces:
                 _mirror_piece(piece)
-    if not mirror:  # (mirrored: the bins not fitted are the mirror's)
-        _fill_not_fitted(out, todo)
+    if not mirror:  # (mirrored: the bins not fitted are the mirror's; in ``buffers`` the
+        # covariance of the bins not selected stays unwritten: 2 of 3 rows for the twin)
+        _fill_not_fitted(out if buffers is None
+                         else {k: v for k, v in out.items() if k != "G_cov"}, todo)
     shaped = {name: (v.reshape(batch + (m,) + v.shape[1:]) if v.shape[0] else None)
               for name, v in out.items()}
     # T: (..., M, E, nz) -> (..., E, M, nz) pooled, (..., M, nz) otherwise
@@ -878,13 +887,38 @@ _NOT_FITTED = {"G": complex(np.nan, np.nan), "T": complex(np.nan, np.nan),
                "G_var": np.nan}
 
 
-def _allocate(n_batch, m, nz, nr, covariance, n_exp=1):
+class CovarianceBuffer:
+    """One buffer for the ``G_cov`` of consecutive local-model fits, each consumed before
+    the next is fitted (``window="auto"``'s candidates and Hausman twin where each fit
+    takes one block of bins, :func:`lcmr_xr.kernels.identification.identify_spectra_auto`).
+    A fresh buffer costs a page fault per 4 kB page on its first write (the system
+    zero-fills it): at N = 3600 about 1400 faults and 7 ms of system time per fit, a tenth
+    of a fixed-window ``identify``; reused, only the first fit pays them.  The buffer grows to
+    the largest request (with 1/16 to spare, so that blocks a few bins longer, e.g. on
+    another window's restart grid, fit in it)."""
+
+    def __init__(self):
+        self._buffer = None
+
+    def take(self, shape, dtype) -> np.ndarray:
+        """An uninitialised array of ``shape`` and ``dtype`` on the buffer (the array
+        taken before is overwritten)."""
+        dtype = np.dtype(dtype)
+        nbytes = int(np.prod(shape, dtype=np.int64)) * dtype.itemsize
+        if self._buffer is None or self._buffer.nbytes < nbytes:
+            self._buffer = empty_pages(nbytes + nbytes // 16, np.uint8)
+        return self._buffer[:nbytes].view(dtype).reshape(shape)
+
+
+def _allocate(n_batch, m, nz, nr, covariance, n_exp=1, buffers=None):
     """Outputs, not prefilled: every fitted bin writes its whole row (a failed one NaN),
     the mirror or :func:`_fill_not_fitted` the others (prefilling hundreds of MB at
     M = 2^19 cost about a tenth of the fit).  On pages numpy has not advised for huge
-    pages (:mod:`.pages`: their first write stalled on memory compaction)."""
+    pages (:mod:`.pages`: their first write stalled on memory compaction).  ``buffers``
+    (:class:`CovarianceBuffer`): ``G_cov`` on it."""
     size = n_batch * m
     ng = nz * nr
+    cov_shape = (size if covariance == "full" else 0, ng, ng)
     return {
         "G": empty_pages((size, nz, nr), complex),
         "T": empty_pages((size, n_exp, nz), complex),
@@ -892,7 +926,8 @@ def _allocate(n_batch, m, nz, nr, covariance, n_exp=1):
         "condition": empty_pages(size),
         "ill_posed": empty_pages(size, dtype=bool),
         "dropped": empty_pages(size, dtype=np.int64),
-        "G_cov": empty_pages((size if covariance == "full" else 0, ng, ng), complex),
+        "G_cov": (empty_pages(cov_shape, complex) if buffers is None or not cov_shape[0]
+                  else buffers.take(cov_shape, complex)),
         "G_var": empty_pages((size if covariance == "diag" else 0, nz, nr)),
     }
 
