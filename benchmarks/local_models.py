@@ -22,7 +22,10 @@ Everything issue 12 asks for, in one run, with the user's default thread setting
   each version of the compiled loop (least squares, instrumental variables, pooled, pooled
   with instrumental variables: what a cold ``make test`` pays; least squares and IV are
   one version), the first ``identify`` with the default window (``"auto"``: least
-  squares and the IV twin); the kernel alone on plain
+  squares and the IV twin); where the first call's compile time goes (numba's compile
+  events: LLVM against numba's own passes, the loop against its helpers; and the same
+  with ``NUMBA_OPT=0`` in that child process: the floor without LLVM's optimisation);
+  the kernel alone on plain
   arrays, without xarray (``--only-start`` runs only this part);
 * ``identify`` with a second process keeping one core busy vs without (``--no-busy``
   skips it);
@@ -255,6 +258,52 @@ for call in calls:
 from lcmr_xr.kernels import local_model_bins
 print(*out, len(local_model_bins.fit_bins.signatures))
 """
+#: Where an empty cache's first call goes: the one-record version of the compiled loop
+#: (least squares and IV share it) compiled for a least-squares call with full covariance,
+#: timed by numba's compile events.  Per compiled function its own CPU seconds (those of
+#: the functions it calls, compiled while it is typed, subtracted), and the CPU seconds
+#: under numba's LLVM lock (LLVM's optimisation and machine code; the rest is numba's own
+#: Python: bytecode analysis, SSA, typing, lowering to LLVM IR).  ``NUMBA_OPT`` is the
+#: child process's own environment (set by the caller for the floor without LLVM's
+#: optimisation; never in the user's process).  Prints the total, the LLVM part, the loop's
+#: own and its LLVM part, the helpers' (number of functions) and numba's overloads'
+#: (``impl``: ``np.empty`` per shape and dtype, array views, ``min``/``max``).
+_COLD_BREAKDOWN = """
+import time
+import numpy as np
+from numba.core import event
+from lcmr_xr.kernels.local_models import local_model
+stack, own, llvm = [], {}, {}
+class Compile(event.Listener):
+    def on_start(self, ev):
+        now = time.process_time()
+        if stack:
+            stack[-1][1] += now - stack[-1][2]
+        stack.append([ev.data["dispatcher"].py_func.__name__, 0.0, now])
+    def on_end(self, ev):
+        now = time.process_time()
+        name, acc, t0 = stack.pop()
+        own[name] = own.get(name, 0.0) + acc + now - t0
+        if stack:
+            stack[-1][2] = now
+class Llvm(event.Listener):
+    def on_start(self, ev):
+        self.t0 = time.process_time()
+    def on_end(self, ev):
+        name = stack[-1][0] if stack else ""
+        llvm[name] = llvm.get(name, 0.0) + time.process_time() - self.t0
+event.register("numba:compile", Compile())
+event.register("numba:llvm_lock", Llvm())
+rng = np.random.default_rng(0)
+R = np.exp(2j * np.pi * rng.random((200, 4)))
+Z = rng.standard_normal((200, 5)) + 0j
+c0 = time.process_time()
+local_model(R, Z, half_width=30, degrees=(3, 3, 3), covariance="full")
+total = time.process_time() - c0
+helpers = [k for k in own if k not in ("fit_bins", "impl")]
+print(total, sum(llvm.values()), own["fit_bins"], llvm.get("fit_bins", 0.0),
+      sum(own[k] for k in helpers), len(helpers), own.get("impl", 0.0))
+"""
 #: An empty cache, the HDD experiment's first ``identify`` with the default window
 #: (``"auto"``: the least-squares fit and the instrumental-variables twin of its widest
 #: window, both through the one compiled version of the loop): CPU seconds of the call.
@@ -342,6 +391,7 @@ def start_times(rows, exp, repeat=5):
     rows.append(("empty cache, first call CPU [s]: least squares / IV / pooled / pooled IV "
                  "(one process, in this order; IV shares the version of least squares)",
                  " / ".join(f"{t:.1f}" for t in cold) + f" ({versions:.0f} compiled versions)"))
+    compile_breakdown(rows)
     with tempfile.TemporaryDirectory() as tmp:
         data = os.path.join(tmp, "exp.npz")
         np.savez(data, r=exp.r.values, u=exp.u.values, y=exp.y.values,
@@ -352,6 +402,27 @@ def start_times(rows, exp, repeat=5):
             check=True, capture_output=True, text=True).stdout)
     rows.append(("empty cache, first identify with the default window (auto: least squares "
                  "and its IV twin) CPU [s] (goal < 15)", f"{cold:.1f}"))
+
+
+def compile_breakdown(rows):
+    """Where an empty cache's first call goes (``_COLD_BREAKDOWN``), in a new process with
+    numba's default optimisation level, and again with ``NUMBA_OPT=0`` in that process's
+    environment (the floor without LLVM's optimisation)."""
+    for opt in (None, "0"):
+        with tempfile.TemporaryDirectory() as tmp:
+            env = _start_env(tmp)
+            if opt is not None:
+                env["NUMBA_OPT"] = opt
+            load = os.getloadavg()[0]
+            out = [float(x) for x in subprocess.run(
+                [sys.executable, "-c", _COLD_BREAKDOWN], env=env, check=True,
+                capture_output=True, text=True).stdout.split()]
+        rows.append(("empty cache, first least-squares call CPU [s]" + (
+            "" if opt is None else f" with NUMBA_OPT={opt} (no LLVM optimisation: the floor)")
+            + ": total / LLVM / fit_bins's own (its LLVM) / helpers (number) / numba's "
+            f"overloads (load {load:.1f})",
+            f"{out[0]:.1f} / {out[1]:.1f} / {out[2]:.1f} ({out[3]:.1f}) / {out[4]:.1f} "
+            f"({out[5]:.0f}) / {out[6]:.1f}"))
 
 
 def busy_section(rows, exp):
