@@ -40,3 +40,15 @@ def test_selected_bins_in_a_buffer_equal_the_fit_of_every_bin():
     np.testing.assert_array_equal(got.G_cov[on], want.G_cov[on])
     np.testing.assert_array_equal(got.G[on], want.G[on])
     assert np.isnan(got.G[~on]).all() and got.ill_posed[~on].all()  # as without buffers
+
+
+def test_bins_not_fitted_without_select_are_nan_in_a_buffer():
+    # circular=False: the bins within a half-width of either end are not fitted; their
+    # covariance is NaN as in fresh memory, not the values an earlier fit left in the buffer
+    R, Z = _data(seed=2)
+    buf = CovarianceBuffer()
+    local_model(R, Z, half_width=9, degrees=(1, 1, 1), buffers=buf)  # fills every row
+    got = local_model(R, Z, half_width=6, degrees=(1, 1, 1), circular=False, buffers=buf)
+    want = local_model(R, Z, half_width=6, degrees=(1, 1, 1), circular=False)
+    assert np.isnan(want.G_cov[:6]).all() and np.isnan(want.G_cov[-6:]).all()
+    np.testing.assert_array_equal(got.G_cov, want.G_cov)

@@ -607,8 +607,9 @@ def local_model(R, Z, *, half_width, degrees=(3, 3, 3), circular: bool = True,
     else:
         todo = (k - widths >= 0) & (k + widths <= m - 1)
         mirror = False
+    region = todo  # the bins fitted but for ``select`` (a buffer's G_cov: NaN elsewhere)
     if select is not None:
-        todo &= select
+        todo = todo & select
 
     out = _allocate(n_batch, m, nz, nr, covariance, n_exp, buffers)
     bins = _bins()
@@ -663,9 +664,12 @@ def local_model(R, Z, *, half_width, degrees=(3, 3, 3), circular: bool = True,
             for piece in pieces:
                 _mirror_piece(piece)
     if not mirror:  # (mirrored: the bins not fitted are the mirror's; in ``buffers`` the
-        # covariance of the bins not selected stays unwritten: 2 of 3 rows for the twin)
+        # covariance of the bins not selected stays unwritten: 2 of 3 rows for the twin;
+        # that of the bins not fitted otherwise, e.g. the ends with circular=False, is NaN)
         _fill_not_fitted(out if buffers is None
                          else {k: v for k, v in out.items() if k != "G_cov"}, todo)
+        if buffers is not None:
+            _fill_not_fitted({"G_cov": out["G_cov"]}, region)
     shaped = {name: (v.reshape(batch + (m,) + v.shape[1:]) if v.shape[0] else None)
               for name, v in out.items()}
     # T: (..., M, E, nz) -> (..., E, M, nz) pooled, (..., M, nz) otherwise
