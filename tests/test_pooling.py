@@ -149,6 +149,30 @@ def test_validation_of_period_dim():
         assert validate_experiment(ds.chunk(chunks)).r.chunks is not None
 
 
+def test_identify_refuses_lazy_r_that_does_not_repeat_over_periods():
+    # identify validates lazy data without reading them (check_values=False): a lazy r that
+    # differs between periods was averaged as one periodic excitation without a word; now
+    # refused when computed, with validate_experiment's message, as in memory
+    ds = _periodic_siso(2, 40, periods=2, seed=0)
+    bad = ds.copy(deep=True)
+    bad.r.values[1, 3, 0] += 1e-3
+    kw = dict(window=8, degrees=(2, 2, 2), transient_periods=0)
+    with pytest.raises(ValueError, match="r differs between periods") as eager:
+        identify(bad, **kw)
+    for lazy in (bad.chunk({"period": 1}), bad.chunk({"time": 10}),
+                 bad.assign(u=bad.u.chunk(), y=bad.y.chunk())):  # r in memory, u, y lazy
+        with pytest.raises(ValueError) as err:
+            identify(lazy, **kw).compute()
+        assert str(err.value) == str(eager.value)
+        with pytest.raises(ValueError, match="r differs between periods"):
+            identify(lazy, **kw).P_flag.values  # every result waits for the check
+    # data that repeat: the lazy estimate is the eager one, and stays lazy until computed
+    want = identify(ds, **kw)
+    got = identify(ds.chunk({"period": 1}), **kw)
+    assert got.P.chunks is not None
+    xr.testing.assert_allclose(got.compute(), want, rtol=1e-12)
+
+
 # ------------------------------------------------------------------ kernels
 def test_mean_and_covariance_is_the_sample_covariance_over_k():
     rng = np.random.default_rng(0)

@@ -3,7 +3,9 @@
 - Lazy data chunked along the core dims (``time``, ``slow_time``, channels) are rechunked
   to one chunk there: one experiment is small, and the kernels need whole records.
 - Lazy data are checked for NaN/inf per block, at compute time, and the message names the
-  variable and the time range (the eager path checks in ``validate_experiment``).
+  variable and the time range (the eager path checks in ``validate_experiment``); a lazy
+  ``r`` with a ``period`` dim is checked to repeat over the periods when the results are
+  computed.
 - Data whose magnitude is far outside the range where squares stay finite (about 1e-150
   to 1e150; e.g. data in units scaled by 1e300) are scaled by exact powers of two before
   the fit and the results scaled back, so the estimate does not depend on the units.
@@ -34,6 +36,50 @@ def rechunk_core(ds):
         if any(len(var.chunks[var.get_axis_num(d)]) > 1 for d in wanted):
             out[name] = var.chunk(wanted)
     return ds.assign(out) if out else ds
+
+
+def periodic_spread(ds):
+    """What :func:`gated` needs to refuse lazy data whose ``r`` does not repeat over the
+    periods, as :func:`lcmr_xr.validate_experiment` refuses it in memory (same message):
+    None without a ``period`` dim on ``r``; ``r`` in memory (lazy ``u``, ``y``) is checked
+    now (None); lazy ``r``: its spread between periods, ``(diff, peak)`` dask scalars,
+    reduced with the data when they are computed."""
+    from lcmr_xr.experiment.dataset import _check_periodic_excitation, _periodic_spread
+
+    r = ds["r"]
+    if cv.PERIOD not in r.dims:
+        return None
+    spread = _periodic_spread(r)
+    if r.chunks is None:
+        _check_periodic_excitation(*spread)
+        return None
+    return spread
+
+
+def gated(out, spread):
+    """``out`` (a result Dataset) whose lazy variables refuse to compute unless ``spread``
+    (:func:`periodic_spread`; None: nothing to check) passes.  The results, not ``r``, wait
+    for the check: ``r``'s blocks are not held until all of ``r`` is read."""
+    if spread is None:
+        return out
+    import dask.array as da
+
+    checks = [x for v in spread for x in (v, ())]
+    lazy = {}
+    for name, var in out.data_vars.items():
+        if var.chunks is not None:
+            index = tuple(range(var.ndim))
+            lazy[name] = var.copy(data=da.blockwise(_checked_block, index, var.data, index,
+                                                    *checks, dtype=var.dtype))
+    return out.assign(lazy)
+
+
+def _checked_block(block, diff, peak):
+    """``block`` of a result once ``r``'s spread between periods is checked."""
+    from lcmr_xr.experiment.dataset import _check_periodic_excitation
+
+    _check_periodic_excitation(diff, peak)
+    return block
 
 
 def check_finite(r, u, y, *, th: float, factor: int) -> None:

@@ -42,6 +42,8 @@ from lcmr_xr.transforms._coords import even_spacing
 
 
 def _validate(experiment):
+    """The validated experiment and, for lazy data, :func:`_guards.periodic_spread` (give
+    the results to :func:`_guards.gated`)."""
     from lcmr_xr.experiment import validate_experiment
 
     if not isinstance(experiment, xr.Dataset):
@@ -53,7 +55,10 @@ def _validate(experiment):
     lazy = any(experiment[v].chunks is not None for v in ("r", "u", "y") if v in experiment)
     # lazy data stay lazy: the NaN/inf check then happens in the kernel, at compute time
     ds = validate_experiment(experiment, check_values=not lazy)
-    return _guards.rechunk_core(ds) if lazy else ds
+    if not lazy:
+        return ds, None
+    # r's repetition over periods likewise: with the results (now if r is in memory)
+    return _guards.rechunk_core(ds), _guards.periodic_spread(ds)
 
 
 def _ratio_units(num: str, den: str) -> str:
@@ -241,7 +246,7 @@ Returns
                          "window=0 fits no local model (G = Z R^+ per bin); drop denominator or "
                          "pass a local window (e.g. window=30).")
     stacked = as_bool(stacked, "stacked")
-    ds = _validate(experiment)
+    ds, spread = _validate(experiment)
     factor = int(ds.attrs[cv.FACTOR])
     th = even_spacing(ds[cv.TIME].values, cv.TIME)[1]
     # ---- pooling hook: periods / experiments (lcmr_xr.identification.pooling).  Rm = -1
@@ -286,7 +291,7 @@ Returns
         out = pooling.finish(out, plan, closed_loop=s.closed_loop, factor=factor,
                              y_units=ds["y"].attrs.get("units", "1"),
                              u_units=ds["u"].attrs.get("units", "1"))
-    return out
+    return _guards.gated(out, spread)
 
 
 def _settings_attrs(ds, s, *, factor, th) -> dict:
@@ -904,7 +909,7 @@ def identify_single_rate(experiment: xr.Dataset, *, method: str = "lrm", window:
     if s.window == AUTO_WINDOW:
         raise ValueError("identify_single_rate takes an integer window (the comparison estimate "
                          "of the paper, e.g. window=30); window='auto' is for identify.")
-    ds = _validate(experiment)
+    ds, spread = _validate(experiment)
     factor = int(ds.attrs[cv.FACTOR])
     check_window_fits(s.window, s.degrees, ds.sizes[cv.INPUT], ds.sizes[cv.SLOW_TIME])
     th = even_spacing(ds[cv.TIME].values, cv.TIME)[1]
@@ -920,7 +925,7 @@ def identify_single_rate(experiment: xr.Dataset, *, method: str = "lrm", window:
     attrs.update({"closed_loop": "single-rate indirect",
                   "title": f"single-rate closed-loop {s.method.upper()} FRF estimate (ignores lifting)"})
     out.attrs.update(attrs)
-    return out
+    return _guards.gated(out, spread)
 
 
 def result_template(ds: xr.Dataset, s, *, stacked: bool = False) -> xr.Dataset:
