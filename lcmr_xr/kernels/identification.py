@@ -1001,7 +1001,7 @@ def identify_spectra_auto(R, Z, *, n_fast: int, factor: int, nu: int, windows,
         del iv, zhat
     # the fits that share the buffer are done: the refits (long records) take fresh memory,
     # as sized to their runs of bins, and the buffer does not raise the peak of the gather
-    fit["buffers"] = None
+    del fit["buffers"]
     idx = fast_choice[None, ..., None, None]
     for k in fast:  # the chosen candidate's, fast bin by fast bin
         fast[k] = np.take_along_axis(fast[k], idx, axis=0)[0]
@@ -1045,7 +1045,7 @@ _FAST = ("P", "P_var", "P_var_linear", "P_spread_calibration")
 
 def _refit_chosen(out, flags, chosen, R, Z, *, half_width, degrees, noise_covariance,
                   experiment_axis, closed_loop, denominator, instruments, n_exp, dof,
-                  calibration, fitted_half=None, buffers=None) -> None:
+                  calibration, fitted_half=None) -> None:
     """Write the per-slow-bin outputs of the candidate ``half_width`` into ``out`` (the
     outputs of :func:`_finish` of another candidate, over all bins) where ``chosen``
     (..., M), and its slow-bin ``P_bad`` and ``P_undetermined`` into ``flags``.
@@ -1059,7 +1059,7 @@ def _refit_chosen(out, flags, chosen, R, Z, *, half_width, degrees, noise_covari
     Whether the bins past ``M/2`` are mirrors is decided for all records at once, as the
     first fit did.  ``calibration``: the candidate's pooled spread calibration per slow
     bin (from its first fit; it is smoothed over bins).  ``fitted_half`` as
-    :func:`_block_plan`, ``buffers`` as :func:`_fit_terms`.
+    :func:`_block_plan`.
     """
     iv = check_denominator(denominator, degrees)
     plan = _block_plan(R, Z, half_width=half_width, degrees=degrees, covariance=True,
@@ -1079,13 +1079,12 @@ def _refit_chosen(out, flags, chosen, R, Z, *, half_width, degrees, noise_covari
                       denominator=denominator,
                       instruments=None if instruments is None else instruments[i],
                       known=None if known is None else known[i], n_exp=n_exp, dof=dof,
-                      calibration=None if calibration is None else calibration[i],
-                      buffers=buffers, **plan)
+                      calibration=None if calibration is None else calibration[i], **plan)
 
 
 def _refit_record(out, flags, chosen, R, Z, *, half_width, degrees, experiment_axis,
                   closed_loop, denominator, instruments, known, n_exp, dof, calibration,
-                  half, last, align, edges, buffers=None) -> None:
+                  half, last, align, edges) -> None:
     """:func:`_refit_chosen` of one record (``chosen`` (M,); ``out``, ``flags`` its views)."""
     m = R.shape[-2]
     need = chosen[:last].copy()  # fitted bins whose own value is chosen ...
@@ -1097,8 +1096,7 @@ def _refit_record(out, flags, chosen, R, Z, *, half_width, degrees, experiment_a
         terms = _block_terms(R, Z, a, b, known=known, covariance=True,
                              half_width=half_width, degrees=degrees,
                              experiment_axis=experiment_axis, closed_loop=closed_loop,
-                             denominator=denominator, instruments=instruments,
-                             buffers=buffers)
+                             denominator=denominator, instruments=instruments)
         # its own bins a..min(b, last)-1; with ``half`` also bins t = M/2+1..M-1 whose
         # mirror M - t is in a..b-1 (their terms are the conjugates, as _fit_blocks has them)
         t = np.arange(max(m // 2 + 1, m - b + 1), min(m - 1, m - a) + 1) if half else np.arange(0)
