@@ -34,9 +34,10 @@ degrees 3-3-3):
    production's window choice (:func:`pooled_band_decomposition`), with the error the split
    halves share against the truth and the candidate bias terms ``b2_W`` (chosen window
    against the pilot) and, with ``--hausman``, ``b2_H`` (pooled least squares against IV);
-   ``--circular-fan``, ``--instruments-with-own-transient`` and
-   ``--noise-covariance-as-estimated`` measure variants (the last two: session 14's
-   production).
+   ``--circular-fan`` measures a variant of the decomposition;
+   ``--instruments-without-own-transient``, ``--second-order-c-s`` and
+   ``--noise-covariance-as-estimated`` variants of the estimator and band (with or without
+   ``--decompose``).
 6. Window 0 exactness for F = 3 (a SISO loop, E = F nu + 1 = 4 experiments).
 7. Cost: 64 experiments of N = 3600 pooled in one local model against identifying them
    one by one (one call over the experiment dim, and a loop of calls), window 30.
@@ -276,10 +277,8 @@ BAND_FORMS = {
     "no c_S": lambda v, v2, q, rv: v,
 }
 #: The form ``identify`` uses for pooled fits calibrated by their halves (on top of the
-#: halves' factor on ``P``, ``P_spread_calibration``):
-#: :func:`lcmr_xr.kernels.adaptive.second_order_factor` squared (``1/(1 - k rho)`` up to
-#: session 14); single records keep the bound form.
-PRODUCTION_FORM = "2nd-order factor"
+#: halves' factor on ``P``, ``P_spread_calibration``); single records keep the bound form.
+PRODUCTION_FORM = "1/(1 - k rho)"
 
 
 def _halves(R, Z, kw, covariance):
@@ -434,50 +433,50 @@ def _captured_candidates(calibrations=None):
 
 
 @contextlib.contextmanager
-def _variant(circular_fan: bool = False, own_transient: bool = False, psd: bool = True):
-    """Measurement variants of :func:`pooled_band_decomposition` (not production):
+def _variant(circular_fan: bool = False, own_transient: bool = True, psd: bool = True,
+             second_order: bool = False):
+    """Measurement variants of :func:`pooled_band_decomposition` and
+    :func:`disturbances_pooled` (not production):
     ``circular_fan``: the fan vibration as the periodic steady state of its filter (the
     noise's DFT times the filter's FRF at the fast bins: no transient, no leakage in its
-    spectrum); ``own_transient=True``: the pooled IV's instruments ``G1 R + T1`` with each
-    experiment's own first-fit transient ``T1`` (fitted to that experiment's noise;
-    production up to session 14, now ``G1 R``); ``psd=False``: every pooled fit's ``G_cov``
-    from its residual noise covariance as estimated, entry by entry (production up to
-    session 14, now made positive semidefinite by
-    :func:`lcmr_xr.kernels.pooling.nearest_correlation`)."""
+    spectrum); ``own_transient=False``: the pooled IV's instruments ``G1 R`` without each
+    experiment's own first-fit transient ``T1`` (which is fitted to that experiment's
+    noise); ``psd=False``: every pooled fit's ``G_cov`` from its residual noise covariance
+    as estimated, entry by entry (production up to session 14; now mended by
+    :func:`lcmr_xr.kernels.pooling.nearest_correlation`); ``second_order``: the pooled
+    band's nonlinearity factor :func:`lcmr_xr.kernels.adaptive.second_order_factor`
+    instead of ``1 / (1 - k rho)`` (pooled fits calibrated by their halves only)."""
     from lcmr_xr.hdd import benchmark as hb, disturbances as hd
     from lcmr_xr.kernels import identification as kid
+    from lcmr_xr.kernels.adaptive import second_order_factor
     from lcmr_xr.kernels.lti import frequency_response
 
-    fan, prediction, nearest = hb.fan_vibration, kid._prediction, kid.nearest_correlation
+    fan, prediction = hb.fan_vibration, kid._prediction
+    nearest, pooled_factor = kid.nearest_correlation, kid.pooled_nonlinearity_factor
 
     def circular(n, rng):
         e = hd.NOISE_SCALE * rng.uniform(-0.5, 0.5, size=int(n))
         H = frequency_response(hd.fan_filter(), np.fft.rfftfreq(int(n), d=hd.FAST_PERIOD))
         return np.fft.irfft(np.fft.rfft(e) * H[:, 0, 0], n=int(n))
 
-    def with_own_transient(G, T, R, Z, *, circular=True, experiment_axis=None):
-        if experiment_axis is None:
-            return prediction(G, T, R, Z, circular=circular)
-        R = np.broadcast_to(R, np.broadcast_shapes(np.shape(R)[:-2], np.shape(Z)[:-2])
-                            + np.shape(R)[-2:])
-        zhat = np.einsum("...mip,...emp->...emi", G, np.moveaxis(R, experiment_axis, -3)) + T
-        zhat = np.moveaxis(zhat, -3, experiment_axis)
-        zhat = np.where(np.isfinite(zhat), zhat, np.broadcast_to(Z, zhat.shape))
-        m = zhat.shape[-2]
-        if circular and kid.hermitian(np.broadcast_to(Z, zhat.shape).reshape(-1, m, zhat.shape[-1])):
-            zhat = (zhat + np.conj(np.take(zhat, (-np.arange(m)) % m, axis=-2))) / 2
-        return zhat
+    def without_own_transient(G, T, R, Z, *, circular=True, experiment_axis=None):
+        if experiment_axis is not None:
+            T = np.zeros_like(T)
+        return prediction(G, T, R, Z, circular=circular, experiment_axis=experiment_axis)
 
     if circular_fan:
         hb.fan_vibration = circular
-    if own_transient:
-        kid._prediction = with_own_transient
+    if not own_transient:
+        kid._prediction = without_own_transient
     if not psd:
         kid.nearest_correlation = lambda s: s
+    if second_order:
+        kid.pooled_nonlinearity_factor = second_order_factor
     try:
         yield
     finally:
-        hb.fan_vibration, kid._prediction, kid.nearest_correlation = fan, prediction, nearest
+        hb.fan_vibration, kid._prediction = fan, prediction
+        kid.nearest_correlation, kid.pooled_nonlinearity_factor = nearest, pooled_factor
 
 
 def _widest_flag_kept(calls, q_widest, choice):
@@ -497,7 +496,7 @@ def _widest_flag_kept(calls, q_widest, choice):
     return ~(q * np.sqrt(share[k % m]) <= UNDETERMINED_LIMIT)
 
 
-def _band_pieces(fit, kw, out, ratio=None):
+def _band_pieces(fit, kw, out, ratio=None, production_form=PRODUCTION_FORM):
     """Per fast bin of one candidate: ``v``, ``v2``, ``q``, ``rho_v`` (broadcast to ``P``),
     the small-sample factor, and the calibration and undetermined flag it used.
     ``ratio``: another split-half ratio than production's (the pieces are then those
@@ -532,7 +531,7 @@ def _band_pieces(fit, kw, out, ratio=None):
         np.testing.assert_allclose(pf, out["P_spread_calibration"], rtol=1e-9)
         with np.errstate(divide="ignore", invalid="ignore"):
             check = np.where(und, np.inf,
-                             dof ** 2 * pf * BAND_FORMS[PRODUCTION_FORM](
+                             dof ** 2 * pf * BAND_FORMS[production_form](
                                  v, v2, K95 * rho[slow, None, None], rho_v[slow, None, None]))
         ok = np.isfinite(out["P_var"])
         np.testing.assert_allclose(check[ok], out["P_var"][ok], rtol=1e-9)
@@ -743,20 +742,20 @@ DECOMPOSITION = {
     "P_std_linear, uncalibrated": lambda x: x["v"] / x["cal"],
     "P_std_linear": lambda x: x["v"],
     "c_dof": lambda x: x["dof"] ** 2 * x["v"],
-    "c_dof c_S": lambda x: x["dof"] ** 2 * x["v"] * x["cs2"] ** 2,
+    "c_dof c_S": lambda x: x["dof"] ** 2 * x["v"] * x["cs"] ** 2,
     "c_dof c_P": lambda x: x["dof"] ** 2 * x["v"] * x["pf"],
-    "c_dof c_P c_S": lambda x: x["dof"] ** 2 * x["v"] * x["pf"] * x["cs2"] ** 2,
+    "c_dof c_P c_S": lambda x: x["dof"] ** 2 * x["v"] * x["pf"] * x["cs"] ** 2,
     "c_dof c_P + P_bias": lambda x: x["dof"] ** 2 * x["v"] * x["pf"] + x["b2"],
-    "production (all)": lambda x: x["dof"] ** 2 * x["v"] * x["pf"] * x["cs2"] ** 2 + x["b2"],
+    "production (all)": lambda x: x["dof"] ** 2 * x["v"] * x["pf"] * x["cs"] ** 2 + x["b2"],
     "prod., no spread_calibration": lambda x: (x["dof"] ** 2 * x["v"] / x["cal"] * x["pf"]
-                                               * x["cs2"] ** 2 + x["b2"]),
+                                               * x["cs"] ** 2 + x["b2"]),
     "prod., spread_cal. unfloored": lambda x: (x["dof"] ** 2 * x["v"] / x["cal"] * x["raw"]
-                                               * x["pf_raw"] * x["cs2"] ** 2 + x["b2"]),
-    "prod., c_P unfloored": lambda x: x["dof"] ** 2 * x["v"] * x["pf_nf"] * x["cs2"] ** 2 + x["b2"],
-    "prod., c_S = 1/(1 - k rho)": lambda x: x["dof"] ** 2 * x["v"] * x["pf"] * x["cs"] ** 2 + x["b2"],
+                                               * x["pf_raw"] * x["cs"] ** 2 + x["b2"]),
+    "prod., c_P unfloored": lambda x: x["dof"] ** 2 * x["v"] * x["pf_nf"] * x["cs"] ** 2 + x["b2"],
+    "prod., c_S 2nd order": lambda x: x["dof"] ** 2 * x["v"] * x["pf"] * x["cs2"] ** 2 + x["b2"],
     "prod., c_S exact quantile": lambda x: x["dof"] ** 2 * x["v"] * x["pf"] * x["csq"] ** 2 + x["b2"],
-    "prod., no floors": lambda x: (x["dof"] ** 2 * x["v"] / x["cal"] * x["raw"]
-                                   * x["pf_raw_nf"] * x["cs2"] ** 2 + x["b2"]),
+    "prod., c_S 2nd, no floors": lambda x: (x["dof"] ** 2 * x["v"] / x["cal"] * x["raw"]
+                                            * x["pf_raw_nf"] * x["cs2"] ** 2 + x["b2"]),
 }
 #: Rows with ``b2W``: the squared difference between the chosen window's ``P`` and the
 #: narrowest candidate's (the pilot), less the variance of that difference measured by the
@@ -776,8 +775,7 @@ HAUSMAN_ROWS = {
     "prod. + b2_H": lambda x: DECOMPOSITION["production (all)"](x) + x["b2H"],
     "prod., c_S exact quantile + b2_H": lambda x: (DECOMPOSITION["prod., c_S exact quantile"](x)
                                                    + x["b2H"]),
-    "prod., c_S = 1/(1 - k rho) + b2_H": lambda x: (DECOMPOSITION["prod., c_S = 1/(1 - k rho)"](x)
-                                                   + x["b2H"]),
+    "prod., c_S 2nd order + b2_H": lambda x: DECOMPOSITION["prod., c_S 2nd order"](x) + x["b2H"],
     "c_dof c_P + P_bias + b2_H": lambda x: DECOMPOSITION["c_dof c_P + P_bias"](x) + x["b2H"],
     "prod. + b2_H halves": lambda x: DECOMPOSITION["production (all)"](x) + x["b2Hh"],
     "prod., c_S exact quantile + b2_H halves": lambda x: (
@@ -788,8 +786,8 @@ HAUSMAN_ROWS = {
 
 def pooled_band_decomposition(groups: int, first_group: int = 0, n_exp: int = 8,
                               denominator="iv", disturbances=None, hausman: bool = False,
-                              circular_fan: bool = False, own_transient: bool = False,
-                              psd: bool = True):
+                              circular_fan: bool = False, own_transient: bool = True,
+                              psd: bool = True, second_order: bool = False):
     """Coverage of the pooled 95 % discs per band with the band built from some of its
     ingredients (:data:`DECOMPOSITION`), at production's window choice and flag (so every
     row has ``identify``'s ``P``; a flagged bin counts as covered).  One pooled
@@ -807,9 +805,10 @@ def pooled_band_decomposition(groups: int, first_group: int = 0, n_exp: int = 8,
     ``hausman``: also the rows of :data:`HAUSMAN_ROWS`, with ``b2H`` from two more pooled
     fits per group at the widest window (least squares and IV), whose difference bounds
     least squares' errors-in-variables bias (an upper term for IV's).  ``circular_fan``,
-    ``own_transient``, ``psd``: measurement variants (:func:`_variant`).  Also reported: the
-    fraction of unflagged bins whose first-order variance is exactly 0 (a negative
-    variance of a covariance that is not positive semidefinite, clipped)."""
+    ``own_transient``, ``psd``, ``second_order``: measurement variants (:func:`_variant`;
+    with ``second_order`` the row "production (all)" is that variant's band).  Also
+    reported: the fraction of unflagged bins whose first-order variance is exactly 0 (a
+    negative variance of a covariance that is not positive semidefinite, clipped)."""
     from lcmr_xr.demo import BANDS_HZ
     from lcmr_xr.kernels.adaptive import second_order_factor
 
@@ -820,13 +819,14 @@ def pooled_band_decomposition(groups: int, first_group: int = 0, n_exp: int = 8,
     flagged = np.zeros((groups, len(BANDS_HZ)))
     medians = {}
     for gi, g in enumerate(range(first_group, first_group + groups)):
-        with _variant(circular_fan, own_transient, psd):
+        with _variant(circular_fan, own_transient, psd, second_order):
             exps = [hdd.simulate(N, case=CASE, seed=500 + n_exp * g + e, **which)
                     for e in range(n_exp)]
-        with _captured_candidates({}) as calls, _variant(circular_fan, own_transient, psd):
+        with _captured_candidates({}) as calls, _variant(circular_fan, own_transient, psd, second_order):
             pooled = lcmr_xr.identify(xr.concat(exps, "experiment"), combine="experiment",
                                       errors="ignore", denominator=denominator)
-        pieces = [_band_pieces(fit, kw, out) for fit, kw, out in calls]
+        form = "2nd-order factor" if second_order else PRODUCTION_FORM
+        pieces = [_band_pieces(fit, kw, out, production_form=form) for fit, kw, out in calls]
         f = pooled.frequency.values
         m = pooled.sizes["slow_frequency"]
         slow = np.arange(f.size) % m
@@ -850,7 +850,8 @@ def pooled_band_decomposition(groups: int, first_group: int = 0, n_exp: int = 8,
                              ("pf", p["pf"]), ("pf_nf", _p_factor_raw(*P_h, p["v"], und, w, False)),
                              ("pf_raw", _p_factor_raw(*P_h, v_raw, und, w, True)),
                              ("pf_raw_nf", _p_factor_raw(*P_h, v_raw, und, w, False)),
-                             ("cs", np.where(und[:, None, None], 1.0, 1.0 / (1.0 - p["q"]))),
+                             ("cs", np.where(und[:, None, None], 1.0, cs2 if second_order
+                                             else 1.0 / (1.0 - p["q"]))),
                              ("cs2", cs2),
                              ("csq", weak_direction_quantile_factor(np.where(und[:, None, None], 0.0, rho))),
                              ("jk", jk), ("Pa", P_h[0]), ("Pb", P_h[1])):
@@ -859,7 +860,7 @@ def pooled_band_decomposition(groups: int, first_group: int = 0, n_exp: int = 8,
         P = np.stack([p["P"] for p in pieces])
         und = np.stack([p["und"] for p in pieces])
         with np.errstate(divide="ignore", invalid="ignore"):
-            var = np.where(und, np.inf, x["dof"] ** 2 * x["pf"] * x["v"] * x["cs2"] ** 2)
+            var = np.where(und, np.inf, x["dof"] ** 2 * x["pf"] * x["v"] * x["cs"] ** 2)
         choice, bias2 = select_windows(P, var, x["v"], m)
         pick = np.broadcast_to(choice[slow][None, :, None, None], (1,) + P.shape[1:])
         chosen = lambda a: np.take_along_axis(np.broadcast_to(a, P.shape), pick, axis=0)[0]  # noqa: E731
@@ -875,7 +876,7 @@ def pooled_band_decomposition(groups: int, first_group: int = 0, n_exp: int = 8,
         c["b2W"] = denominator_bias(chosen(P), P[0], np.zeros(spread.shape), spread,
                                     determined=~undetermined & np.isfinite(spread))
         if hausman:  # pooled least squares against pooled IV, both at the widest window
-            with _variant(circular_fan, own_transient, psd):
+            with _variant(circular_fan, own_transient, psd, second_order):
                 twins = [lcmr_xr.identify(xr.concat(exps, "experiment"), combine="experiment",
                                           errors="ignore", denominator=d, window=WINDOW)
                          for d in ("ls", "iv")]
@@ -886,7 +887,7 @@ def pooled_band_decomposition(groups: int, first_group: int = 0, n_exp: int = 8,
             # the same comparison with the variance of the difference measured by the
             # split halves (random groups, equal halves: w = 1/4) instead of the fits'
             # reported variances: mean over the neighbours of |d|^2 - |d_a - d_b|^2 / 4
-            with _variant(circular_fan, own_transient, psd):
+            with _variant(circular_fan, own_transient, psd, second_order):
                 d_h = [lcmr_xr.identify(xr.concat(exps[h::2], "experiment"),
                                         combine="experiment", errors="ignore", denominator="ls",
                                         window=WINDOW).P.values
@@ -1077,14 +1078,16 @@ def main(argv=None):
     parser.add_argument("--circular-fan", action="store_true",
                         help="with --decompose: the fan vibration as its filter's periodic "
                              "steady state (no leakage; a measurement variant)")
-    parser.add_argument("--instruments-with-own-transient", action="store_true",
-                        help="with --decompose: pooled IV instruments G1 R + T1 with each "
-                             "experiment's own first-fit transient (session 14's production; a "
-                             "measurement variant)")
+    parser.add_argument("--instruments-without-own-transient", action="store_true",
+                        help="with --only-disturbances: pooled IV instruments G1 R without each "
+                             "experiment's own first-fit transient (a measurement variant)")
     parser.add_argument("--noise-covariance-as-estimated", action="store_true",
-                        help="with --decompose: every pooled fit's G_cov from its residual noise "
-                             "covariance entry by entry, not made positive semidefinite "
-                             "(session 14's production; a measurement variant)")
+                        help="with --only-disturbances: pooled fits' G_cov from the residual noise "
+                             "covariance entry by entry, not mended to a covariance (session 14's "
+                             "production; a measurement variant)")
+    parser.add_argument("--second-order-c-s", action="store_true",
+                        help="with --only-disturbances: the pooled band's nonlinearity factor "
+                             "second_order_factor instead of 1/(1 - k rho) (a measurement variant)")
     parser.add_argument("--disturbances", nargs="+", default=None,
                         choices=["rotational", "fan", "runout"],
                         help="with --decompose: only these disturbances (default: all)")
@@ -1116,8 +1119,9 @@ def main(argv=None):
                     args.groups, args.first_group, denominator=d,
                     disturbances=args.disturbances, hausman=args.hausman,
                     circular_fan=args.circular_fan,
-                    own_transient=args.instruments_with_own_transient,
-                    psd=not args.noise_covariance_as_estimated),
+                    own_transient=not args.instruments_without_own_transient,
+                    psd=not args.noise_covariance_as_estimated,
+                    second_order=args.second_order_c_s),
                     first_group=args.first_group, denominator=d)
             return
         if args.band_forms:
@@ -1127,8 +1131,11 @@ def main(argv=None):
                                                      calibrations=args.calibrations),
                                   first_group=args.first_group, denominator=d)
             return
-        report_disturbances(*disturbances_pooled(args.groups, first_group=args.first_group,
-                                                 denominators=args.denominator))
+        with _variant(own_transient=not args.instruments_without_own_transient,
+                      psd=not args.noise_covariance_as_estimated,
+                      second_order=args.second_order_c_s):
+            report_disturbances(*disturbances_pooled(args.groups, first_group=args.first_group,
+                                                     denominators=args.denominator))
         return
     if args.seeds < 3:
         parser.error(f"--seeds must be at least 3 to estimate a variance, got {args.seeds}")

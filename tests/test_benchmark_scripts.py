@@ -229,7 +229,7 @@ def test_pooling_decomposition_hausman_rows_widen_their_base():
                                                                       hausman=True)
     for name, base in (("prod. + b2_H", "production (all)"),
                        ("c_dof c_P + P_bias + b2_H", "c_dof c_P + P_bias"),
-                       ("prod., c_S = 1/(1 - k rho) + b2_H", "prod., c_S = 1/(1 - k rho)")):
+                       ("prod., c_S 2nd order + b2_H", "prod., c_S 2nd order")):
         assert np.all(cover[name] >= cover[base] - 1e-12)
     shared = medians["shared Re(e_a e_b*) / (c_dof^2 v) (mean)"]
     spread = medians["w |e_a - e_b|^2 / (c_dof^2 v) (mean)"]
@@ -240,35 +240,38 @@ def test_pooling_decomposition_variants():
     """The measurement variants of --decompose (benchmarks/pooling.py _variant): the
     circular fan vibration is its filter's periodic steady state (its DFT is the filter's
     FRF times the noise's DFT, its standard deviation the stationary one, 3.0 nm); the
-    pooled instruments with their own transient are G1 R + T1 (production: G1 R); the
-    noise covariance as estimated is not mended; all undone on exit."""
+    pooled instruments without their own transient are G1 R; the noise covariance as
+    estimated is not mended; the pooled band's nonlinearity factor is the second-order one;
+    all undone on exit."""
     from lcmr_xr.hdd import benchmark as hb, disturbances as hd
     from lcmr_xr.kernels import identification as kid
     from lcmr_xr.kernels.lti import frequency_response
 
     module = _load("pooling")
-    fan, prediction, nearest = hb.fan_vibration, kid._prediction, kid.nearest_correlation
-    n = 1 << 16
-    rng = np.random.default_rng(0)
-    G = rng.standard_normal((5, 2, 3)) + 0j
-    R = rng.standard_normal((4, 5, 3)) + 0j
-    T = rng.standard_normal((4, 5, 2)) + 0j
-    Z = np.full((4, 5, 2), np.nan + 0j)
+    from lcmr_xr.kernels.adaptive import second_order_factor
+
+    fan, prediction = hb.fan_vibration, kid._prediction
+    nearest, pooled_factor = kid.nearest_correlation, kid.pooled_nonlinearity_factor
     s = np.array([[1.0, 2.2], [2.2, 4.0]]) + 0j  # correlation 1.1
-    with module._variant(circular_fan=True, own_transient=True, psd=False):
+    assert abs(kid.nearest_correlation(s)[0, 1] - 2.0) < 1e-12  # production: mended
+    n = 1 << 16
+    with module._variant(circular_fan=True, own_transient=False, psd=False, second_order=True):
+        np.testing.assert_array_equal(kid.nearest_correlation(s), s)
+        assert kid.pooled_nonlinearity_factor is second_order_factor
         x = hb.fan_vibration(n, np.random.default_rng(3))
         e = hd.NOISE_SCALE * np.random.default_rng(3).uniform(-0.5, 0.5, size=n)
         H = frequency_response(hd.fan_filter(), np.fft.rfftfreq(n, d=hd.FAST_PERIOD))[:, 0, 0]
         np.testing.assert_allclose(np.fft.rfft(x), H * np.fft.rfft(e), atol=1e-9 * np.abs(H).max())
         std = hd.stationary_std(hd.fan_filter(), hd.NOISE_SCALE * hd.UNIFORM_STD)[0]
         assert abs(x.std() / std - 1) < 0.05
+        rng = np.random.default_rng(0)
+        G = rng.standard_normal((5, 2, 3)) + 0j
+        R = rng.standard_normal((4, 5, 3)) + 0j
+        T = rng.standard_normal((4, 5, 2)) + 0j
+        Z = np.full((4, 5, 2), np.nan + 0j)
         zhat = kid._prediction(G, T, R, Z, circular=False, experiment_axis=0)
-        np.testing.assert_allclose(zhat, np.einsum("mip,emp->emi", G, R) + T)
+        np.testing.assert_allclose(zhat, np.einsum("mip,emp->emi", G, R))
         np.testing.assert_allclose(kid._prediction(G, T[0], R[0], Z[0], circular=False),
                                    np.einsum("mip,mp->mi", G, R[0]) + T[0])  # one record: as before
-        np.testing.assert_array_equal(kid.nearest_correlation(s), s)
     assert hb.fan_vibration is fan and kid._prediction is prediction
-    assert kid.nearest_correlation is nearest
-    np.testing.assert_allclose(kid._prediction(G, T, R, Z, circular=False, experiment_axis=0),
-                               np.einsum("mip,emp->emi", G, R))
-    assert abs(kid.nearest_correlation(s)[0, 1] - 2.0) < 1e-12
+    assert kid.nearest_correlation is nearest and kid.pooled_nonlinearity_factor is pooled_factor

@@ -78,8 +78,8 @@ def test_exactly_rational_data_give_g_to_rounding():
 
 
 def test_pooled_instruments_use_the_pooled_first_fit():
-    """Pooled: Zhat_e = G1 R_e with the pooled G1, without each experiment's own T1
-    (fitted to its noise), for an experiment axis anywhere in front."""
+    """Pooled: Zhat_e = G1 R_e + T1_e with the pooled G1 and each experiment's T1, for an
+    experiment axis anywhere in front."""
     rng = np.random.default_rng(5)
     E, m, nr, nz = 3, 120, 2, 3
     R = rng.standard_normal((E, m, nr)) + 1j * rng.standard_normal((E, m, nr))
@@ -87,7 +87,7 @@ def test_pooled_instruments_use_the_pooled_first_fit():
     zhat = kid.denominator_instruments(R, Z, degrees=(1, 1, 1), experiment_axis=0)
     first = local_model(R, Z, half_width=kid.first_fit_window(nr, (1, 1, 1)), degrees=(1, 1, 1),
                         covariance=None, experiment_axis=0)
-    expected = np.einsum("mip,emp->emi", first.G, R)
+    expected = np.einsum("mip,emp->emi", first.G, R) + first.T
     np.testing.assert_allclose(zhat, expected, rtol=1e-12, atol=0)
     # experiments in front of a batch axis (E, 2, M, c): each batch its own pooled fit
     both = kid.denominator_instruments(np.stack([R, R]).swapaxes(0, 1),

@@ -497,7 +497,7 @@ def test_no_transient_term_on_steady_state_periods_only():
         lcmr_xr.settings.parse_degrees((2, -1, 2))
 
 
-# ------------------------------------------ pooled: a covariance, instruments G1 R (issue 14)
+# ------------------------------------------------- pooled: a noise covariance that is one (issue 14)
 def test_nearest_correlation_is_a_covariance_with_the_same_variances():
     """Entries estimated one by one (correlations above 1): the result is positive
     semidefinite with the same diagonal and, where nothing needed mending, the input bit
@@ -570,18 +570,3 @@ def test_pooled_covariance_is_positive_semidefinite(monkeypatch):
     det = ~fast["P_undetermined"] & np.isfinite(fast["P_var_linear"][..., 0, 0])
     assert np.all(fast["P_var_linear"][det] > 0)
 
-
-def test_pooled_instruments_leave_out_each_experiments_own_transient():
-    """The pooled IV's instruments are ``G1 R`` (``T1``, fitted to each experiment's own
-    noise, is not read); a single record's stay ``G1 R + T1``."""
-    from lcmr_xr.kernels.identification import _prediction
-
-    rng = np.random.default_rng(0)
-    G = rng.standard_normal((5, 2, 3)) + 1j * rng.standard_normal((5, 2, 3))
-    R = rng.standard_normal((4, 5, 3)) + 0j
-    T = rng.standard_normal((4, 5, 2)) + 0j
-    Z = np.full((4, 5, 2), np.nan + 0j)
-    np.testing.assert_array_equal(_prediction(G, T, R, Z, circular=False, experiment_axis=0),
-                                  np.einsum("mip,emp->emi", G, R))
-    np.testing.assert_allclose(_prediction(G, T[0], R[0], Z[0], circular=False),
-                               np.einsum("mip,mp->mi", G, R[0]) + T[0])

@@ -10,7 +10,8 @@ from __future__ import annotations
 import numpy as np
 
 from lcmr_xr.kernels.adaptive import (K95, UNDETERMINED_LIMIT, denominator_bias, noise_share,
-                                      nonlinearity_factor, second_order_factor,
+                                      nonlinearity_factor,
+                                      pooled_nonlinearity_factor, second_order_factor,
                                       select_windows, small_sample_factor, weak_direction)
 from lcmr_xr.kernels.closed_loop import frf_variance_from_first_row, indirect_first_row
 from lcmr_xr.kernels.lifting import frf_from_first_block_row, lift
@@ -93,8 +94,7 @@ def denominator_instruments(R, Z, *, degrees=(3, 3, 3), half_width: int | None =
 
     ``G1``, ``T1`` come from a first least-squares fit of the same local model in the
     narrow window ``half_width`` (default :func:`first_fit_window`), pooled like the main
-    fit (``experiment_axis``: the pooled ``G1``, and ``Zhat = G1 R`` without each
-    experiment's own ``T1``, :func:`_prediction`).  The
+    fit (``experiment_axis``: the pooled ``G1`` and each experiment's own ``T1``).  The
     prediction is built from the excitation, so the noise on ``Z`` in the main window is
     (nearly) not in it, and ``local_model(..., instruments=Zhat)`` solves
     ``Phi^H A theta = Phi^H z`` with ``Phi`` the regression with ``Zhat`` in place of ``Z``:
@@ -125,22 +125,15 @@ def _prediction(G, T, R, Z, *, circular: bool = True, experiment_axis: int | Non
     a fit with covariance: the local model's ``G`` and ``T`` do not depend on whether the
     covariance is computed, nor on the blocks of bins they were fitted in (bit for bit),
     so ``window="auto"`` takes its widest candidate's instead of fitting that window once
-    more (:func:`identify_spectra_auto`).
-
-    Pooled experiments (``experiment_axis``): ``G1 R`` only, without each experiment's own
-    transient ``T1``.  ``T1`` is fitted to that experiment's noise in the first fit's window
-    (the leakage of its disturbances), so it correlates the instruments with the noise of
-    their own experiment; that correlation adds up over the experiments as the Gram does,
-    and the error it causes is one the split halves share (does not fall with ``E``, is
-    not seen by their spread).  ``T`` is not read then (docs/uncertainty.md, "Pooled
-    instruments without the experiments' own transients")."""
+    more (:func:`identify_spectra_auto`)."""
     R, Z = np.asarray(R), np.asarray(Z)
     lead = np.broadcast_shapes(R.shape[:-2], Z.shape[:-2])
     R = np.broadcast_to(R, lead + R.shape[-2:])
     if experiment_axis is None:
         zhat = np.einsum("...mip,...mp->...mi", G, R) + T
-    else:  # G1 (..., M, nz, nr) shared; each experiment's own T1 left out (see above)
-        zhat = np.einsum("...mip,...emp->...emi", G, np.moveaxis(R, experiment_axis, -3))
+    else:  # G1 (..., M, nz, nr) shared; T1 (..., E, M, nz) one per experiment
+        zhat = np.einsum("...mip,...emp->...emi", G,
+                         np.moveaxis(R, experiment_axis, -3)) + T
         zhat = np.moveaxis(zhat, -3, experiment_axis)
     zhat = np.where(np.isfinite(zhat), zhat, np.broadcast_to(Z, zhat.shape))
     m = zhat.shape[-2]
@@ -314,8 +307,8 @@ def _recover(terms, *, n_fast, factor, nu, ny, closed_loop, ill_posed, dof,
     (each (..., M, ny, nr)) and the weight of their difference (..., M)
     (:func:`split_half_spread`): their ``P`` against the calibrated ``P_var_linear`` gives
     :func:`lcmr_xr.kernels.pooling.p_spread_factor`, which multiplies ``P_var`` (returned
-    as ``P_spread_calibration``), and the nonlinearity factor is then the second-order
-    form (:func:`lcmr_xr.kernels.adaptive.second_order_factor`).
+    as ``P_spread_calibration``), and the nonlinearity factor is then the milder pooled
+    form (:func:`lcmr_xr.kernels.adaptive.pooled_nonlinearity_factor`).
     """
     f_ = int(factor)
     p_factor = None
@@ -377,9 +370,8 @@ def _slow_recovery(terms, *, closed_loop, ill_posed, dof, calibration=None,
     if dof is not None:
         slow_factor = slow_factor * small_sample_factor(dof)
     if covariance and closed_loop == "indirect":
-        # pooled fits calibrated by split halves: the second-order form (their P
-        # calibrates the band's first-order part)
-        nl, undetermined = (second_order_factor(rho) if mild
+        # pooled fits calibrated by split halves: the milder form (their P calibrates the band)
+        nl, undetermined = (pooled_nonlinearity_factor(rho) if mild
                             else nonlinearity_factor(rho, rho_v))
         undetermined = undetermined & ~s_sing
         slow_factor = slow_factor * nl
@@ -525,10 +517,10 @@ def _positive_semidefinite(G_cov, noise_covariance):
     at the bins where that changes it; the others are left bit for bit.  Every
     ``Cov(G_i, G_j) = s_ij h_i h_j^H`` is then a covariance (a positive semidefinite ``s``
     and the Schur product theorem): the first-order variance of ``P`` is never negative.
-    Measured on the HDD benchmark (8 experiments, IV): correlations of up to 1.2 (median
-    of the largest per bin 1.03) before, and exact zeros of ``P``'s first-order variance
-    (negative ones clipped) at windows 12 and 19 (docs/uncertainty.md, "Pooled
-    instruments without the experiments' own transients")."""
+    Measured on the HDD benchmark (8 experiments, IV, window 19): correlations above 1.01
+    at 65 % of the bins (median of the largest per bin 1.025) before, and exact zeros of
+    ``P``'s first-order variance (negative ones clipped) at window 12 (docs/uncertainty.md,
+    "A pooled noise covariance that is a covariance")."""
     new = nearest_correlation(noise_covariance)
     changed = np.any(new != noise_covariance, axis=(-2, -1)) \
         & np.all(np.isfinite(noise_covariance), axis=(-2, -1))
@@ -814,7 +806,7 @@ def _finish(fit: dict, *, n_fast, factor, nu, ny, closed_loop, dof) -> dict:
     weak-direction test of ``S`` and ``G_var`` see the spread the halves show; the halves'
     ``P`` put a further factor on ``P_var`` (``P_spread_calibration``,
     :func:`lcmr_xr.kernels.pooling.p_spread_factor`) and the nonlinearity factor takes the
-    second-order form (:func:`lcmr_xr.kernels.adaptive.second_order_factor`)."""
+    pooled form (:func:`lcmr_xr.kernels.adaptive.pooled_nonlinearity_factor`)."""
     calibration = halves = None
     if fit["P1_cov"] is not None and "spread_ratio" in fit:
         calibration = spread_calibration(fit["spread_ratio"])
