@@ -7,6 +7,12 @@ the same message everywhere, also on lazy (dask) input where nothing would other
 until compute time.  Adding a local-model method means one row in :data:`METHODS` (and, if
 it is not a degrees choice of the local model, one kernel call).
 
+One rule for whole numbers (:func:`as_integer`, used by every integer argument of the
+library's entry points: ``window``, ``frequency_chunks``, ``transient_periods``, the
+degrees, ``periods``, ``experiments_per_task``, ``n_samples``, ...): ints, numpy ints and
+integral floats (``30.0``) are accepted; a fraction (``30.5``) is a ``ValueError`` (never
+rounded); a bool, a string or another non-number is a ``TypeError`` naming the argument.
+
 A leaf module (it imports only numpy) like :mod:`lcmr_xr.conventions`.  The kernels do not
 import it (they import nothing outside :mod:`lcmr_xr.kernels`); the closed-loop variants
 they implement, ``lcmr_xr.kernels.identification.CLOSED_LOOP_METHODS``, are kept equal to

@@ -273,6 +273,10 @@ def _identify12(ds, **kw):
     return lcmr_xr.identify(ds, **{"window": 12, "degrees": (2, 2, 2), **kw})
 
 
+def _periodic3():
+    return hdd.simulate(n_samples=400, noise=False, seed=1, periods=3)
+
+
 def _scaled(env, s_r, s_u, s_y):
     return env.changed(r=env.small.r * s_r, u=env.small.u * s_u, y=env.small.y * s_y)
 
@@ -555,6 +559,37 @@ API = [
          ("closed_loop",)),
     Case("degrees_fractional", lambda e: _identify12(e.small, degrees=(2.5, 2, 2)), (TypeError, ValueError),
          ("degrees",)),
+    # one integer rule for every whole-number setting: 2.0 is 2, 2.5 is refused (never
+    # rounded), a string is a TypeError naming the argument (transient_periods=2.0 was
+    # refused while window=30.0 was accepted, and "1" got a ValueError)
+    Case("transient_periods_whole_float", lambda e: _identify12(_periodic3(), transient_periods=1.0),
+         check=lambda res, e: xr.testing.assert_identical(res, _identify12(_periodic3(), transient_periods=1))),
+    Case("transient_periods_fractional", lambda e: _identify12(_periodic3(), transient_periods=1.5), ValueError,
+         ("transient_periods", "1.5", "not rounded")),
+    Case("transient_periods_text", lambda e: _identify12(_periodic3(), transient_periods="1"), TypeError,
+         ("transient_periods", "'1'", "transient_periods=1")),
+    Case("transient_periods_bool", lambda e: _identify12(_periodic3(), transient_periods=True), TypeError,
+         ("transient_periods", "True")),
+    Case("simulate_periods_whole_float", lambda e: hdd.simulate(n_samples=400, noise=False, seed=1, periods=3.0),
+         check=lambda ds, e: xr.testing.assert_identical(ds, _periodic3())),
+    Case("simulate_periods_fractional", lambda e: hdd.simulate(n_samples=400, noise=False, periods=2.5), ValueError,
+         ("periods", "2.5", "not rounded")),
+    Case("simulate_periods_text", lambda e: hdd.simulate(n_samples=400, noise=False, periods="2"), TypeError,
+         ("periods", "'2'")),
+    Case("simulate_closed_loop_periods_fractional", lambda e: lcmr_xr.simulate_closed_loop(
+        *_toy_loop(), 2, xr.DataArray(np.ones((8, 1)), dims=("time", "input")), periods=2.5), ValueError,
+        ("periods", "2.5", "not rounded")),
+    Case("sweep_experiments_per_task_text", lambda e: sweep(xr.concat([e.small, e.small], "experiment"), window=12,
+                                                            experiments_per_task="1"),
+         TypeError, ("experiments_per_task", "'1'")),
+    Case("sweep_experiments_per_task_fractional", lambda e: sweep(xr.concat([e.small, e.small], "experiment"),
+                                                                  window=12, experiments_per_task=1.5),
+         ValueError, ("experiments_per_task", "1.5", "not rounded")),
+    Case("sweep_experiments_per_task_whole_float", lambda e: sweep(xr.concat([e.small, e.small], "experiment"),
+                                                                   window=12, degrees="2-2-2",
+                                                                   experiments_per_task=1.0),
+         check=lambda res, e: res.P.chunks[res.P.get_axis_num("experiment")] == (1, 1) or pytest.fail(
+             str(res.P.chunks))),
     # --- files: save / open --------------------------------------------------------------
     Case("save_dataarray", lambda e: save(e.small.r, "x.nc"), TypeError, ("to_dataset",)),
     Case("save_into_missing_directory", lambda e: save(e.small, "nodir/x.nc"), FileNotFoundError,
