@@ -952,6 +952,23 @@ def test_cli_bad_input(case, workdir, small, small_frf, servers, monkeypatch, ca
     assert snapshot(workdir) == before
 
 
+@pytest.mark.parametrize("timeout", ["0", "-1", "nan", "inf"])
+@pytest.mark.parametrize("scheduler", ["threads", "tcp"])
+def test_cli_sweep_checks_connect_timeout_before_it_starts(timeout, scheduler, workdir, servers, capsys):
+    """--connect-timeout was checked only when the client connected: the command had
+    already opened the archive, built the sweep and printed "sweeping ..." (and with a
+    local scheduler a bad value was never noticed).  Now it is one error line, first."""
+    address = "threads" if scheduler == "threads" else f"tcp://127.0.0.1:{servers['unused']}"
+    before = snapshot(workdir)
+    status = cli.main(["sweep", "arc", "-o", "r.nc", "--window", "12", "--scheduler", address,
+                       "--connect-timeout", timeout])
+    err = capsys.readouterr().err
+    assert status == 2
+    assert err.splitlines() == [err.strip()] and err.startswith("lcmr-xr sweep: error: --connect-timeout"), err
+    assert "positive number of seconds" in err and "--connect-timeout 10" in err, err
+    assert snapshot(workdir) == before
+
+
 def test_catalogue_size():
     """The catalogue covers the issue's ~90 bad inputs (API, CLI and files)."""
     assert len(API) + len(CLI) >= 90

@@ -140,6 +140,17 @@ def _check_scheduler(scheduler: str) -> None:
                          "address like tcp://127.0.0.1:8786.")
 
 
+def _check_timeout(timeout) -> float:
+    """Refuse a ``--connect-timeout`` that is not a positive, finite number of seconds."""
+    import math
+
+    if not (isinstance(timeout, (int, float)) and not isinstance(timeout, bool)
+            and math.isfinite(timeout) and timeout > 0):
+        raise ValueError(f"--connect-timeout must be a positive number of seconds, got {timeout!r}; "
+                         f"pass e.g. --connect-timeout {CONNECT_TIMEOUT:g}.")
+    return float(timeout)
+
+
 def _probe(address: str, timeout: float) -> None:
     """Check, with a plain socket, that a dask scheduler answers at ``address`` in time.
 
@@ -210,8 +221,7 @@ def connect(address: str, timeout: float = CONNECT_TIMEOUT):
     from distributed import Client
 
     _check_scheduler(address)
-    if not timeout > 0:
-        raise ValueError(f"--connect-timeout must be a positive number of seconds, got {timeout}.")
+    timeout = _check_timeout(timeout)
     _probe(address, timeout)
     quiet = logging.getLogger("distributed")
     level = quiet.level
@@ -318,6 +328,7 @@ def run_sweep(args) -> int:
             raise ValueError("--select compares settings per experiment; with --pool the "
                              "estimates are per group of experiments: drop one of them.")
         _check_scheduler(args.scheduler)
+        _check_timeout(getattr(args, "connect_timeout", CONNECT_TIMEOUT))  # before any output
         check_outputs({"-o": (args.output, NETCDF_SUFFIXES), "--select": (args.select, NETCDF_SUFFIXES)},
                       inputs=[args.archive], overwrite=getattr(args, "overwrite", False))
         experiments = open_archive(args.archive)
