@@ -202,6 +202,20 @@ def test_damaged_v73_file_is_named(exp, tmp_path, damage):
         lcmr_xr.open_experiment(path)
 
 
+@pytest.mark.parametrize("version", ["v5", "v7.3"])
+def test_open_dataset_points_to_open_experiment(exp, tmp_path, version):
+    """open_dataset on a .mat file called it "not a valid NetCDF-4 file ... Re-create it
+    with lcmr_xr.save" (v5), or opened a -v7.3 file (HDF5) as a NetCDF dataset of its raw
+    variables; now it names the reader of .mat files."""
+    path = lcmr_xr.save(exp, tmp_path / "e.mat") if version == "v5" else _v73(tmp_path / "e.mat", exp)
+    for chunks in (None, {}):
+        with pytest.raises(ValueError, match=r"e.mat is a MATLAB file; open_dataset reads NetCDF.*"
+                                             r"lcmr_xr.open_experiment\(path\)"):
+            lcmr_xr.open_dataset(path, chunks=chunks)
+    _same_signals(lcmr_xr.open_experiment(path, inputs=["vcm", "pzt"], outputs=["position"],
+                                          output_units="m"), exp)
+
+
 def test_errors_name_the_file_once(exp, tmp_path):
     """A bad (1, 1) variable was reported as 'x.mat: x.mat: variable ...'."""
     path = tmp_path / "x.mat"
