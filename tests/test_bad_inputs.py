@@ -42,8 +42,8 @@ from lcmr_xr.demo import band_table, resonance_peaks
 from lcmr_xr.experiment import experiment, validate_experiment
 from lcmr_xr.io import open_dataset, open_experiment, open_frf, save
 from lcmr_xr.io._atomic import stale_temporaries, temporary_prefix
-from lcmr_xr.scaleout import (consolidate_archive, open_archive, save_archive, select_settings, sweep,
-                              sweep_to_disk)
+from lcmr_xr.scaleout import (append_to_archive, consolidate_archive, open_archive, save_archive,
+                              select_settings, sweep, sweep_to_disk)
 
 TH = 1 / 100800
 _needs_control = pytest.mark.skipif(importlib.util.find_spec("control") is None,
@@ -757,6 +757,17 @@ API = [
          lambda e: sweep_to_disk(open_archive("arc").astype("float64"), "arc/out.nc", window=[12],
                                  degrees=["2-2-2"], progress=False),
          ValueError, ("refusing to write output arc/out.nc", "inside the input directory")),
+    # a consolidated file inside a directory archive made the directory's open refuse
+    # the whole directory ("all.nc differs from e0.nc in its variables ...")
+    Case("save_archive_file_inside_directory_archive", lambda e: save_archive(e.small, "arc/all.nc"),
+         ValueError, ("refusing to write the consolidated archive arc/all.nc", "arc is a directory archive",
+                      "outside it (e.g. arc.nc)", "save_archive(experiments, 'arc')")),
+    Case("append_to_archive_file_inside_directory_archive",
+         lambda e: append_to_archive(e.small.assign_coords(experiment="x"), "arc/one.nc"),
+         ValueError, ("refusing to write the consolidated archive arc/one.nc", "directory archive")),
+    Case("consolidate_archive_into_another_directory_archive",
+         lambda e: consolidate_archive("arc", "damagedarc/all.nc"),
+         ValueError, ("refusing to write the consolidated archive damagedarc/all.nc", "directory archive")),
     Case("save_archive_not_datasets", lambda e: save_archive([e.small.r], "newarc"), TypeError, ("not an experiment Dataset",)),
     # --- sweep / select ------------------------------------------------------------------------
     Case("sweep_window_too_small", lambda e: sweep(e.small, window=[3]), ValueError, ("Use window >=",)),
