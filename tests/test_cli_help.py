@@ -42,7 +42,9 @@ def test_every_option_help_states_its_default(command):
     ("identify", ["(default: lrm)", "(default: auto)", "(default 3-3-3; LPM: 3-3-0", "(default: indirect)",
                   "(default: no plot)", "(default: refuse them)"]),
     ("sweep", ["(default: threads)", "(default: the method's, 3-3-3 for LRM", "(default: 10.0)",
-               "(default: no selection)"]),
+               "(default: no selection)",
+               # pooled groups default to IV (the sweep's denominator_fit says so); the help said ls
+               "default: ls for a model with a denominator (iv for the --pool groups"]),
 ])
 def test_help_text_shows_defaults(command, expected, capsys):
     with pytest.raises(SystemExit) as info:

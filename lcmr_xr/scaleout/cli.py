@@ -32,7 +32,7 @@ import sys
 from pathlib import Path
 from urllib.parse import urlsplit
 
-from lcmr_xr._cli_support import (DENOMINATOR_HELP, NETCDF_SUFFIXES, HelpFormatter, add_overwrite,
+from lcmr_xr._cli_support import (NETCDF_SUFFIXES, SWEEP_DENOMINATOR_HELP, HelpFormatter, add_overwrite,
                                   check_outputs, error_line, futures_progress, progress)
 
 from lcmr_xr import conventions as cv
@@ -102,7 +102,7 @@ def add_sweep_parser(subparsers) -> argparse.ArgumentParser:
                     help="indirect: P = PS S^-1 from the excitation (unbiased); direct: from "
                          "the measured input (biased under feedback)")
     sw.add_argument("--denominator", choices=tuple(DENOMINATOR), default=None,
-                    help=DENOMINATOR_HELP)
+                    help=SWEEP_DENOMINATOR_HELP)
     sw.add_argument("--variables", nargs="+", default=None, metavar="NAME",
                     help="write only these result variables, e.g. P P_std P_flag "
                          "(experiment_error is always written; default: every variable)")
