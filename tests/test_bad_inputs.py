@@ -415,6 +415,12 @@ API = [
                                                                periods=True),
          TypeError, ("periods", "True")),
     # --- transforms ------------------------------------------------------------------------
+    # the factor follows the settings' integer rule ("2" was a ValueError, as 2.5)
+    Case("lift_factor_text", lambda e: lcmr_xr.lift(e.small.r, "2"), TypeError, ("factor", "'2'", "factor=2")),
+    Case("lift_factor_fractional", lambda e: lcmr_xr.lift(e.small.r, 2.5), ValueError,
+         ("factor", "2.5", "not rounded")),
+    Case("lift_factor_whole_float", lambda e: lcmr_xr.lift(e.small.r, 2.0),
+         check=lambda res, e: xr.testing.assert_identical(res, lcmr_xr.lift(e.small.r, 2))),
     Case("unlift_reordered_phases", lambda e: lcmr_xr.unlift(lcmr_xr.lift(e.small.r, 2).sortby("lift_phase", ascending=False)),
          ValueError, ("lift_phase", "[1, 0]", "sortby")),
     Case("unlift_selected_phase", lambda e: lcmr_xr.unlift(lcmr_xr.lift(e.small.r.drop_vars("time"), 2).isel(lift_phase=[1])),

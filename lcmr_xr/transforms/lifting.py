@@ -52,6 +52,10 @@ def _back(ds: xr.Dataset, was_dataarray: bool, name: Hashable | None):
 
 
 def _resolve_factor(x, factor) -> int:
+    if factor is not None:  # the settings' integer rule: 2.0 yes, 2.5 no (ValueError), "2" no (TypeError)
+        from lcmr_xr.settings import as_integer
+
+        return as_integer(factor, "factor", minimum=1, example=2)
     if factor is None:
         if FACTOR not in x.attrs:
             raise ValueError(
@@ -88,7 +92,10 @@ def lift(x, factor: int | None = None, *, dim: str = TIME):
     Raises
     ------
     ValueError
-        If N is not a multiple of F, no factor is known, or ``dim`` is missing.
+        If N is not a multiple of F, no factor is known, ``factor`` is fractional or
+        below 1 (never rounded), or ``dim`` is missing.
+    TypeError
+        If ``factor`` is not a number (``"2"``, a bool).
 
     Examples
     --------
