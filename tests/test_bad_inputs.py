@@ -627,7 +627,11 @@ API = [
     Case("open_foreign_netcdf", lambda e: open_experiment("cf.nc"), ValueError,
          ("cf.nc", "'CF-1.8'", "lcmr_xr.experiment(r, u, y"), absent=("experiment.experiment",)),
     Case("open_frf_on_experiment", lambda e: open_frf("exp.nc"), ValueError, ("no variable 'P'", "open_experiment")),
-    Case("open_experiment_on_frf", lambda e: open_experiment("frf.nc"), ValueError, ("frf.nc", "invalid experiment")),
+    # said only "variable 'r' is missing. add 'r' with dims ('time', 'input')"
+    Case("open_experiment_on_frf", lambda e: open_experiment("frf.nc"), ValueError,
+         ("frf.nc", "invalid experiment", "this is an FRF dataset", "lcmr_xr.open_frf")),
+    Case("identify_an_frf", lambda e: lcmr_xr.identify(e.frf), ValueError,
+         ("FRF dataset (it holds 'P'", "Pass the experiment (r, u, y)")),
     Case("open_directory_as_file", lambda e: open_experiment("arc"), IsADirectoryError, ("arc", "directory", "open_archive")),
     # --- archives ----------------------------------------------------------------------------
     Case("archive_missing", lambda e: open_archive("nothing"), FileNotFoundError, ("nothing", "does not exist")),
@@ -819,7 +823,8 @@ CLI = [
          words=("wider than the spectrum",)),
     Case("identify_foreign_input", cli=lambda e: ["identify", "cf.nc", "-o", "out.nc"],
          words=("cf.nc", "lcmr_xr.experiment(r, u, y"), absent=("experiment.experiment",)),
-    Case("identify_frf_as_input", cli=lambda e: ["identify", "frf.nc", "-o", "out.nc"], words=("invalid experiment",)),
+    Case("identify_frf_as_input", cli=lambda e: ["identify", "frf.nc", "-o", "out.nc"],
+         words=("invalid experiment", "this is an FRF dataset")),
     Case("identify_directory_as_input", cli=lambda e: ["identify", "arc", "-o", "out.nc"], words=("arc", "directory")),
     Case("identify_too_short", cli=lambda e: ["identify", "short.nc", "-o", "out.nc"], words=("too short",),
          absent=("window <= 0",)),

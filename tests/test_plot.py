@@ -428,6 +428,9 @@ def test_bode_refuses_a_real_frf_and_a_bad_color():
         bode(frf.assign(P=abs(frf.P)))
     with pytest.raises(ValueError, match="truth is real"):
         bode(frf, truth=abs(frf.P))
+    with pytest.raises(ValueError, match=r"P_std is real .*a standard deviation such as P_std\?\). Pass the "
+                                         r"complex FRF \(P as lcmr_xr.identify returns it\)"):
+        bode(frf.P_std)
     with pytest.raises(TypeError, match="must hold complex numbers.*bool"):
         bode(frf.P > 0)
     for color in ("blurple", (1.0, 0.2), (2.0, 0.0, 0.0), "#12345"):

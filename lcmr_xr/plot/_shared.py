@@ -132,9 +132,10 @@ def require_complex(da: xr.DataArray, name: str) -> None:
     if kind in "iuf":
         raise ValueError(
             f"{name} is real ({da.dtype}), but a frequency response is complex: the plot draws "
-            f"its magnitude and phase, and a real array has lost the phase (|{name}| or its dB?). "
-            f"Pass the complex {name} (as lcmr_xr.identify returns it); a response that is real "
-            f"by construction (a static gain) plots as {name}.astype(complex)."
+            f"its magnitude and phase, and a real array has lost the phase (a magnitude, its dB, "
+            f"or a standard deviation such as P_std?). Pass the complex FRF (P as "
+            f"lcmr_xr.identify returns it); a response that is real by construction (a static "
+            f"gain) plots as {name}.astype(complex)."
         )
     raise TypeError(f"{name} must hold complex numbers (a frequency response), got dtype {da.dtype}.")
 
