@@ -140,6 +140,11 @@ def test_v73_channel_names_and_logical(exp, tmp_path):
         _v73_cell(fh, "OutputName", ["position"])
     ds = lcmr_xr.open_experiment(path)
     assert ds.input.values.tolist() == ["vcm", "pzt"] and ds.output.values.tolist() == ["position"]
+    with h5py.File(path, "r+") as fh:  # char(['vcm'; 'pz ']): a 2 x 3 char matrix, seen 3 x 2
+        del fh["InputName"]
+        fh["InputName"] = np.array([[ord(c) for c in "vcm"], [ord(c) for c in "pz "]], np.uint16).T
+        fh["InputName"].attrs["MATLAB_class"] = np.bytes_(b"char")
+    assert lcmr_xr.open_experiment(path).input.values.tolist() == ["vcm", "pz"]
     with h5py.File(path, "r+") as fh:
         del fh["InputName"]
         _v73_cell(fh, "InputName", [[[1.0]], [[2.0]]], prefix="n")  # {1, 2}

@@ -89,7 +89,12 @@ def _hdf5_value(item):
     value = item[()]
     kind = _matlab_class(item)
     if kind == "char":
-        return "" if item.attrs.get("MATLAB_empty", 0) else "".join(map(chr, np.asarray(value).ravel()))
+        if item.attrs.get("MATLAB_empty", 0):
+            return ""
+        codes = np.asarray(value)
+        if codes.ndim == 2 and codes.shape[1] > 1:  # a char matrix, seen transposed: a row per name
+            return np.array(["".join(map(chr, row)) for row in codes.T])
+        return "".join(map(chr, codes.ravel()))
     if kind == "logical":
         return np.asarray(value).astype(bool)
     return value
@@ -183,8 +188,8 @@ def _not_text(path: Path, name: str, value, what: str, parameter: str, example: 
     return ValueError(
         f"{path}: variable {name!r} ({what}) holds "
         f"{'numbers' if kind.kind in 'biufc' else f'no text (a {kind} array)'}, "
-        f"not text: MATLAB keeps it as text ({name} = {example}), so a number is not turned "
-        f"into a name. Save it as text in MATLAB ({name} = cellstr(string({name})) for names, "
+        f"not text: MATLAB keeps it as text ({name} = {example}), so a number is not read "
+        f"as one. Save it as text in MATLAB ({name} = cellstr(string({name})) for names, "
         f"{name} = char(string({name})) for units), or pass {parameter}= to open_experiment."
     )
 
