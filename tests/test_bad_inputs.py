@@ -461,7 +461,7 @@ API = [
     # --- simulate_closed_loop: the factor was truncated (2.5 simulated F = 2), flags coerced ---
     Case("simulate_closed_loop_factor_fractional", lambda e: lcmr_xr.simulate_closed_loop(
         *_toy_loop(), 2.5, xr.DataArray(np.ones((8, 1)), dims=("time", "input"))), ValueError,
-        ("factor", "positive integer", "2.5")),
+        ("factor", "2.5", "not rounded")),
     Case("simulate_closed_loop_fast_output_text", lambda e: lcmr_xr.simulate_closed_loop(
         *_toy_loop(), 2, xr.DataArray(np.ones((8, 1)), dims=("time", "input")), fast_output="no"), TypeError,
         ("fast_output", "True or False")),
@@ -585,6 +585,21 @@ API = [
     Case("simulate_closed_loop_periods_fractional", lambda e: lcmr_xr.simulate_closed_loop(
         *_toy_loop(), 2, xr.DataArray(np.ones((8, 1)), dims=("time", "input")), periods=2.5), ValueError,
         ("periods", "2.5", "not rounded")),
+    Case("simulate_case_whole_float", lambda e: hdd.simulate(n_samples=400, noise=False, seed=1, case=2.0),
+         check=lambda ds, e: xr.testing.assert_identical(ds, e.small)),
+    Case("simulate_case_text", lambda e: hdd.simulate(n_samples=400, noise=False, case="2"), TypeError,
+         ("case", "'2'", "case=2")),
+    Case("true_frf_case_fractional", lambda e: hdd.true_frf([1000.0], case=2.5), ValueError,
+         ("case", "2.5", "not rounded")),
+    Case("simulate_closed_loop_factor_text", lambda e: lcmr_xr.simulate_closed_loop(
+        *_toy_loop(), "2", xr.DataArray(np.ones((8, 1)), dims=("time", "input"))), TypeError,
+        ("factor", "'2'", "factor=2")),
+    # one number in a 0-d array (a sweep choice's .values) is that number; a 1-element list is not
+    Case("window_zero_dim_array", lambda e: _identify12(e.small, window=np.array(12)),
+         check=lambda res, e: xr.testing.assert_identical(res, e.frf)),
+    Case("window_zero_dim_dataarray", lambda e: _identify12(e.small, window=xr.DataArray(12.0)),
+         check=lambda res, e: xr.testing.assert_identical(res, e.frf)),
+    Case("window_one_element_list", lambda e: _identify12(e.small, window=[12]), TypeError, ("window", "[12]")),
     Case("sweep_experiments_per_task_text", lambda e: sweep(xr.concat([e.small, e.small], "experiment"), window=12,
                                                             experiments_per_task="1"),
          TypeError, ("experiments_per_task", "'1'")),

@@ -161,8 +161,8 @@ def simulate_closed_loop(
         Unstable loop, a ``factor`` that is not a positive whole number (never truncated),
         wrong dims or sizes, or a time coordinate not spaced by ``Th``.
     TypeError
-        A system that is not a StateSpace, a signal that is not a DataArray, or
-        ``fast_output`` not True or False.
+        A system that is not a StateSpace, a signal that is not a DataArray, a ``factor``
+        or ``periods`` that is not a number, or ``fast_output`` not True or False.
 
     Examples
     --------
@@ -175,6 +175,7 @@ def simulate_closed_loop(
     (8, 4)
     """
     fast_output = as_bool(fast_output, "fast_output")  # "no" would read as True
+    factor = as_integer(factor, "factor", minimum=1, example=2)  # 2.5 refused, "2" a TypeError
     loop = multirate_closed_loop(plant, controller, filter, factor)
     F, ny, th = loop.factor, plant.n_outputs, plant.dt
     given = {"r": r, "d_u": d_u, "d_y": d_y, "reference": reference}
