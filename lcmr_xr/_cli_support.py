@@ -178,8 +178,13 @@ def heartbeat(label: str, out=None, every: float = 2.0):
         out.flush()
 
 
-#: ``--denominator`` of identify and sweep.
+#: ``--denominator`` of identify (and, with the pooled default added, sweep).
 DENOMINATOR_HELP = ("how the LRM's denominator is estimated: ls (least squares, the paper) or iv "
                     "(instrumental variables from a first fit; removes the noise-induced bias, "
                     "see docs/uncertainty.md); default: ls for a model with a denominator, "
                     "nothing to choose for lpm")
+#: ``--denominator`` of sweep: with ``--pool`` the groups are fitted as pooled experiments,
+#: whose default is IV (lcmr_xr.settings.POOLED_DEFAULT_DENOMINATOR).
+SWEEP_DENOMINATOR_HELP = DENOMINATOR_HELP.replace(
+    "default: ls for a model with a denominator,",
+    "default: ls for a model with a denominator (iv for the --pool groups: pooled experiments),")

@@ -1,6 +1,6 @@
 """Command line: ``lcmr-xr identify | demo | simulate | sweep | archive``.
 
-    lcmr-xr identify EXPERIMENT.nc -o FRF.nc [--method lrm|lpm] [--window N|auto]
+    lcmr-xr identify EXPERIMENT.nc|.mat -o FRF.nc|.mat [--method lrm|lpm] [--window N|auto]
                      [--degrees RN-RM-RD] [--closed-loop indirect|direct] [--denominator ls|iv]
                      [--plot FILE.png]
                      [--overwrite]
@@ -11,6 +11,7 @@
     lcmr-xr sweep ARCHIVE -o RESULT.nc --window 10 20 30 [--degrees 3-3-3 ...]
                   [--method lrm lpm] [--scheduler threads|processes|ADDRESS] [--overwrite]
     lcmr-xr archive consolidate ARCHIVE_DIR -o ARCHIVE.nc [--overwrite]
+    lcmr-xr archive index ARCHIVE_DIR
 
 Errors in the input (a missing or foreign file, bad settings) print one line that says
 what is wrong and exit with status 2; nothing is written then.  Every output path is
@@ -29,6 +30,8 @@ from lcmr_xr._cli_support import (DENOMINATOR_HELP, FIGURE_SUFFIXES, NETCDF_SUFF
                                   add_overwrite, check_outputs, error_line, heartbeat)
 from lcmr_xr.settings import CLOSED_LOOP, DEFAULT_WINDOW, DENOMINATOR, METHODS, window_argument
 
+MAT_SUFFIX = ".mat"  # lcmr_xr.io.matfile's (not imported here: it would import xarray)
+
 #: Help text of every ``--degrees`` option: one syntax on every command line.
 DEGREES_HELP = ("local model degrees RN-RM-RD: numerator, transient, denominator (default "
                 "3-3-3; LPM: 3-3-0, its RD must be 0)")
@@ -43,9 +46,12 @@ def _parser() -> argparse.ArgumentParser:
 
     ident = sub.add_parser("identify", help="identify the fast FRF of an experiment file",
                            formatter_class=HelpFormatter)
-    ident.add_argument("experiment", type=Path, help="experiment NetCDF file (lcmr-xr-1)")
+    ident.add_argument("experiment", type=Path,
+                       help="experiment file: NetCDF (lcmr-xr-1), or MATLAB .mat with the "
+                            "variables r, u, y, F and Ts (as lcmr_xr.open_experiment reads it)")
     ident.add_argument("-o", "--output", type=Path, required=True,
-                       help="FRF NetCDF file to write (.nc)")
+                       help="FRF file to write: .nc (NetCDF), or .mat for MATLAB's frd (P, "
+                            "frequency, Ts, InputName, OutputName)")
     ident.add_argument("--method", choices=tuple(METHODS), default="lrm",
                        help="local rational (lrm) or polynomial (lpm) model")
     ident.add_argument("--window", type=window_argument, default=DEFAULT_WINDOW,
@@ -63,7 +69,7 @@ def _parser() -> argparse.ArgumentParser:
     demo = sub.add_parser("demo", help="identify the bundled HDD benchmark experiment",
                           formatter_class=HelpFormatter)
     demo.add_argument("--experiment", type=Path, default=None,
-                      help="experiment NetCDF file (default: the bundled "
+                      help="experiment file, .nc or .mat as for identify (default: the bundled "
                            "datasets/hdd_case2_N3600.nc, simulated when missing)")
     demo.add_argument("--output-dir", type=Path, default=Path("demo-output"),
                       help="directory for hdd_frf.nc and the Bode plots (created if missing)")
@@ -112,6 +118,7 @@ def _one_degrees(args):
 
 
 def _identify(args) -> int:
+    from lcmr_xr import conventions as cv
     from lcmr_xr.identification import identify
     from lcmr_xr.io import open_experiment, save
     from lcmr_xr.settings import estimator_settings
@@ -119,9 +126,15 @@ def _identify(args) -> int:
     # the settings first: a typo is reported before the experiment is read
     s = estimator_settings(method=args.method, window=args.window, degrees=_one_degrees(args),
                            closed_loop=args.closed_loop, denominator=args.denominator)
-    check_outputs({"-o": (args.output, NETCDF_SUFFIXES), "--plot": (args.plot, FIGURE_SUFFIXES)},
+    check_outputs({"-o": (args.output, NETCDF_SUFFIXES + (MAT_SUFFIX,)),
+                   "--plot": (args.plot, FIGURE_SUFFIXES)},
                   inputs=[args.experiment], overwrite=args.overwrite)
     exp = open_experiment(args.experiment)
+    leading = [d for d in exp["r"].dims if d not in (cv.TIME, cv.INPUT)]
+    if leading and args.output.suffix.lower() == MAT_SUFFIX:  # before the work, not after it
+        raise ValueError(f"-o {args.output}: a .mat file holds one FRF, but {args.experiment} holds "
+                         f"experiments along {leading}; write a .nc file, or select one experiment "
+                         f"first (lcmr_xr.save(ds.isel({leading[0]}=0), ...)).")
     with heartbeat(f"identifying {args.experiment.name} ({exp.sizes['slow_time']} slow bins, "
                    f"{s.method}, window {s.window})", sys.stderr):
         frf = identify(exp, method=s.method, window=s.window, degrees=s.degrees,

@@ -195,7 +195,7 @@ def band_table(frf: xr.Dataset, truth: xr.DataArray, bands=BANDS_HZ) -> xr.Datas
             "median_error": (err / abs(truth)).where(sel).median(cv.FREQUENCY),
             "coverage": covered.where(sel).sum(cv.FREQUENCY) / sel.sum(),
             "flagged": (flagged.where(sel).sum(cv.FREQUENCY) / sel.sum()) * xr.ones_like(
-                err.isel({cv.FREQUENCY: 0}), dtype=float),
+                err.isel({cv.FREQUENCY: 0}, drop=True), dtype=float),
         }))
     out = xr.concat(rows, dim="band")
     out = out.assign_coords(band=("band", [f"{lo:.0f}-{hi:.0f} Hz" for lo, hi in bands],

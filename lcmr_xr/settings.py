@@ -7,6 +7,12 @@ the same message everywhere, also on lazy (dask) input where nothing would other
 until compute time.  Adding a local-model method means one row in :data:`METHODS` (and, if
 it is not a degrees choice of the local model, one kernel call).
 
+One rule for whole numbers (:func:`as_integer`, used by every integer argument of the
+library's entry points: ``window``, ``frequency_chunks``, ``transient_periods``, the
+degrees, ``periods``, ``experiments_per_task``, ``n_samples``, ...): ints, numpy ints and
+integral floats (``30.0``) are accepted; a fraction (``30.5``) is a ``ValueError`` (never
+rounded); a bool, a string or another non-number is a ``TypeError`` naming the argument.
+
 A leaf module (it imports only numpy) like :mod:`lcmr_xr.conventions`.  The kernels do not
 import it (they import nothing outside :mod:`lcmr_xr.kernels`); the closed-loop variants
 they implement, ``lcmr_xr.kernels.identification.CLOSED_LOOP_METHODS``, are kept equal to
@@ -142,7 +148,9 @@ def as_bool(value, name: str) -> bool:
 def as_integer(value, name: str, *, minimum: int | None = None, example=None) -> int:
     """``value`` as an int: ints, numpy ints and integral floats (``30.0``) are accepted.
 
-    A fractional number (``30.5``), a bool or a non-number is refused: never rounded.
+    A 0-d array (numpy or xarray) is read as the number it holds.  A fractional number
+    (``30.5``, a ``ValueError``: never rounded), a bool or a non-number (a ``TypeError``,
+    naming ``name``) is refused.
 
     Examples
     --------
@@ -150,6 +158,9 @@ def as_integer(value, name: str, *, minimum: int | None = None, example=None) ->
     (30, 30)
     """
     example = value if example is None else example
+    if isinstance(value, np.ndarray) and value.ndim == 0 or (
+            type(value).__name__ == "DataArray" and getattr(value, "ndim", None) == 0):
+        value = value.item()  # one number (a 0-d array, e.g. a sweep's best window .values)
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
         raise TypeError(f"{name} must be an integer, got {value!r} ({type(value).__name__}); "
                         f"pass e.g. {name}={example}.")

@@ -1,9 +1,9 @@
 # %% [markdown]
 # # 03 - An archive of experiments, a parallel sweep of settings, and their selection
 #
-# Many experiments (re-measurements, several drives) are kept as an **archive**: a
-# directory with one NetCDF file per experiment, opened as one lazy dataset with an
-# `experiment` dim.  A **sweep** identifies every experiment for every combination of
+# Many experiments (re-measurements, several drives) are kept as an **archive**: one
+# consolidated NetCDF file (or a directory with one file per experiment), opened as one
+# lazy dataset with an `experiment` dim.  A **sweep** identifies every experiment for every combination of
 # window and degrees as dask tasks, in parallel.  **select_settings** then picks, per
 # experiment, the settings that best predict the *other* experiments' measured
 # spectra: no true FRF needed.  Small here: 4 experiments x 3 windows x 2 degrees.

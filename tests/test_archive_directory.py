@@ -171,3 +171,32 @@ def test_a_file_rewritten_in_place_gives_new_dask_names(tmp_path):
     np.testing.assert_array_equal(after.r.isel(experiment=2).values, 2.0 * exps[2].r.values)
     # the same files give the same names (dask can still share work between equal opens)
     assert open_archive(tmp_path / "arc").r.data.name == open_archive(tmp_path / "arc").r.data.name
+
+
+def test_consolidated_file_refused_inside_a_directory_archive_only(tmp_path):
+    """save_archive / append_to_archive wrote a consolidated file into a directory archive,
+    whose open then refused the whole directory (a file of another structure).  A plain
+    directory of experiment files (no header index: not written as an archive) still takes
+    an archive file, and the archive directory itself still takes experiments."""
+    from lcmr_xr.scaleout import append_to_archive
+
+    exps = xr.concat([_experiment(seed=s) for s in range(2)], cv.EXPERIMENT).assign_coords(
+        {cv.EXPERIMENT: ["a", "b"]})
+    arc = tmp_path / "arc"
+    save_archive(exps, arc, layout="files")
+    before = sorted(p.name for p in arc.iterdir())
+    for write in (lambda: save_archive(exps, arc / "all.nc"),
+                  lambda: save_archive(exps, arc / "all.nc", layout="consolidated", overwrite=True),
+                  lambda: append_to_archive(exps.isel({cv.EXPERIMENT: 0}), arc / "one.nc")):
+        with pytest.raises(ValueError, match="refusing to write the consolidated archive .* is a "
+                                             "directory archive"):
+            write()
+    assert sorted(p.name for p in arc.iterdir()) == before
+    assert open_archive(arc)[cv.EXPERIMENT].values.tolist() == ["a", "b"]  # still opens
+    append_to_archive(_experiment(seed=5).assign_coords({cv.EXPERIMENT: "c"}), arc)  # the directory itself
+    assert open_archive(arc)[cv.EXPERIMENT].values.tolist() == ["a", "b", "c"]
+    plain = tmp_path / "runs"
+    plain.mkdir()
+    save(exps.isel({cv.EXPERIMENT: 0}), plain / "a.nc")
+    save_archive(exps, plain / "all.nc")
+    assert open_archive(plain / "all.nc").sizes[cv.EXPERIMENT] == 2

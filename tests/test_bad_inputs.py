@@ -42,8 +42,8 @@ from lcmr_xr.demo import band_table, resonance_peaks
 from lcmr_xr.experiment import experiment, validate_experiment
 from lcmr_xr.io import open_dataset, open_experiment, open_frf, save
 from lcmr_xr.io._atomic import stale_temporaries, temporary_prefix
-from lcmr_xr.scaleout import (consolidate_archive, open_archive, save_archive, select_settings, sweep,
-                              sweep_to_disk)
+from lcmr_xr.scaleout import (append_to_archive, consolidate_archive, open_archive, save_archive,
+                              select_settings, sweep, sweep_to_disk)
 
 TH = 1 / 100800
 _needs_control = pytest.mark.skipif(importlib.util.find_spec("control") is None,
@@ -273,6 +273,10 @@ def _identify12(ds, **kw):
     return lcmr_xr.identify(ds, **{"window": 12, "degrees": (2, 2, 2), **kw})
 
 
+def _periodic3():
+    return hdd.simulate(n_samples=400, noise=False, seed=1, periods=3)
+
+
 def _scaled(env, s_r, s_u, s_y):
     return env.changed(r=env.small.r * s_r, u=env.small.u * s_u, y=env.small.y * s_y)
 
@@ -411,6 +415,12 @@ API = [
                                                                periods=True),
          TypeError, ("periods", "True")),
     # --- transforms ------------------------------------------------------------------------
+    # the factor follows the settings' integer rule ("2" was a ValueError, as 2.5)
+    Case("lift_factor_text", lambda e: lcmr_xr.lift(e.small.r, "2"), TypeError, ("factor", "'2'", "factor=2")),
+    Case("lift_factor_fractional", lambda e: lcmr_xr.lift(e.small.r, 2.5), ValueError,
+         ("factor", "2.5", "not rounded")),
+    Case("lift_factor_whole_float", lambda e: lcmr_xr.lift(e.small.r, 2.0),
+         check=lambda res, e: xr.testing.assert_identical(res, lcmr_xr.lift(e.small.r, 2))),
     Case("unlift_reordered_phases", lambda e: lcmr_xr.unlift(lcmr_xr.lift(e.small.r, 2).sortby("lift_phase", ascending=False)),
          ValueError, ("lift_phase", "[1, 0]", "sortby")),
     Case("unlift_selected_phase", lambda e: lcmr_xr.unlift(lcmr_xr.lift(e.small.r.drop_vars("time"), 2).isel(lift_phase=[1])),
@@ -451,7 +461,7 @@ API = [
     # --- simulate_closed_loop: the factor was truncated (2.5 simulated F = 2), flags coerced ---
     Case("simulate_closed_loop_factor_fractional", lambda e: lcmr_xr.simulate_closed_loop(
         *_toy_loop(), 2.5, xr.DataArray(np.ones((8, 1)), dims=("time", "input"))), ValueError,
-        ("factor", "positive integer", "2.5")),
+        ("factor", "2.5", "not rounded")),
     Case("simulate_closed_loop_fast_output_text", lambda e: lcmr_xr.simulate_closed_loop(
         *_toy_loop(), 2, xr.DataArray(np.ones((8, 1)), dims=("time", "input")), fast_output="no"), TypeError,
         ("fast_output", "True or False")),
@@ -555,6 +565,52 @@ API = [
          ("closed_loop",)),
     Case("degrees_fractional", lambda e: _identify12(e.small, degrees=(2.5, 2, 2)), (TypeError, ValueError),
          ("degrees",)),
+    # one integer rule for every whole-number setting: 2.0 is 2, 2.5 is refused (never
+    # rounded), a string is a TypeError naming the argument (transient_periods=2.0 was
+    # refused while window=30.0 was accepted, and "1" got a ValueError)
+    Case("transient_periods_whole_float", lambda e: _identify12(_periodic3(), transient_periods=1.0),
+         check=lambda res, e: xr.testing.assert_identical(res, _identify12(_periodic3(), transient_periods=1))),
+    Case("transient_periods_fractional", lambda e: _identify12(_periodic3(), transient_periods=1.5), ValueError,
+         ("transient_periods", "1.5", "not rounded")),
+    Case("transient_periods_text", lambda e: _identify12(_periodic3(), transient_periods="1"), TypeError,
+         ("transient_periods", "'1'", "transient_periods=1")),
+    Case("transient_periods_bool", lambda e: _identify12(_periodic3(), transient_periods=True), TypeError,
+         ("transient_periods", "True")),
+    Case("simulate_periods_whole_float", lambda e: hdd.simulate(n_samples=400, noise=False, seed=1, periods=3.0),
+         check=lambda ds, e: xr.testing.assert_identical(ds, _periodic3())),
+    Case("simulate_periods_fractional", lambda e: hdd.simulate(n_samples=400, noise=False, periods=2.5), ValueError,
+         ("periods", "2.5", "not rounded")),
+    Case("simulate_periods_text", lambda e: hdd.simulate(n_samples=400, noise=False, periods="2"), TypeError,
+         ("periods", "'2'")),
+    Case("simulate_closed_loop_periods_fractional", lambda e: lcmr_xr.simulate_closed_loop(
+        *_toy_loop(), 2, xr.DataArray(np.ones((8, 1)), dims=("time", "input")), periods=2.5), ValueError,
+        ("periods", "2.5", "not rounded")),
+    Case("simulate_case_whole_float", lambda e: hdd.simulate(n_samples=400, noise=False, seed=1, case=2.0),
+         check=lambda ds, e: xr.testing.assert_identical(ds, e.small)),
+    Case("simulate_case_text", lambda e: hdd.simulate(n_samples=400, noise=False, case="2"), TypeError,
+         ("case", "'2'", "case=2")),
+    Case("true_frf_case_fractional", lambda e: hdd.true_frf([1000.0], case=2.5), ValueError,
+         ("case", "2.5", "not rounded")),
+    Case("simulate_closed_loop_factor_text", lambda e: lcmr_xr.simulate_closed_loop(
+        *_toy_loop(), "2", xr.DataArray(np.ones((8, 1)), dims=("time", "input"))), TypeError,
+        ("factor", "'2'", "factor=2")),
+    # one number in a 0-d array (a sweep choice's .values) is that number; a 1-element list is not
+    Case("window_zero_dim_array", lambda e: _identify12(e.small, window=np.array(12)),
+         check=lambda res, e: xr.testing.assert_identical(res, e.frf)),
+    Case("window_zero_dim_dataarray", lambda e: _identify12(e.small, window=xr.DataArray(12.0)),
+         check=lambda res, e: xr.testing.assert_identical(res, e.frf)),
+    Case("window_one_element_list", lambda e: _identify12(e.small, window=[12]), TypeError, ("window", "[12]")),
+    Case("sweep_experiments_per_task_text", lambda e: sweep(xr.concat([e.small, e.small], "experiment"), window=12,
+                                                            experiments_per_task="1"),
+         TypeError, ("experiments_per_task", "'1'")),
+    Case("sweep_experiments_per_task_fractional", lambda e: sweep(xr.concat([e.small, e.small], "experiment"),
+                                                                  window=12, experiments_per_task=1.5),
+         ValueError, ("experiments_per_task", "1.5", "not rounded")),
+    Case("sweep_experiments_per_task_whole_float", lambda e: sweep(xr.concat([e.small, e.small], "experiment"),
+                                                                   window=12, degrees="2-2-2",
+                                                                   experiments_per_task=1.0),
+         check=lambda res, e: res.P.chunks[res.P.get_axis_num("experiment")] == (1, 1) or pytest.fail(
+             str(res.P.chunks))),
     # --- files: save / open --------------------------------------------------------------
     Case("save_dataarray", lambda e: save(e.small.r, "x.nc"), TypeError, ("to_dataset",)),
     Case("save_into_missing_directory", lambda e: save(e.small, "nodir/x.nc"), FileNotFoundError,
@@ -586,7 +642,11 @@ API = [
     Case("open_foreign_netcdf", lambda e: open_experiment("cf.nc"), ValueError,
          ("cf.nc", "'CF-1.8'", "lcmr_xr.experiment(r, u, y"), absent=("experiment.experiment",)),
     Case("open_frf_on_experiment", lambda e: open_frf("exp.nc"), ValueError, ("no variable 'P'", "open_experiment")),
-    Case("open_experiment_on_frf", lambda e: open_experiment("frf.nc"), ValueError, ("frf.nc", "invalid experiment")),
+    # said only "variable 'r' is missing. add 'r' with dims ('time', 'input')"
+    Case("open_experiment_on_frf", lambda e: open_experiment("frf.nc"), ValueError,
+         ("frf.nc", "invalid experiment", "this is an FRF dataset", "lcmr_xr.open_frf")),
+    Case("identify_an_frf", lambda e: lcmr_xr.identify(e.frf), ValueError,
+         ("FRF dataset (it holds 'P'", "Pass the experiment (r, u, y)")),
     Case("open_directory_as_file", lambda e: open_experiment("arc"), IsADirectoryError, ("arc", "directory", "open_archive")),
     # --- archives ----------------------------------------------------------------------------
     Case("archive_missing", lambda e: open_archive("nothing"), FileNotFoundError, ("nothing", "does not exist")),
@@ -722,6 +782,17 @@ API = [
          lambda e: sweep_to_disk(open_archive("arc").astype("float64"), "arc/out.nc", window=[12],
                                  degrees=["2-2-2"], progress=False),
          ValueError, ("refusing to write output arc/out.nc", "inside the input directory")),
+    # a consolidated file inside a directory archive made the directory's open refuse
+    # the whole directory ("all.nc differs from e0.nc in its variables ...")
+    Case("save_archive_file_inside_directory_archive", lambda e: save_archive(e.small, "arc/all.nc"),
+         ValueError, ("refusing to write the consolidated archive arc/all.nc", "arc is a directory archive",
+                      "outside it (e.g. arc.nc)", "save_archive(experiments, 'arc')")),
+    Case("append_to_archive_file_inside_directory_archive",
+         lambda e: append_to_archive(e.small.assign_coords(experiment="x"), "arc/one.nc"),
+         ValueError, ("refusing to write the consolidated archive arc/one.nc", "directory archive")),
+    Case("consolidate_archive_into_another_directory_archive",
+         lambda e: consolidate_archive("arc", "damagedarc/all.nc"),
+         ValueError, ("refusing to write the consolidated archive damagedarc/all.nc", "directory archive")),
     Case("save_archive_not_datasets", lambda e: save_archive([e.small.r], "newarc"), TypeError, ("not an experiment Dataset",)),
     # --- sweep / select ------------------------------------------------------------------------
     Case("sweep_window_too_small", lambda e: sweep(e.small, window=[3]), ValueError, ("Use window >=",)),
@@ -767,7 +838,8 @@ CLI = [
          words=("wider than the spectrum",)),
     Case("identify_foreign_input", cli=lambda e: ["identify", "cf.nc", "-o", "out.nc"],
          words=("cf.nc", "lcmr_xr.experiment(r, u, y"), absent=("experiment.experiment",)),
-    Case("identify_frf_as_input", cli=lambda e: ["identify", "frf.nc", "-o", "out.nc"], words=("invalid experiment",)),
+    Case("identify_frf_as_input", cli=lambda e: ["identify", "frf.nc", "-o", "out.nc"],
+         words=("invalid experiment", "this is an FRF dataset")),
     Case("identify_directory_as_input", cli=lambda e: ["identify", "arc", "-o", "out.nc"], words=("arc", "directory")),
     Case("identify_too_short", cli=lambda e: ["identify", "short.nc", "-o", "out.nc"], words=("too short",),
          absent=("window <= 0",)),
@@ -914,6 +986,23 @@ def test_cli_bad_input(case, workdir, small, small_frf, servers, monkeypatch, ca
         assert word not in line, f"{word!r} in: {line}"
     if case.max_seconds is not None:
         assert elapsed < case.max_seconds, f"took {elapsed:.1f} s"
+    assert snapshot(workdir) == before
+
+
+@pytest.mark.parametrize("timeout", ["0", "-1", "nan", "inf"])
+@pytest.mark.parametrize("scheduler", ["threads", "tcp"])
+def test_cli_sweep_checks_connect_timeout_before_it_starts(timeout, scheduler, workdir, servers, capsys):
+    """--connect-timeout was checked only when the client connected: the command had
+    already opened the archive, built the sweep and printed "sweeping ..." (and with a
+    local scheduler a bad value was never noticed).  Now it is one error line, first."""
+    address = "threads" if scheduler == "threads" else f"tcp://127.0.0.1:{servers['unused']}"
+    before = snapshot(workdir)
+    status = cli.main(["sweep", "arc", "-o", "r.nc", "--window", "12", "--scheduler", address,
+                       "--connect-timeout", timeout])
+    err = capsys.readouterr().err
+    assert status == 2
+    assert err.splitlines() == [err.strip()] and err.startswith("lcmr-xr sweep: error: --connect-timeout"), err
+    assert "positive number of seconds" in err and "--connect-timeout 10" in err, err
     assert snapshot(workdir) == before
 
 

@@ -20,7 +20,7 @@ def _load(name):
     return module
 
 
-@pytest.mark.parametrize("name", ["local_models", "scale_out", "pooling", "accuracy", "window_coverage"])
+@pytest.mark.parametrize("name", ["local_models", "scale_out", "pooling", "accuracy"])
 def test_benchmark_command_line_parses(name, capsys):
     module = _load(name)
     with pytest.raises(SystemExit) as exc:
@@ -275,3 +275,38 @@ def test_pooling_decomposition_variants():
                                    np.einsum("mip,mp->mi", G, R[0]) + T[0])  # one record: as before
     assert hb.fan_vibration is fan and kid._prediction is prediction
     assert kid.nearest_correlation is nearest and kid.pooled_nonlinearity_factor is pooled_factor
+
+
+def test_accuracy_window_tally_splits_the_band_table_by_chosen_window():
+    """The per-window tool (benchmarks/accuracy.py --per-window): per band its windows' bins
+    add up to the band's, and its unflagged covered bins plus the flagged ones give the band
+    table's coverage exactly; the coverage counts the released bins against the truth only
+    (a truth equal to the estimate: all covered; far from it: none)."""
+    from lcmr_xr import hdd, identify
+
+    module = _load("accuracy")
+    exp = hdd.simulate(3600, case=2, noise=True, seed=0)
+    frf = identify(exp, denominator="ls")
+    truth = hdd.true_frf(frf.frequency[1:], case=2).reindex(frequency=frf.frequency)
+    stats = module.band_stats(frf, truth)  # (band, input, [error, coverage, flagged])
+    tally = module.window_tally(frf, truth)
+    f = frf.frequency.values
+    windows = set(frf.local_window.values.tolist())
+    assert {w for _, w in tally} <= windows and len({w for _, w in tally}) >= 2
+    for b, (lo, hi) in enumerate(module.BANDS):
+        rows = [r for (bb, _), r in tally.items() if bb == b]
+        n = ((f > lo) & (f < hi) & (f > 0) & (f < f.max())).sum()
+        assert sum(r["bins"] for r in rows) == n
+        assert all(r["flagged"] + r["unflagged"] == r["bins"] for r in rows)
+        flagged = sum(r["flagged"] for r in rows)
+        covered = sum(r["covered"] for r in rows)
+        np.testing.assert_allclose((covered + flagged) / n, stats[b, :, 1], rtol=0, atol=1e-12)
+        np.testing.assert_allclose(flagged / n, stats[b, 0, 2], rtol=0, atol=1e-12)
+    exact = module.window_tally(frf, frf.P)
+    assert all(np.all(r["covered"] == r["unflagged"]) for r in exact.values())
+    far = module.window_tally(frf, frf.P + 1e6 * (1 + frf.P_std.where(np.isfinite(frf.P_std), 0)))
+    assert all(np.all(r["covered"] == 0) for r in far.values())
+    # and the tally accumulates over records
+    twice = module.window_tally(frf, truth, module.window_tally(frf, truth))
+    assert all(twice[k]["bins"] == 2 * tally[k]["bins"] and
+               np.all(twice[k]["covered"] == 2 * tally[k]["covered"]) for k in tally)

@@ -9,8 +9,10 @@ import xarray as xr
 import lcmr_xr
 from lcmr_xr import cli, hdd
 from lcmr_xr.demo import (
+    BANDS_HZ,
     band_errors,
     band_median,
+    band_table,
     find_bundled_experiment,
     relative_error_table,
     resonance_peaks,
@@ -59,6 +61,28 @@ def test_error_table_and_resonance_peaks_against_truth(noiseless_hdd_frf):
     for true_hz, est_hz in peaks:
         assert 38000 <= true_hz <= 50400
         assert abs(est_hz - true_hz) <= df  # within one bin (28 Hz) without noise
+
+
+def test_band_table_against_exact_errors(noiseless_hdd_frf):
+    """A 10 % gain error scores 0.1 in every band; the coverage counts the bins whose band
+    holds the truth plus the flagged ones.  The table carried a stray scalar coordinate
+    frequency = 0 (a column of zeros in the README's to_dataframe())."""
+    frf, truth = noiseless_hdd_frf
+    flagged = frf.P_undetermined.copy(data=np.zeros(frf.sizes["frequency"], bool))
+    flagged[5:40] = True  # 0-500 Hz: 17 bins; 500-5000 Hz: 18 of 160
+    off = frf.assign(P=1.1 * truth, P_undetermined=flagged)
+    table = band_table(off.assign(P_std=abs(truth)), truth)
+    assert set(table.coords) == {"band", "output", "input"}
+    assert list(table.to_dataframe().columns) == ["median_error", "coverage", "flagged"]
+    np.testing.assert_allclose(table.median_error.values, 0.1, rtol=1e-12)
+    assert float(table.coverage.min()) == 1.0
+    f = frf.frequency.values
+    for band, (lo, hi) in zip(table.band.values, BANDS_HZ):
+        inside = (f > lo) & (f < hi) & (f > 0) & (f < f.max())
+        want = flagged.values[inside].mean()
+        np.testing.assert_allclose(table.flagged.sel(band=band).values, want, rtol=1e-12)
+        tight = band_table(off.assign(P_std=0.01 * abs(truth)), truth).coverage.sel(band=band)
+        np.testing.assert_allclose(tight.values, want, rtol=1e-12)  # only the flagged bins
 
 
 def test_demo_writes_frf_and_pictures(tmp_path):

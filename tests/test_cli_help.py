@@ -42,7 +42,9 @@ def test_every_option_help_states_its_default(command):
     ("identify", ["(default: lrm)", "(default: auto)", "(default 3-3-3; LPM: 3-3-0", "(default: indirect)",
                   "(default: no plot)", "(default: refuse them)"]),
     ("sweep", ["(default: threads)", "(default: the method's, 3-3-3 for LRM", "(default: 10.0)",
-               "(default: no selection)"]),
+               "(default: no selection)",
+               # pooled groups default to IV (the sweep's denominator_fit says so); the help said ls
+               "default: ls for a model with a denominator (iv for the --pool groups"]),
 ])
 def test_help_text_shows_defaults(command, expected, capsys):
     with pytest.raises(SystemExit) as info:
@@ -159,3 +161,35 @@ def test_python_m_lcmr_xr_runs_the_command_line(tmp_path):
                          capture_output=True, text=True, env=env, cwd=tmp_path)
     assert bad.returncode == 2 and "lcmr-xr simulate: error: seed must be >= 0" in bad.stderr
     assert list(tmp_path.iterdir()) == []
+
+
+def test_identify_reads_and_writes_matlab_files(tmp_path, capsys):
+    """identify's help named NetCDF only, though it reads a .mat experiment; its -o refused
+    .mat ("must end in .nc"), though lcmr_xr.save writes the frd-ready file.  Now both are
+    said and done: the .mat FRF holds the same P as the .nc one."""
+    import numpy as np
+    import scipy.io
+
+    import lcmr_xr
+
+    with pytest.raises(SystemExit):
+        cli.main(["identify", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert "MATLAB .mat with the variables r, u, y, F and Ts" in text and ".mat for MATLAB's frd" in text
+    exp = hdd.simulate(n_samples=400, noise=False, seed=1)
+    lcmr_xr.save(exp, tmp_path / "e.mat")
+    args = ["--window", "12", "--degrees", "2-2-2"]
+    assert cli.main(["identify", str(tmp_path / "e.mat"), "-o", str(tmp_path / "f.mat"), *args]) == 0
+    assert cli.main(["identify", str(tmp_path / "e.mat"), "-o", str(tmp_path / "f.nc"), *args]) == 0
+    frf = lcmr_xr.open_frf(tmp_path / "f.nc")
+    xr.testing.assert_identical(frf.drop_attrs(deep=False), lcmr_xr.identify(exp, window=12, degrees=(2, 2, 2))
+                                .drop_attrs(deep=False))
+    m = scipy.io.loadmat(tmp_path / "f.mat")
+    np.testing.assert_array_equal(m["P"], frf.P.transpose("output", "input", "frequency").values)
+    stacked = xr.concat([exp, exp], "experiment")
+    save(stacked, tmp_path / "two.nc")
+    capsys.readouterr()
+    assert cli.main(["identify", str(tmp_path / "two.nc"), "-o", str(tmp_path / "g.mat"), *args]) == 2
+    err = capsys.readouterr().err
+    assert "a .mat file holds one FRF" in err and "identifying" not in err, err
+    assert not (tmp_path / "g.mat").exists()

@@ -109,6 +109,92 @@ def _v73(path, exp):
     return path
 
 
+def _v73_text(fh, name, text):
+    fh[name] = np.frombuffer(text.encode(), dtype=np.uint8).astype(np.uint16)[:, None]
+    fh[name].attrs["MATLAB_class"] = np.bytes_(b"char")
+    return fh[name]
+
+
+def _v73_cell(fh, name, items, prefix=""):
+    """A MATLAB -v7.3 cell array: object references to datasets in #refs#."""
+    refs = fh.require_group("#refs#")
+    targets = []
+    for k, item in enumerate(items):
+        key = f"{name}{prefix}{k}"
+        if isinstance(item, str):
+            targets.append(_v73_text(refs, key, item).ref)
+        else:
+            refs[key] = np.asarray(item, dtype=float)
+            refs[key].attrs["MATLAB_class"] = np.bytes_(b"double")
+            targets.append(refs[key].ref)
+    fh.create_dataset(name, data=np.array([targets], dtype=h5py.ref_dtype))
+    fh[name].attrs["MATLAB_class"] = np.bytes_(b"cell")
+
+
+def test_v73_channel_names_and_logical(exp, tmp_path):
+    """A -v7.3 file's InputName/OutputName cell arrays were skipped (the channels came back
+    as u0, u1 silently); its logical arrays were read as 0.0/1.0."""
+    path = _v73(tmp_path / "names.mat", exp)
+    with h5py.File(path, "r+") as fh:
+        _v73_cell(fh, "InputName", ["vcm", "pzt"])
+        _v73_cell(fh, "OutputName", ["position"])
+    ds = lcmr_xr.open_experiment(path)
+    assert ds.input.values.tolist() == ["vcm", "pzt"] and ds.output.values.tolist() == ["position"]
+    with h5py.File(path, "r+") as fh:  # char(['vcm'; 'pz ']): a 2 x 3 char matrix, seen 3 x 2
+        del fh["InputName"]
+        fh["InputName"] = np.array([[ord(c) for c in "vcm"], [ord(c) for c in "pz "]], np.uint16).T
+        fh["InputName"].attrs["MATLAB_class"] = np.bytes_(b"char")
+    assert lcmr_xr.open_experiment(path).input.values.tolist() == ["vcm", "pz"]
+    with h5py.File(path, "r+") as fh:
+        del fh["InputName"]
+        _v73_cell(fh, "InputName", [[[1.0]], [[2.0]]], prefix="n")  # {1, 2}
+    with pytest.raises(ValueError, match=r"'InputName' \(the input names\) holds numbers.*inputs="):
+        lcmr_xr.open_experiment(path)
+    assert lcmr_xr.open_experiment(path, inputs=["1", "2"]).input.values.tolist() == ["1", "2"]
+    with h5py.File(path, "r+") as fh:
+        fh["mask"] = (exp.r.values.T > 0).astype(np.uint8)
+        fh["mask"].attrs["MATLAB_class"] = np.bytes_(b"logical")
+    with pytest.raises(ValueError, match=r"'mask' \(r, the fast excitation\) is a MATLAB logical.*double\(mask\)"):
+        lcmr_xr.open_experiment(path, r="mask", inputs=["vcm", "pzt"])
+
+
+def test_names_and_units_must_be_text(exp, tmp_path):
+    """MATLAB's InputName is text (frd refuses numbers): a numeric InputName became the
+    labels "1.0", "2.0"; numeric units became "1.0".  A char matrix is one name per row,
+    its blank padding removed (as MATLAB's cellstr does)."""
+    path = tmp_path / "x.mat"
+    signals = {"r": exp.r.values, "u": exp.u.values, "y": exp.y.values, "Ts": TH, "F": 2.0}
+    numbers = np.empty((2, 1), dtype=object)
+    numbers[0, 0], numbers[1, 0] = 1.0, 2.0
+    for bad in (np.array([[1.0, 2.0]]), numbers):
+        scipy.io.savemat(path, {**signals, "InputName": bad})
+        with pytest.raises(ValueError, match=r"x.mat: variable 'InputName' \(the input names\) holds "
+                                             r"numbers, not text.*cellstr\(string\(InputName\)\).*inputs="):
+            lcmr_xr.open_experiment(path)
+    scipy.io.savemat(path, {**signals, "output_units": 1.0})
+    with pytest.raises(ValueError, match=r"'output_units' \(a unit string\) holds numbers.*output_units="):
+        lcmr_xr.open_experiment(path)
+    scipy.io.savemat(path, {**signals, "InputName": np.array(["vcm", "pz "]), "OutputName": "position"})
+    ds = lcmr_xr.open_experiment(path)
+    assert ds.input.values.tolist() == ["vcm", "pz"] and ds.output.values.tolist() == ["position"]
+
+
+def test_logical_signals_are_refused_integers_read(exp, tmp_path):
+    """A MATLAB logical array was cast to 0.0/1.0 and identified as a signal."""
+    path = tmp_path / "x.mat"
+    scipy.io.savemat(path, {"r": exp.r.values > 0, "u": exp.u.values, "y": exp.y.values,
+                            "Ts": TH, "F": 2.0, "counts": (exp.r.values * 1e9).astype(np.int16),
+                            "flag": np.array([[True]])})
+    assert dict((n, c) for n, _, c in scipy.io.whosmat(path))["r"] == "logical"
+    with pytest.raises(ValueError, match=r"'r' \(r, the fast excitation\) is a MATLAB logical array.*"
+                                         r"2\*double\(r\) - 1"):
+        lcmr_xr.open_experiment(path)
+    with pytest.raises(ValueError, match="'flag'.*one real number"):
+        lcmr_xr.open_experiment(path, r="counts", factor="flag")
+    ds = lcmr_xr.open_experiment(path, r="counts")  # an ADC's int16 counts: numbers
+    np.testing.assert_array_equal(ds.r.values, (exp.r.values * 1e9).astype(np.int16).astype(float))
+
+
 @pytest.mark.parametrize("damage", ["truncated", "header only"])
 def test_damaged_v73_file_is_named(exp, tmp_path, damage):
     """A -v7.3 file that HDF5 cannot open (an incomplete copy) raised h5py's OSError
@@ -119,6 +205,20 @@ def test_damaged_v73_file_is_named(exp, tmp_path, damage):
     path.write_bytes(data[: len(data) // 2] if damage == "truncated" else data[:512] + b"junk" * 64)
     with pytest.raises(ValueError, match=r"cannot read .*run.mat as a MATLAB -v7.3 file.*save it again"):
         lcmr_xr.open_experiment(path)
+
+
+@pytest.mark.parametrize("version", ["v5", "v7.3"])
+def test_open_dataset_points_to_open_experiment(exp, tmp_path, version):
+    """open_dataset on a .mat file called it "not a valid NetCDF-4 file ... Re-create it
+    with lcmr_xr.save" (v5), or opened a -v7.3 file (HDF5) as a NetCDF dataset of its raw
+    variables; now it names the reader of .mat files."""
+    path = lcmr_xr.save(exp, tmp_path / "e.mat") if version == "v5" else _v73(tmp_path / "e.mat", exp)
+    for chunks in (None, {}):
+        with pytest.raises(ValueError, match=r"e.mat is a MATLAB file; open_dataset reads NetCDF.*"
+                                             r"lcmr_xr.open_experiment\(path\)"):
+            lcmr_xr.open_dataset(path, chunks=chunks)
+    _same_signals(lcmr_xr.open_experiment(path, inputs=["vcm", "pzt"], outputs=["position"],
+                                          output_units="m"), exp)
 
 
 def test_errors_name_the_file_once(exp, tmp_path):

@@ -415,6 +415,41 @@ def test_bode_rejects_wrong_inputs():
         bode(in_rad)
 
 
+def test_bode_refuses_a_real_frf_and_a_bad_color():
+    """A real P (|P|, its phase lost) was drawn with phase 0/180 deg; a bad color reached
+    matplotlib ("'blurple' is not a valid value for color") after the figure was made."""
+    frf = make_frf()
+    figures = plt.get_fignums()
+    for real in (abs(frf.P), frf.P.real.astype(np.float32), abs(frf.P).round().astype(int)):
+        with pytest.raises(ValueError, match=r"P is real \(.*\), but a frequency response is complex.*"
+                                             r"P.astype\(complex\)"):
+            bode(real)
+    with pytest.raises(ValueError, match="P is real"):
+        bode(frf.assign(P=abs(frf.P)))
+    with pytest.raises(ValueError, match="truth is real"):
+        bode(frf, truth=abs(frf.P))
+    with pytest.raises(ValueError, match=r"P_std is real .*a standard deviation such as P_std\?\). Pass the "
+                                         r"complex FRF \(P as lcmr_xr.identify returns it\)"):
+        bode(frf.P_std)
+    with pytest.raises(TypeError, match="must hold complex numbers.*bool"):
+        bode(frf.P > 0)
+    for color in ("blurple", (1.0, 0.2), (2.0, 0.0, 0.0), "#12345"):
+        with pytest.raises(ValueError, match=r"color .* is not a matplotlib color; pass a color name"):
+            bode(frf, color=color)
+        with pytest.raises(ValueError, match="is not a matplotlib color"):
+            lifted(frf, color=color)
+    for color in (5, True, {"r": 1}):
+        with pytest.raises(TypeError, match=r"color must be a matplotlib color, got"):
+            bode(frf, color=color)
+    assert plt.get_fignums() == figures  # refused before a figure was made
+    for color in ("tab:red", "C1", "#1f77b4", "0.5", (0.1, 0.2, 0.5), (0.1, 0.2, 0.5, 0.8)):
+        result = bode(frf, color=color)
+        assert result.lines[("position", "vcm")]["estimate"][0].get_color() == color
+        plt.close(result.figure)
+    with pytest.raises(ValueError, match="S is real"):
+        lifted(frf.assign(S=abs(frf.S)))
+
+
 def test_bode_zero_and_nan_bins_are_gaps_without_warnings():
     frf = make_frf(zero_bin=5, nan_bin=9)
     with warnings.catch_warnings():
@@ -547,10 +582,9 @@ def test_noise_lines_equal_variances_on_log_axes():
     np.testing.assert_allclose(u_line.get_ydata(), expected, rtol=1e-15)
     for a in result.axes.flat:
         assert a.get_yscale() == "log" and a.get_xscale() == "log"
-    assert result.axes[0, 0].get_title() == "residual variance of y"
-    assert result.axes[0, 0].get_ylabel() == "variance [m2]"
-    assert result.axes[1, 0].get_title() == "residual variance of u"
-    assert result.axes[1, 0].get_ylabel() == "variance [1]"
+    # the plotting rule: labels are the variables' long_name [units] (they said "variance")
+    assert result.axes[0, 0].get_ylabel() == "residual variance of y [m2]"
+    assert result.axes[1, 0].get_ylabel() == "residual variance of u [1]"
     assert "phase 2 pzt" in [t.get_text() for t in result.axes[1, 0].get_legend().get_texts()]
 
 

@@ -98,7 +98,7 @@ def test_periods_refuse_inconsistent_signals():
                              d_y=xr.DataArray(np.zeros((20, 1)), dims=("time", "output")))
     with pytest.raises(ValueError, match="ONE period"):
         simulate_closed_loop(plant, ctrl, filt, 2, r.expand_dims(period=2), periods=2)
-    with pytest.raises(ValueError, match="periods must be a positive integer"):
+    with pytest.raises(ValueError, match="periods must be >= 1"):
         simulate_closed_loop(plant, ctrl, filt, 2, r, periods=0)
     with pytest.raises(ValueError, match="pass periods=2"):
         simulate_closed_loop(plant, ctrl, filt, 2, r,
@@ -390,7 +390,7 @@ def test_pooling_refusals_name_the_remedy():
          "nothing to estimate the noise"),
         (dict(experiment=one, transient_periods=1), "needs records with a 'period' dim"),
         (dict(experiment=ds, transient_periods=2), "drops all 2 period"),
-        (dict(experiment=ds, transient_periods=True), "integer >= 0"),
+        (dict(experiment=ds, transient_periods=-1), "transient_periods must be >= 0"),
         (dict(experiment=ds, combine="experiments"), "combine must be"),
         (dict(experiment=ds, combine="experiment"), "do not all have it"),
         (dict(experiment=exps, window=0, combine="experiment", frequency_chunks=40),

@@ -325,6 +325,34 @@ def test_selected_or_reordered_phases_are_refused(select):
     assert unlift(bare).values.tolist() == list(range(8))
 
 
+def test_recorded_lift_factor_is_read_as_one_whole_number():
+    """The recorded lift_factor was read with int(): a one-element array (as a file may give
+    an attribute back) warned (numpy's deprecated array-to-scalar conversion), and "two" or
+    [2, 2] failed inside int(); now the array is read, anything else refused by name."""
+    import warnings
+
+    x = xr.DataArray(np.arange(12.0), dims="time",
+                     coords={"time": ("time", np.arange(12) * 0.5, {"units": "s"})})
+    lifted = lift(x, 2)
+
+    def with_factor(value):
+        return lifted.assign_coords(lift_phase=lifted.lift_phase.assign_attrs(lift_factor=value))
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        for good in (np.array([2]), np.array([[2.0]]), np.int32(2), 2.0):
+            xr.testing.assert_identical(unlift(with_factor(good)), x)
+            fast_spectrum_from_lifted(dft(with_factor(good), dim="slow_time"))
+        with pytest.raises(ValueError, match="holds 2 of the 4 phases"):
+            unlift(with_factor(np.array([4])))
+    for bad in ("two", 2.5, np.array([2, 2]), True, 0, np.nan):
+        for call in (lambda: unlift(with_factor(bad)),
+                     lambda: fast_spectrum_from_lifted(dft(with_factor(bad), dim="slow_time"))):
+            with pytest.raises(ValueError, match=r"'lift_phase' coordinate's attribute 'lift_factor' is .*"
+                                                 r"not a lifting factor.*assign_attrs\(lift_factor=2\)"):
+                call()
+
+
 @pytest.mark.parametrize("units,scale", [("ms", 1e-3), ("us", 1e-6), ("min", 60.0)])
 def test_dft_refuses_a_time_coordinate_in_other_units(units, scale):
     """A time coordinate declared in ms (or us, min) was read as seconds: the frequencies

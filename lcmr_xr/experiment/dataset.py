@@ -507,6 +507,11 @@ def validate_experiment(ds: xr.Dataset, *, check_values: bool = True) -> xr.Data
     required = {"r": (TIME, INPUT), "u": (TIME, INPUT), "y": (SLOW_TIME, OUTPUT)}
     for name, dims in required.items():
         if name not in ds.data_vars:
+            if "P" in ds.data_vars:  # identify's result given where its input goes
+                _fail(f"variable {name!r} is missing: this is an FRF dataset (it holds 'P', as "
+                      "lcmr_xr.identify returns it), not an experiment",
+                      "Pass the experiment (r, u, y) that was identified, e.g. "
+                      "lcmr_xr.open_experiment(path); open an FRF file with lcmr_xr.open_frf.")
             _fail(f"variable {name!r} is missing", f"add {name!r} with dims {dims}.")
         var = ds[name]
         missing = [d for d in dims if d not in var.dims]

@@ -175,13 +175,13 @@ def simulate(n_samples: int = 3600, case: int = 2, noise: bool = True, seed: int
     Raises
     ------
     TypeError
-        ``n_samples`` or ``seed`` not a number (or a bool), ``noise`` or ``fast_output``
+        ``n_samples``, ``seed`` or ``periods`` not a number (or a bool), ``noise`` or ``fast_output``
         not True/False (``"no"`` would read as True), ``rms`` not numbers,
         ``disturbances`` a string or not a sequence.
     ValueError
         A fractional ``n_samples`` or ``seed`` (``3600.5`` is refused, never truncated),
         ``n_samples`` odd or below 4, a negative ``seed``, ``case`` outside 1..9, ``rms``
-        not positive or not one value per input, ``periods`` not a positive integer,
+        not positive or not one value per input, ``periods`` fractional or below 1,
         unknown or repeated ``disturbances`` (or some chosen with ``noise=False``).
 
     Examples
@@ -217,10 +217,9 @@ def simulate(n_samples: int = 3600, case: int = 2, noise: bool = True, seed: int
     r = xr.DataArray(random_phase_multisine(n_samples, len(INPUTS), bins, rms, excitation_rng),
                      dims=(TIME, INPUT), coords={TIME: time, INPUT: list(INPUTS)},
                      attrs={"units": "1", "long_name": "fast-rate excitation"})
-    if periods is not None and (isinstance(periods, (bool, np.bool_))
-                                or not isinstance(periods, (int, np.integer)) or periods < 1):
-        raise ValueError(f"periods must be a positive integer (number of periods), got {periods!r}.")
-    n_periods = 1 if periods is None else int(periods)
+    if periods is not None:  # whole numbers only, as n_samples (2.0 yes, 2.5 no)
+        periods = as_integer(periods, "periods", minimum=1, example=2)
+    n_periods = 1 if periods is None else periods
     n_total = n_periods * n_samples  # the disturbances are one continuous record
 
     def shaped(x, dims):  # (P L, c) -> (P, L, c) with a period dim, or (L, c) without

@@ -65,14 +65,19 @@ def check_case(case) -> int:
     Raises
     ------
     ValueError
-        If ``case`` is not an integer in 1..9.
+        If ``case`` is not a whole number in 1..9 (``2.0`` is 2; ``2.5`` is refused).
+    TypeError
+        If ``case`` is not a number (``"2"``, a bool).
 
     Examples
     --------
     >>> check_case(2)
     2
     """
-    if isinstance(case, bool) or not isinstance(case, (int, np.integer)) or int(case) not in CASES:
+    from lcmr_xr.settings import as_integer
+
+    case = as_integer(case, "case", example=2)  # the integer rule: 2.0 is 2, "2" a TypeError
+    if case not in CASES:
         raise ValueError(
             f"case must be one of the benchmark plant cases 1..9 (2 = room temperature, "
             f"nominal PZT gain), got {case!r}."

@@ -36,7 +36,7 @@ from lcmr_xr.identification import _guards
 from lcmr_xr.kernels.adaptive import candidate_windows
 from lcmr_xr.kernels.local_models import parameters_per_row
 from lcmr_xr.settings import (AUTO_WINDOW, DEFAULT_DENOMINATOR, DEFAULT_WINDOW, NO_DENOMINATOR,
-                              POOLED_DEFAULT_DENOMINATOR, as_bool,
+                              POOLED_DEFAULT_DENOMINATOR, as_bool, as_integer,
                               auto_window_range, check_window_fits, estimator_settings)
 from lcmr_xr.transforms._coords import even_spacing
 
@@ -212,7 +212,9 @@ Returns
     ------
     TypeError
         ``experiment`` is not an experiment dataset, or a setting has the wrong type
-        (``covariance="no"``).
+        (``covariance="no"``, ``transient_periods="1"``).  The integer settings
+        (``window``, ``frequency_chunks``, ``transient_periods``, the degrees) take ints
+        and whole floats (``30.0``); a fraction (``30.5``) is a ``ValueError``, never rounded.
     ValueError
         Invalid settings (checked before the data are read, also for dask input; see
         :func:`lcmr_xr.settings.estimator_settings`), too few bins for the number of parameters, a window wider than
@@ -235,6 +237,8 @@ Returns
     (2, 'periods')
     """
     window0 = pooling.is_window0(window)
+    if transient_periods is not None:  # the integer rule of every setting (30.0 yes, 2.5 no)
+        transient_periods = as_integer(transient_periods, "transient_periods", minimum=0, example=1)
     pooling.check_settings(window=window, transient_periods=transient_periods, combine=combine,
                            degrees=degrees)
     s = estimator_settings(method=method, window=1 if window0 else window, degrees=degrees,

@@ -6,6 +6,14 @@ whichever the user had.  The reader accepts all of these (a signal's time runs a
 longer axis) and the writer produces what MATLAB users expect: ``ny x nu x nf`` complex
 responses, column vectors, cell arrays of channel names.  v7.3 files (HDF5) are read with
 h5py, which sees MATLAB's column-major matrices transposed; the longer-axis rule covers that.
+
+What MATLAB's own rules say, the reader follows: channel names (``InputName``,
+``OutputName``) and units are text (MATLAB's ``frd``/``iddata`` refuse numbers there), so a
+number there is refused with the remedy (``cellstr(string(x))`` in MATLAB, or ``inputs=``),
+never turned into ``"1.0"``; a char matrix gives one name per row, trailing blanks removed
+(as MATLAB's ``cellstr``).  Signals are numbers: a ``logical`` array (true/false) is
+refused, never read as 0.0/1.0 (a binary excitation is ``double(x)`` in MATLAB, or
+``2*double(x) - 1`` for +-1); integer types (an ADC's ``int16``) are read as floats.
 """
 
 from __future__ import annotations
@@ -46,7 +54,8 @@ def _load(path: Path) -> dict:
     if not path.is_file():
         raise FileNotFoundError(f"no such file: {path}; check the path.")
     try:
-        raw = scipy.io.loadmat(path, chars_as_strings=True)
+        # mat_dtype: the classes MATLAB sees (a logical comes back as bool, not uint8)
+        raw = scipy.io.loadmat(path, chars_as_strings=True, mat_dtype=True)
     except NotImplementedError:  # v7.3: HDF5 underneath
         return _load_hdf5(path)
     except (scipy.io.matlab.MatReadError, ValueError, TypeError, OSError) as err:
@@ -70,6 +79,27 @@ def _load_hdf5(path: Path) -> dict:
         ) from err
 
 
+def _matlab_class(item) -> str:
+    value = item.attrs.get("MATLAB_class", b"")
+    return value.decode() if isinstance(value, bytes) else str(value)
+
+
+def _hdf5_value(item):
+    """A -v7.3 dataset as :func:`scipy.io.loadmat` gives it: char as text, logical as bool."""
+    value = item[()]
+    kind = _matlab_class(item)
+    if kind == "char":
+        if item.attrs.get("MATLAB_empty", 0):
+            return ""
+        codes = np.asarray(value)
+        if codes.ndim == 2 and codes.shape[1] > 1:  # a char matrix, seen transposed: a row per name
+            return np.array(["".join(map(chr, row)) for row in codes.T])
+        return "".join(map(chr, codes.ravel()))
+    if kind == "logical":
+        return np.asarray(value).astype(bool)
+    return value
+
+
 def _read_hdf5(h5py, path: Path) -> dict:
     out = {}
     with h5py.File(path, "r") as fh:
@@ -77,11 +107,13 @@ def _read_hdf5(h5py, path: Path) -> dict:
             if not isinstance(item, h5py.Dataset) or name.startswith("#"):
                 continue  # groups are structs, #refs# holds cell contents: not signals
             if h5py.check_dtype(ref=item.dtype) is not None:
-                continue  # a cell array (of channel names): pass inputs=/outputs= instead
-            value = item[()]
-            if item.attrs.get("MATLAB_class", b"") in (b"char", "char"):
-                value = "".join(map(chr, np.asarray(value).ravel()))
-            out[name] = value
+                if name in (INPUT_NAME, OUTPUT_NAME):  # cells of names, one per element
+                    cells = np.empty(item.shape, dtype=object)
+                    for index, ref in np.ndenumerate(item[()]):
+                        cells[index] = _hdf5_value(fh[ref]) if ref else np.empty(0)
+                    out[name] = cells
+                continue  # other cell arrays are not signals
+            out[name] = _hdf5_value(item)
     return out
 
 
@@ -98,7 +130,14 @@ def _variable(data: dict, name: str, path: Path, what: str):
 def _signal(data: dict, name: str, path: Path, what: str) -> np.ndarray:
     """``(samples, channels)`` float array; time runs along the longer axis of a matrix."""
     value = np.asarray(_variable(data, name, path, what))
-    if value.dtype.kind not in "biuf":
+    if value.dtype.kind == "b":
+        raise ValueError(
+            f"{path}: variable {name!r} ({what}) is a MATLAB logical array (true/false), not a "
+            f"signal; it is not read as 0/1. Give the numeric signal, or convert it in MATLAB "
+            f"({name} = double({name}), or 2*double({name}) - 1 for a +-1 binary sequence) "
+            f"and save again."
+        )
+    if value.dtype.kind not in "iuf":
         raise ValueError(
             f"{path}: variable {name!r} ({what}) is {value.dtype} (a "
             f"{'struct or cell' if value.dtype.kind in 'OV' else 'non-real'} array); it must "
@@ -131,7 +170,7 @@ def _scalar(data: dict, value, path: Path, what: str, parameter: str):
                 f"(variables: {', '.join(sorted(data)) or 'none'})."
             )
         array = np.asarray(data[value])
-        if array.size != 1 or array.dtype.kind not in "biuf":
+        if array.size != 1 or array.dtype.kind not in "iuf":
             raise ValueError(
                 f"{path}: variable {value!r} ({what}) must be one real number, got shape "
                 f"{array.shape} of {array.dtype}."
@@ -144,21 +183,58 @@ def _scalar(data: dict, value, path: Path, what: str, parameter: str):
     return int(value) if parameter == "factor" and float(value).is_integer() else float(value)
 
 
+def _not_text(path: Path, name: str, value, what: str, parameter: str, example: str):
+    kind = np.asarray(value).dtype
+    return ValueError(
+        f"{path}: variable {name!r} ({what}) holds "
+        f"{'numbers' if kind.kind in 'biufc' else f'no text (a {kind} array)'}, "
+        f"not text: MATLAB keeps it as text ({name} = {example}), so a number is not read "
+        f"as one. Save it as text in MATLAB ({name} = cellstr(string({name})) for names, "
+        f"{name} = char(string({name})) for units), or pass {parameter}= to open_experiment."
+    )
+
+
+def _cell_text(cell):
+    """The text of one cell (a char row), or None if it holds anything else."""
+    if isinstance(cell, str):
+        return cell
+    cell = np.asarray(cell)
+    if cell.size == 0:  # '' in MATLAB
+        return ""
+    if cell.dtype.kind == "U" and cell.size == 1:
+        return str(cell.ravel()[0])
+    return None
+
+
 def _labels(data: dict, given, name: str, path: Path):
-    if given is not None or name not in data:
-        return given
-    cells = np.asarray(data[name], dtype=object).ravel()
-    labels = [str(np.asarray(c).ravel()[0]) if np.asarray(c).size else "" for c in cells]
-    if isinstance(data[name], str):  # v7.3 or a single char row
-        labels = [data[name]]
-    return labels
-
-
-def _text(data: dict, given, name: str):
+    """Channel names: a cell array of char rows (MATLAB's ``InputName``) or a char matrix."""
     if given is not None or name not in data:
         return given
     value = data[name]
-    return value if isinstance(value, str) else str(np.asarray(value).ravel()[0])
+    parameter, what = ("inputs", "the input names") if name == INPUT_NAME else ("outputs", "the output names")
+    if isinstance(value, str):  # v7.3: one char row
+        return [value]
+    array = np.asarray(value)
+    if array.dtype.kind == "U":  # a char matrix: one name per row, blank-padded (MATLAB's cellstr)
+        return [str(row).rstrip() for row in array.ravel()]
+    if array.dtype == object:
+        labels = [_cell_text(cell) for cell in array.ravel()]
+        if all(label is not None for label in labels):
+            return labels
+        array = next(np.asarray(c) for c, label in zip(array.ravel(), labels) if label is None)
+    raise _not_text(path, name, array, what, parameter, "{'vcm', 'pzt'}")
+
+
+def _text(data: dict, given, name: str, path: Path):
+    """A units string (a char row)."""
+    if given is not None or name not in data:
+        return given
+    value = data[name]
+    text = _cell_text(value) if isinstance(value, str) or np.asarray(value).dtype.kind == "U" else None
+    if text is None:
+        parameter = name  # input_units / output_units: the keyword has the variable's name
+        raise _not_text(path, name, value, "a unit string", parameter, "'m'")
+    return text
 
 
 def open_mat_experiment(path, *, r="r", u="u", y="y", factor=FACTOR_NAME,
@@ -174,7 +250,8 @@ def open_mat_experiment(path, *, r="r", u="u", y="y", factor=FACTOR_NAME,
         Names of the variables holding the fast excitation, the fast plant input (``N``
         samples) and the slow output (``N / F`` samples); default ``"r"``, ``"u"``, ``"y"``.
         Vectors may be rows or columns; a matrix holds one channel per column or per row
-        (time runs along its longer axis).
+        (time runs along its longer axis).  Numeric classes only: integer types are read
+        as floats, a ``logical`` array is refused (``double(x)`` in MATLAB).
     factor : int or str, optional
         Multirate factor ``F``, or the name of the ``(1, 1)`` variable holding it
         (default ``"F"``).
@@ -183,8 +260,10 @@ def open_mat_experiment(path, *, r="r", u="u", y="y", factor=FACTOR_NAME,
         (default ``"Ts"``).
     inputs, outputs : sequence of str, optional
         Channel labels.  Default None: the file's cell arrays ``InputName`` /
-        ``OutputName`` when present (as :func:`save_mat` writes them), else ``u0, ...``
-        and ``y0, ...``.
+        ``OutputName`` when present (as :func:`save_mat` writes them; v7.3 too; a char
+        matrix gives one name per row), else ``u0, ...`` and ``y0, ...``.  Names in the
+        file must be text, as MATLAB's ``InputName`` is: numbers there are refused, not
+        turned into names such as ``"1.0"``.
     input_units, output_units : str, optional
         Units of ``r``/``u`` and of ``y``.  Default None: the file's ``input_units`` /
         ``output_units`` strings when present, else ``"1"``.
@@ -200,8 +279,8 @@ def open_mat_experiment(path, *, r="r", u="u", y="y", factor=FACTOR_NAME,
         If the file does not exist.
     ValueError
         If the file is not a MAT-file, a variable is missing (the message lists the
-        file's variables), not real numeric, or of a shape that is not a signal, or the
-        experiment is invalid (``N != F M`` and the other checks of ``experiment``).
+        file's variables), not real numeric (or ``logical``), or of a shape that is not a
+        signal, channel names or units that are not text, or the experiment is invalid (``N != F M`` and the other checks of ``experiment``).
     TypeError
         If ``factor`` or ``sampling_period`` is neither a number nor a variable name.
 
@@ -226,16 +305,12 @@ def open_mat_experiment(path, *, r="r", u="u", y="y", factor=FACTOR_NAME,
     # read before the call: their messages name the file already
     f = _scalar(data, factor, path, "multirate factor F", "factor")
     th = _scalar(data, sampling_period, path, "fast sampling period Th", "sampling_period")
+    names = {"inputs": _labels(data, inputs, INPUT_NAME, path),
+             "outputs": _labels(data, outputs, OUTPUT_NAME, path),
+             "input_units": _text(data, input_units, INPUT_UNITS, path),
+             "output_units": _text(data, output_units, OUTPUT_UNITS, path)}
     try:
-        return experiment(
-            *signals,
-            factor=f,
-            sampling_period=th,
-            inputs=_labels(data, inputs, INPUT_NAME, path),
-            outputs=_labels(data, outputs, OUTPUT_NAME, path),
-            input_units=_text(data, input_units, INPUT_UNITS),
-            output_units=_text(data, output_units, OUTPUT_UNITS),
-        )
+        return experiment(*signals, factor=f, sampling_period=th, **names)
     except ValueError as err:  # experiment()'s checks do not know the file
         raise ValueError(f"{path}: {err}") from err
 

@@ -228,8 +228,8 @@ def open_dataset(path, chunks=None) -> xr.Dataset:
     FileNotFoundError
         If the file does not exist.
     ValueError
-        If it is not a readable NetCDF file (truncated, corrupt or another format), or a
-        chunk size is not a whole number >= 1, -1 (the whole dim), ``"auto"`` or None.
+        If it is not a readable NetCDF file (truncated, corrupt or another format; a
+        MATLAB ``.mat`` file is pointed to :func:`open_experiment`), or a chunk size is not a whole number >= 1, -1 (the whole dim), ``"auto"`` or None.
     TypeError
         If ``chunks`` is neither None, ``"auto"``, an int nor a dict.
 
@@ -250,6 +250,12 @@ def open_dataset(path, chunks=None) -> xr.Dataset:
         )
     if not path.is_file():
         raise FileNotFoundError(f"no such file: {path}; check the path.")
+    if is_mat_path(path):  # a v7.3 file is HDF5 underneath: it must not open as a NetCDF
+        raise ValueError(
+            f"{path} is a MATLAB file; open_dataset reads NetCDF files. Read an experiment "
+            "with lcmr_xr.open_experiment(path) (its r=, u=, y=, factor=, sampling_period= "
+            "name the file's variables), or any .mat file with scipy.io.loadmat."
+        )
     try:
         # Lazy files stay open; a second netCDF4 handle on a file that another netCDF4 handle
         # holds can crash HDF5 (xarray issue 8289), so lazy reads go through h5netcdf, which

@@ -9,7 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from lcmr_xr.kernels.adaptive import (K95, UNDETERMINED_LIMIT, denominator_bias, noise_share,
+from lcmr_xr.kernels.adaptive import (K95, UNDETERMINED_LIMIT, crowd_undetermined,
+                                      denominator_bias, noise_share,
                                       nonlinearity_factor,
                                       pooled_nonlinearity_factor, second_order_factor,
                                       select_windows, small_sample_factor, weak_direction)
@@ -1269,7 +1270,13 @@ def _finish_choice(out, choice, fast_choice, bias2, widest_undetermined, windows
     weak-direction test is taken with ``rho`` scaled to that share: its flag is carried
     over only where the noise alone leaves the weak direction undetermined (noiseless
     HDD, N = 3600: the widest window flagged 28-84 Hz from its model error, where the
-    chosen window 12's estimate is covered by its own band)."""
+    chosen window 12's estimate is covered by its own band).  A bin where more than half
+    of the slow bins within :data:`lcmr_xr.kernels.adaptive.BIAS_SMOOTHING` (on their
+    circle) fail the widest window's test (so taken) is undetermined too
+    (:func:`lcmr_xr.kernels.adaptive.crowd_undetermined`: where the weak direction is
+    drowned in noise its estimated ratio saturates near 1 and scatters, and a draw under
+    the limit released bins 99.5 % off with bands 40-150 times too narrow, HDD below
+    500 Hz)."""
     b2 = np.take_along_axis(
         bias2, fast_choice.reshape((1,) + fast_choice.shape + (1, 1)), axis=0)[0]
     if twin is not None:
@@ -1294,7 +1301,12 @@ def _finish_choice(out, choice, fast_choice, bias2, widest_undetermined, windows
         noisy = ~(K95 * rho * np.sqrt(share) <= UNDETERMINED_LIMIT)  # its test, noise only
         widest_undetermined = widest_undetermined & np.take(
             noisy, np.arange(fast_choice.shape[-1]) % m, axis=-1)
-    undetermined = out["P_undetermined"] | widest_undetermined
+    # and where most of its neighbourhood fails that test (a saturated ratio's lucky draw)
+    k = np.arange(fast_choice.shape[-1])
+    slow = np.zeros(widest_undetermined.shape[:-1] + (m,), dtype=bool)
+    slow[..., k % m] = widest_undetermined  # (a fast bin carries its slow bin's flag)
+    undetermined = out["P_undetermined"] | widest_undetermined | np.take(
+        crowd_undetermined(slow, circular=True), k % m, axis=-1)
     out["P_undetermined"] = undetermined
     out["P_var"] = np.where(undetermined[..., None, None], np.inf, out["P_var"] + b2)
     out["P_bias"] = np.sqrt(b2)

@@ -61,6 +61,14 @@ def magnitude_label(attrs: dict, fallback_name: str, *, db: bool) -> str:
     return f"{long_name} [{ratio or units}]" if (ratio or units) else long_name
 
 
+def wrapped_label(label: str, width: int = 34) -> str:
+    """``label`` broken into lines of about ``width`` characters (a long ``long_name``
+    beside a panel), never inside a word or the ``[units]``."""
+    import textwrap
+
+    return textwrap.fill(label, width, break_long_words=False, break_on_hyphens=False)
+
+
 def phase_label(attrs: dict, fallback_name: str) -> str:
     """Label of a phase axis, always in degrees."""
     long_name, _ = long_name_and_units(attrs, fallback_name)
@@ -114,6 +122,39 @@ def require_dims(da: xr.DataArray, dims: tuple, name: str) -> xr.DataArray:
             "for rad/s, and set its attrs units='Hz'."
         )
     return da.transpose(*dims)
+
+
+def require_complex(da: xr.DataArray, name: str) -> None:
+    """Refuse a response that is not complex: its magnitude and phase are what is drawn."""
+    kind = da.dtype.kind
+    if kind == "c":
+        return
+    if kind in "iuf":
+        raise ValueError(
+            f"{name} is real ({da.dtype}), but a frequency response is complex: the plot draws "
+            f"its magnitude and phase, and a real array has lost the phase (a magnitude, its dB, "
+            f"or a standard deviation such as P_std?). Pass the complex FRF (P as "
+            f"lcmr_xr.identify returns it); a response that is real by construction (a static "
+            f"gain) plots as {name}.astype(complex)."
+        )
+    raise TypeError(f"{name} must hold complex numbers (a frequency response), got dtype {da.dtype}.")
+
+
+def check_color(color):
+    """``color`` if matplotlib takes it as a color (or None); else a message naming the forms."""
+    if color is None:
+        return None
+    from matplotlib.colors import is_color_like
+
+    if not isinstance(color, (bool, np.bool_)) and is_color_like(color):
+        return color
+    forms = ("a color name ('tab:red', 'C1'), a hex string ('#1f77b4'), a grey level as a "
+             "string ('0.5') or an RGB(A) tuple of numbers in [0, 1] ((0.1, 0.2, 0.5))")
+    if isinstance(color, (str, tuple, list, np.ndarray)):
+        raise ValueError(f"color {color!r} is not a matplotlib color; pass {forms}, or None for "
+                         "the next color of the axes' cycle.")
+    raise TypeError(f"color must be a matplotlib color, got {color!r} ({type(color).__name__}); "
+                    f"pass {forms}, or None.")
 
 
 def confidence_radius(band) -> float | None:

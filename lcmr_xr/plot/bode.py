@@ -13,6 +13,7 @@ from lcmr_xr import conventions as cv
 from lcmr_xr.conventions import FACTOR, FREQUENCY, INPUT, OUTPUT
 from lcmr_xr.settings import as_bool
 from lcmr_xr.plot._shared import (
+    check_color,
     confidence_radius,
     draw_band,
     draw_unbounded,
@@ -22,6 +23,7 @@ from lcmr_xr.plot._shared import (
     phase_label,
     prepare_axes,
     quantity_label,
+    require_complex,
     require_dims,
     ticks_for_short_log_span,
 )
@@ -133,7 +135,7 @@ def bode(
         Legend label of the estimate (default None: not in the legend).
     color : color, optional
         Matplotlib color of the estimate and its band (default None: next color of the
-        axes' cycle).
+        axes' cycle); checked before anything is drawn.
     xlim : tuple of float, optional
         ``(f_lo, f_hi)`` in Hz (whatever ``hz``): only bins in this range are drawn and
         the axes are zoomed to it (a span under a decade gets linear ticks with
@@ -149,12 +151,13 @@ def bode(
     Raises
     ------
     ValueError
-        If ``P`` has the wrong dims (leading dims included), the ``ax`` grid has the
-        wrong shape, ``band``, ``nyquist`` or ``xlim`` are out of range, or ``truth``
-        lacks a channel of the estimate.
+        If ``P`` has the wrong dims (leading dims included) or is real (an FRF is
+        complex: ``abs(P)`` has lost the phase), the ``ax`` grid has the wrong shape,
+        ``band``, ``nyquist`` or ``xlim`` are out of range, ``truth`` is real or lacks a
+        channel of the estimate, or ``color`` is not a matplotlib color.
     TypeError
-        If ``frf``, ``truth`` or ``ax`` have the wrong type, or ``db``, ``hz``, ``phase``
-        or ``unwrap`` is not True or False.
+        If ``frf``, ``truth``, ``ax`` or ``color`` have the wrong type, or ``db``, ``hz``,
+        ``phase`` or ``unwrap`` is not True or False.
 
     Examples
     --------
@@ -180,6 +183,7 @@ def bode(
     db, hz, phase, unwrap = (as_bool(v, n) for v, n in ((db, "db"), (hz, "hz"), (phase, "phase"),
                                                         (unwrap, "unwrap")))
     estimate, std, attrs = _frf_parts(frf)
+    color = check_color(color)  # before a figure is made: matplotlib's error would come mid-draw
     band_factor = confidence_radius(band)  # validated even when there is no P_std to draw
     if std is None:
         band_factor = None
@@ -287,6 +291,7 @@ def _frf_parts(frf):
             f"{type(frf).__name__}; build one with lcmr_xr.identify or xarray.DataArray."
         )
     estimate = require_dims(estimate, _P_DIMS, estimate.name or cv.P)
+    require_complex(estimate, str(estimate.name or cv.P))
     if std is not None:
         std = require_dims(std, _P_DIMS, cv.P + cv.STD_SUFFIX)
     return estimate, std, attrs
@@ -349,6 +354,7 @@ def _truth_at(truth, estimate: xr.DataArray, f_plot: np.ndarray) -> np.ndarray:
             truth = truth.sel({dim: wanted})
     truth = truth.broadcast_like(estimate.isel({FREQUENCY: 0}, drop=True))
     truth = truth.transpose(FREQUENCY, OUTPUT, INPUT)
+    require_complex(truth, "truth")
     f_truth = np.asarray(truth[FREQUENCY].values, dtype=float)
     order = np.argsort(f_truth)
     f_truth = f_truth[order]

@@ -16,19 +16,21 @@ from lcmr_xr import conventions as cv
 from lcmr_xr.conventions import INPUT, LIFT_PHASE, OUTPUT, SLOW_FREQUENCY
 from lcmr_xr.settings import as_bool
 from lcmr_xr.plot._shared import (
+    check_color,
     check_xlim,
     confidence_radius,
     draw_band,
     entry_title,
     frequency_selection,
     lifted_channel_label,
-    long_name_and_units,
     magnitude,
     magnitude_label,
     prepare_axes,
     quantity_label,
+    require_complex,
     require_dims,
     ticks_for_short_log_span,
+    wrapped_label,
 )
 
 # Row dims of each lifted estimate; the columns are always (lift_phase2, input2),
@@ -120,10 +122,12 @@ def lifted(frf, *, ax=None, which="S", db=True, band=0.95, color=None, xlim=None
     Raises
     ------
     ValueError
-        If ``which`` is not ``"S"``/``"PS"``, the variable is missing or has other dims,
-        or ``ax``, ``band`` or ``xlim`` are wrong.
+        If ``which`` is not ``"S"``/``"PS"``, the variable is missing, has other dims or
+        is real (the lifted estimates are complex), or ``ax``, ``band``, ``xlim`` or
+        ``color`` are wrong.
     TypeError
-        If ``frf`` is not a Dataset, or ``db`` is not True or False.
+        If ``frf`` is not a Dataset, ``db`` is not True or False, or ``color`` is not a
+        color of any form.
 
     Examples
     --------
@@ -164,6 +168,8 @@ def lifted(frf, *, ax=None, which="S", db=True, band=0.95, color=None, xlim=None
     band_factor = confidence_radius(band)  # validated even when there is no *_std to draw
     if std is None:
         band_factor = None
+    require_complex(estimate, which)
+    color = check_color(color)
 
     frequency = np.asarray(estimate[SLOW_FREQUENCY].values, dtype=float)
     keep = frequency_selection(frequency, xlim)
@@ -202,7 +208,8 @@ def noise(frf, *, ax=None, xlim=None):
 
     Top panel: one line per output (``noise_variance_y``); bottom panel: one line per
     lifted input row, ``phase j`` of each input (``noise_variance_u``).  Both axes are
-    logarithmic; the DC bin is skipped and zero or non-finite variances are gaps.
+    logarithmic; the DC bin is skipped and zero or non-finite variances are gaps.  Each
+    panel's y label is its variable's ``long_name [units]`` (wrapped), as on every plot.
 
     Parameters
     ----------
@@ -273,23 +280,16 @@ def noise(frf, *, ax=None, xlim=None):
             # A variance is not a magnitude of an amplitude: plotted as is, log axis.
             lines[(name, row)] = a.plot(x, magnitude(values[:, k], db=False), label=row)
         a.legend(fontsize="small")
-    # The long_names are long ("residual noise variance of ..."): they go in the
-    # titles, the y labels only carry the units.
-    for a, variable, (name, _) in zip(axes[:, 0], variables, panels):
-        a.set_title(long_name_and_units(variable.attrs, name)[0], fontsize="small")
+    # the y labels are the variables' "long_name [units]", as on every plot; the long
+    # names are long ("residual noise variance of the output spectrum"): wrapped
     _style_slow_axes(
         axes,
         quantity_label(variables[0][SLOW_FREQUENCY].attrs, SLOW_FREQUENCY),
-        [quantity_label({"long_name": "variance", **_units_only(v.attrs)}, "variance")
-         for v in variables],
+        [wrapped_label(quantity_label(v.attrs, name)) for v, (name, _) in zip(variables, panels)],
         log_y=True,
         xlim=xlim,
     )
     return NoisePlot(figure=figure, axes=axes, lines=lines)
-
-
-def _units_only(attrs: dict) -> dict:
-    return {"units": attrs["units"]} if "units" in attrs else {}
 
 
 def _require_dataset(frf, name: str) -> None:

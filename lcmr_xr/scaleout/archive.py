@@ -342,6 +342,26 @@ def _is_experiment(header: dict) -> bool:
 LAYOUTS = ("consolidated", "files")
 
 
+def _refuse_inside_directory_archive(path: Path) -> None:
+    """Refuse a consolidated archive file directly inside a directory archive.
+
+    :func:`open_archive` of the directory reads every ``*.nc`` file in it as one
+    experiment: a file of another structure makes it refuse the whole directory.  A
+    directory archive is recognised by its header index (written by every write of this
+    library into it); a directory of plain experiment files without one is not.
+    """
+    parent = path.parent
+    if not any((parent / name).exists() for name in (dirindex.INDEX_NAME, dirindex.JOURNAL_NAME)):
+        return
+    raise ValueError(
+        f"refusing to write the consolidated archive {path}: {parent} is a directory archive "
+        f"(it has the header index {dirindex.INDEX_NAME}), and open_archive({str(parent)!r}) "
+        "would refuse the whole directory for a file of another structure. Write the archive "
+        f"file outside it (e.g. {parent.parent / (parent.name + SUFFIX)}), or add the "
+        f"experiments to the directory archive itself: save_archive(experiments, {str(parent)!r})."
+    )
+
+
 def _layout(path: Path, layout) -> str:
     """``layout`` checked; by default a directory that exists is a files archive."""
     if layout is None:
@@ -399,6 +419,8 @@ def save_archive(experiments, path, *, overwrite: bool = False, layout: str | No
         Every one is validated (:func:`lcmr_xr.experiment.validate_experiment`).
     path : str or os.PathLike
         The archive: a file (consolidated) or a directory (files; created if missing).
+        A consolidated file is refused directly inside a directory archive (one with the
+        header index): the directory's open would refuse a file of another structure.
     overwrite : bool, default False
         Consolidated: replace an existing archive file instead of appending to it.
         Files: replace existing files even when their content has a different shape.
@@ -464,6 +486,8 @@ def save_archive(experiments, path, *, overwrite: bool = False, layout: str | No
     path = Path(path)
     overwrite = as_bool(overwrite, "overwrite")  # "no" must not replace an archive
     layout = _layout(path, layout)
+    if layout == "consolidated":
+        _refuse_inside_directory_archive(path)
     items, first = _validated(experiments)
     if layout == "files":
         return _save_files(items, first, path, overwrite)
@@ -541,7 +565,8 @@ def append_to_archive(experiment, path) -> Path:
     ValueError
         The experiment is invalid, of another shape than the archive, carries other
         metadata, or its label is taken or of another kind than the archive's (integer
-        vs text).
+        vs text); or ``path`` is a consolidated archive file directly inside a directory
+        archive (its open would refuse the file; see :func:`save_archive`).
     FileExistsError
         Directory, where the write lock is not available (some network file systems):
         another append took the same file name while this one was writing (nothing was
@@ -591,6 +616,7 @@ def append_to_archive(experiment, path) -> Path:
         return written[-1]
     if not path.exists():
         return save_archive(experiment, path, layout="consolidated")[0]
+    _refuse_inside_directory_archive(path)
     if unlabelled:
         header = _header(path)  # the default labels, their positions, of the archive's kind
         text = bool(header["labels"]) and _label_kind(header["labels"][0]) == "text"
@@ -661,6 +687,7 @@ def consolidate_archive(directory, path, *, overwrite: bool = False, progress=No
             "inside the archive directory"
         raise ValueError(f"refusing to write {path}: it is {where} {directory}, which "
                          "consolidate_archive reads; choose another path, outside it.")
+    _refuse_inside_directory_archive(path)  # nor inside another directory archive
     if path.exists() and not overwrite:
         raise FileExistsError(f"{path} exists; pass overwrite=True (--overwrite) to replace it, "
                               "or choose another path.")

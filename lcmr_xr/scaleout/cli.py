@@ -32,7 +32,7 @@ import sys
 from pathlib import Path
 from urllib.parse import urlsplit
 
-from lcmr_xr._cli_support import (DENOMINATOR_HELP, NETCDF_SUFFIXES, HelpFormatter, add_overwrite,
+from lcmr_xr._cli_support import (NETCDF_SUFFIXES, SWEEP_DENOMINATOR_HELP, HelpFormatter, add_overwrite,
                                   check_outputs, error_line, futures_progress, progress)
 
 from lcmr_xr import conventions as cv
@@ -102,7 +102,7 @@ def add_sweep_parser(subparsers) -> argparse.ArgumentParser:
                     help="indirect: P = PS S^-1 from the excitation (unbiased); direct: from "
                          "the measured input (biased under feedback)")
     sw.add_argument("--denominator", choices=tuple(DENOMINATOR), default=None,
-                    help=DENOMINATOR_HELP)
+                    help=SWEEP_DENOMINATOR_HELP)
     sw.add_argument("--variables", nargs="+", default=None, metavar="NAME",
                     help="write only these result variables, e.g. P P_std P_flag "
                          "(experiment_error is always written; default: every variable)")
@@ -138,6 +138,17 @@ def _check_scheduler(scheduler: str) -> None:
     if not ok:
         raise ValueError(f"--scheduler {scheduler!r} is neither {'/'.join(LOCAL_SCHEDULERS)} nor an "
                          "address like tcp://127.0.0.1:8786.")
+
+
+def _check_timeout(timeout) -> float:
+    """Refuse a ``--connect-timeout`` that is not a positive, finite number of seconds."""
+    import math
+
+    if not (isinstance(timeout, (int, float)) and not isinstance(timeout, bool)
+            and math.isfinite(timeout) and timeout > 0):
+        raise ValueError(f"--connect-timeout must be a positive number of seconds, got {timeout!r}; "
+                         f"pass e.g. --connect-timeout {CONNECT_TIMEOUT:g}.")
+    return float(timeout)
 
 
 def _probe(address: str, timeout: float) -> None:
@@ -210,8 +221,7 @@ def connect(address: str, timeout: float = CONNECT_TIMEOUT):
     from distributed import Client
 
     _check_scheduler(address)
-    if not timeout > 0:
-        raise ValueError(f"--connect-timeout must be a positive number of seconds, got {timeout}.")
+    timeout = _check_timeout(timeout)
     _probe(address, timeout)
     quiet = logging.getLogger("distributed")
     level = quiet.level
@@ -318,6 +328,7 @@ def run_sweep(args) -> int:
             raise ValueError("--select compares settings per experiment; with --pool the "
                              "estimates are per group of experiments: drop one of them.")
         _check_scheduler(args.scheduler)
+        _check_timeout(getattr(args, "connect_timeout", CONNECT_TIMEOUT))  # before any output
         check_outputs({"-o": (args.output, NETCDF_SUFFIXES), "--select": (args.select, NETCDF_SUFFIXES)},
                       inputs=[args.archive], overwrite=getattr(args, "overwrite", False))
         experiments = open_archive(args.archive)

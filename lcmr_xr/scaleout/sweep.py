@@ -110,6 +110,8 @@ def _chunked(ds: xr.Dataset, per_task: int | None = None) -> xr.Dataset:
     are kept whole (or as chunked).
     """
     chunks = {d: -1 for d in _CORE_DIMS if d in ds.dims}
+    if per_task is not None:  # 2.0 from a caller that checked it: an int for dask
+        per_task = as_integer(per_task, "experiments_per_task", minimum=1, example=EXPERIMENTS_PER_TASK)
     for d in _leading_dims(ds):
         if d == cv.EXPERIMENT and (per_task is not None or ds["r"].chunks is None):
             chunks[d] = per_task or EXPERIMENTS_PER_TASK
@@ -646,7 +648,8 @@ def sweep(experiments: xr.Dataset, *, window=(30,), degrees=None, method=("lrm",
         Before anything is computed, listing every invalid combination: a window too small
         for the number of local parameters, a window wider than the spectrum, ``Rd != 0``
         with the LPM; or unknown methods, malformed degrees, non-integer windows (see
-        :func:`sweep_settings`) or a bad ``experiments_per_task``.  Data errors are not
+        :func:`sweep_settings`) or an ``experiments_per_task`` below 1 or fractional (a
+        non-number is a ``TypeError``).  Data errors are not
         raised: see ``experiment_error``.
 
     Examples
@@ -671,10 +674,9 @@ def sweep(experiments: xr.Dataset, *, window=(30,), degrees=None, method=("lrm",
     lead = _leading_dims(ds)
     # metadata only: bad values become flagged experiments in the tasks, not a failed sweep
     validate_experiment(ds, check_values=False)
-    if experiments_per_task is not None and (isinstance(experiments_per_task, bool)
-                                             or int(experiments_per_task) != experiments_per_task
-                                             or experiments_per_task < 1):
-        raise ValueError(f"experiments_per_task must be a positive integer, got {experiments_per_task!r}.")
+    if experiments_per_task is not None:  # the settings' integer rule: 2.0 yes, 2.5 no, "2" no
+        experiments_per_task = as_integer(experiments_per_task, "experiments_per_task", minimum=1,
+                                          example=EXPERIMENTS_PER_TASK)
     checked = sweep_settings(window=window, degrees=degrees, method=method,
                              closed_loop=closed_loop, covariance=covariance, experiments=ds,
                              denominator=denominator)

@@ -15,7 +15,7 @@ import xarray as xr
 from lcmr_xr.conventions import INPUT, OUTPUT, PERIOD, SLOW_TIME, TIME
 from lcmr_xr.experiment import experiment
 from lcmr_xr.kernels.lti import StateSpace, multirate_closed_loop, simulate_multirate
-from lcmr_xr.settings import as_bool
+from lcmr_xr.settings import as_bool, as_integer
 
 __all__ = ["simulate_closed_loop"]
 
@@ -51,10 +51,7 @@ def _check_periods(periods, given: dict) -> int | None:
                     f"periods={da.sizes[PERIOD]} to simulate that many periods of r."
                 )
         return None
-    if isinstance(periods, (bool, np.bool_)) or not isinstance(periods, (int, np.integer)) \
-            or periods < 1:
-        raise ValueError(f"periods must be a positive integer (number of periods), got {periods!r}.")
-    periods = int(periods)
+    periods = as_integer(periods, "periods", minimum=1, example=2)  # 2.0 yes, 2.5 no
     if PERIOD in given["r"].dims:
         raise ValueError(
             f"r has a {PERIOD!r} dim, but with periods={periods} r is ONE period of the "
@@ -164,8 +161,8 @@ def simulate_closed_loop(
         Unstable loop, a ``factor`` that is not a positive whole number (never truncated),
         wrong dims or sizes, or a time coordinate not spaced by ``Th``.
     TypeError
-        A system that is not a StateSpace, a signal that is not a DataArray, or
-        ``fast_output`` not True or False.
+        A system that is not a StateSpace, a signal that is not a DataArray, a ``factor``
+        or ``periods`` that is not a number, or ``fast_output`` not True or False.
 
     Examples
     --------
@@ -178,6 +175,7 @@ def simulate_closed_loop(
     (8, 4)
     """
     fast_output = as_bool(fast_output, "fast_output")  # "no" would read as True
+    factor = as_integer(factor, "factor", minimum=1, example=2)  # 2.5 refused, "2" a TypeError
     loop = multirate_closed_loop(plant, controller, filter, factor)
     F, ny, th = loop.factor, plant.n_outputs, plant.dt
     given = {"r": r, "d_u": d_u, "d_y": d_y, "reference": reference}

@@ -52,6 +52,10 @@ def _back(ds: xr.Dataset, was_dataarray: bool, name: Hashable | None):
 
 
 def _resolve_factor(x, factor) -> int:
+    if factor is not None:  # the settings' integer rule: 2.0 yes, 2.5 no (ValueError), "2" no (TypeError)
+        from lcmr_xr.settings import as_integer
+
+        return as_integer(factor, "factor", minimum=1, example=2)
     if factor is None:
         if FACTOR not in x.attrs:
             raise ValueError(
@@ -88,7 +92,10 @@ def lift(x, factor: int | None = None, *, dim: str = TIME):
     Raises
     ------
     ValueError
-        If N is not a multiple of F, no factor is known, or ``dim`` is missing.
+        If N is not a multiple of F, no factor is known, ``factor`` is fractional or
+        below 1 (never rounded), or ``dim`` is missing.
+    TypeError
+        If ``factor`` is not a number (``"2"``, a bool).
 
     Examples
     --------
@@ -192,14 +199,32 @@ def check_all_phases(x, what: str, remedy: str) -> None:
             f"0..{n_phases - 1} is needed in order (element [l, j] is the fast sample l F + j). "
             f"Sort it with x.sortby({LIFT_PHASE!r}), or {remedy}."
         )
-    recorded = x[LIFT_PHASE].attrs.get(LIFT_FACTOR)
-    if recorded is not None and int(recorded) != n_phases:
+    recorded = _recorded_factor(x[LIFT_PHASE].attrs.get(LIFT_FACTOR), what, n_phases)
+    if recorded is not None and recorded != n_phases:
         raise ValueError(
-            f"cannot {what}: the {LIFT_PHASE!r} dim holds {n_phases} of the {int(recorded)} "
-            f"phases of the lifting (F = {int(recorded)}, recorded in its coordinate's "
+            f"cannot {what}: the {LIFT_PHASE!r} dim holds {n_phases} of the {recorded} "
+            f"phases of the lifting (F = {recorded}, recorded in its coordinate's "
             f"{LIFT_FACTOR!r}); the result would be a lifting by {n_phases}, with wrong times "
             f"and frequencies. Keep every phase: {remedy}."
         )
+
+
+def _recorded_factor(value, what: str, n_phases: int) -> int | None:
+    """The ``lift_factor`` attribute as an int: one whole number >= 1 (a NetCDF file may
+    give it back as a one-element array); anything else is refused, not guessed."""
+    if value is None:
+        return None
+    array = np.asarray(value)
+    number = array.item() if array.size == 1 and array.dtype.kind in "iuf" else None
+    if number is None or not np.isfinite(number) or number != int(number) or number < 1:
+        raise ValueError(
+            f"cannot {what}: the {LIFT_PHASE!r} coordinate's attribute {LIFT_FACTOR!r} is "
+            f"{value!r}, not a lifting factor (one whole number >= 1, as lcmr_xr.lift records "
+            f"it). Set it to the factor of the lifting, e.g. x = x.assign_coords({LIFT_PHASE}="
+            f"x.{LIFT_PHASE}.assign_attrs({LIFT_FACTOR}={n_phases})) if the dim holds every "
+            f"phase, or drop the attribute."
+        )
+    return int(number)
 
 
 def unlift(x, *, dim: str = "slow_time"):
