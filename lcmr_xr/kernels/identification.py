@@ -474,9 +474,9 @@ def _fit_terms(R, Z, *, half_width, degrees, circular, covariance, known_covaria
     n_exp = _n_experiments(R, Z, experiment_axis)
     if covariance and known_covariance is not None:
         G_cov = rescale_covariance(G_cov, fit.noise_covariance, known_covariance)
-    elif covariance and n_exp is not None:
-        # pooled: the residual noise covariance made positive semidefinite (its entries
-        # are estimated one by one), so that G_cov is a covariance
+    elif covariance:
+        # the residual noise covariance made positive semidefinite (its entries are
+        # estimated one by one), so that G_cov is a covariance (one record or pooled)
         G_cov = _positive_semidefinite(G_cov, fit.noise_covariance)
     out = {"G": fit.G, "T": fit.T if n_exp is None else np.moveaxis(fit.T, -3, -2),
            "noise_variance": fit.noise_variance, "condition": fit.condition,
@@ -512,16 +512,18 @@ def _fit_terms(R, Z, *, half_width, degrees, circular, covariance, known_covaria
 
 
 def _positive_semidefinite(G_cov, noise_covariance):
-    """``G_cov`` (..., M, nz nr, nz nr) of a pooled fit rebuilt from the
+    """``G_cov`` (..., M, nz nr, nz nr) of a fit (one record or pooled) rebuilt from the
     :func:`lcmr_xr.kernels.pooling.nearest_correlation` of its residual
     ``noise_covariance`` (..., M, nz, nz) (:func:`lcmr_xr.kernels.pooling.rescale_covariance`)
     at the bins where that changes it; the others are left bit for bit.  Every
     ``Cov(G_i, G_j) = s_ij h_i h_j^H`` is then a covariance (a positive semidefinite ``s``
     and the Schur product theorem): the first-order variance of ``P`` is never negative.
+    ``G`` (and so ``P`` of a fixed window) is not touched.
     Measured on the HDD benchmark (8 experiments, IV, window 19): correlations above 1.01
     at 65 % of the bins (median of the largest per bin 1.025) before, and exact zeros of
     ``P``'s first-order variance (negative ones clipped) at window 12 (docs/uncertainty.md,
-    "A pooled noise covariance that is a covariance")."""
+    "A pooled noise covariance that is a covariance"); one record, window 12: such zeros at
+    released bins (LS and IV; docs/uncertainty.md, "... and one record's")."""
     new = nearest_correlation(noise_covariance)
     changed = np.any(new != noise_covariance, axis=(-2, -1)) \
         & np.all(np.isfinite(noise_covariance), axis=(-2, -1))
