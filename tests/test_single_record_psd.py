@@ -84,3 +84,21 @@ def test_positive_semidefinite_leaves_covariances_alone():
     np.testing.assert_allclose(out[1], X[1] * np.repeat(np.repeat(want, nr, 0), nr, 1),
                                rtol=1e-12)
     assert np.linalg.eigvalsh(s[1])[0] < 0 and np.linalg.eigvalsh(want)[0] >= -1e-12
+
+
+def test_an_entry_estimated_exactly_zero_leaves_the_bin_as_it_is():
+    """Noiseless data give noise covariances of rounding with entries exactly 0 (HDD,
+    N = 36 000, window 30: 102 bins that needed the mend); ``G_cov`` has no factor to
+    rescale there (``rescale_covariance``: NaN), so such a bin keeps its ``G_cov`` (it
+    had made ``P_std`` NaN and flagged bins of a noiseless record)."""
+    s = np.array([[1.0, 0.0, 0.9], [0.0, 1.0, 0.9], [0.9, 0.9, 1.0]]) + 0j
+    assert np.linalg.eigvalsh(s)[0] < 0  # a bin the mend would change
+    rng = np.random.default_rng(2)
+    X = rng.standard_normal((6, 9)) + 1j * rng.standard_normal((6, 9))
+    G_cov = np.stack([X @ np.conj(X.T)] * 2)
+    noise = np.stack([s, s * 1.0])
+    noise[1, 0, 1] = noise[1, 1, 0] = 1e-3  # a neighbour with no zero: mended
+    out = kid._positive_semidefinite(G_cov, noise)
+    assert np.all(np.isfinite(out))
+    np.testing.assert_array_equal(out[0], G_cov[0])
+    assert not np.array_equal(out[1], G_cov[1])
