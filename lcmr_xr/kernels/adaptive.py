@@ -27,7 +27,8 @@ Two questions the first-order covariance of ``P = PS_1 S^-1`` does not answer:
    estimate's smallest singular value is then the noise's) and scatters bin by bin, so a
    draw under the limit can release a bin that is not determined; ``window="auto"``
    therefore also flags a bin where most of its neighbourhood fails the widest window's
-   test (:func:`crowd_undetermined`).
+   test (:func:`crowd_undetermined`), and a fixed window on one record where most of its
+   neighbourhood fails the window's own test.
    With ``window="auto"`` and a least-squares LRM denominator (one record) the band uses
    the second-order factor (:func:`second_order_factor`) and adds the denominator's bias
    estimated from an IV fit of the widest window (:func:`denominator_bias`) instead: the
