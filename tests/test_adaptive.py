@@ -442,6 +442,29 @@ def test_crowd_undetermined_counts_each_bin_of_a_short_circle_once():
                                   [1, 1, 1, 1])
 
 
+@pytest.mark.parametrize("m", [16, 17, 40])
+@pytest.mark.parametrize("factor", [1, 2, 3])
+def test_auto_neighbourhood_sees_the_mirrored_slow_bins(m, factor):
+    """The neighbourhood rule of window='auto' runs on the circle of all M slow bins.  With
+    F = 1 the fast bins (N/2 + 1 of them) reach only slow bins 0..M/2: the others are their
+    mirrors (slow bin M - t has bin t's test, real signals), and were read as passing, so
+    near DC and the slow Nyquist bin a majority was missed."""
+    from lcmr_xr.kernels.identification import _finish_choice
+
+    rng = np.random.default_rng(m * 10 + factor)
+    n_fast = factor * m
+    k = np.arange(n_fast // 2 + 1)
+    for _ in range(20):
+        slow = rng.random(m) < rng.random()
+        slow[m - np.arange(1, m)] |= slow[1:]  # a real signal's slow bins: t and M - t alike
+        out = {"P_undetermined": np.zeros(k.size, bool), "P_var": np.ones((k.size, 1, 1))}
+        got = _finish_choice(out, np.zeros(m, int), np.zeros(k.size, int),
+                             np.zeros((1, k.size, 1, 1)), slow[k % m], np.array([5]))
+        want = slow[k % m] | np.array([
+            slow[np.unique(np.arange(j - 6, j + 7) % m)].mean() > 0.5 for j in k % m])
+        np.testing.assert_array_equal(got["P_undetermined"], want)
+
+
 def test_auto_releases_no_lying_bin_below_500_hz():
     """Cases 1 and 8, seeds 0-9 (20 records): below 500 Hz the weakest direction of S is
     drowned in the rotational vibration (its ratio 1.9-11, its estimate saturated near 1),
