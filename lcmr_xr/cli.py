@@ -131,7 +131,8 @@ def _identify(args) -> int:
                    "--plot": (args.plot, FIGURE_SUFFIXES)},
                   inputs=[args.experiment], overwrite=args.overwrite)
     exp = open_experiment(args.experiment)
-    leading = [d for d in exp["r"].dims if d not in (cv.TIME, cv.INPUT)]
+    # the dims that stay in the result (the periods of a record are pooled into its FRF)
+    leading = [d for d in exp["r"].dims if d not in (cv.TIME, cv.INPUT, cv.PERIOD)]
     if leading and args.output.suffix.lower() == MAT_SUFFIX:  # before the work, not after it
         raise ValueError(f"-o {args.output}: a .mat file holds one FRF, but {args.experiment} holds "
                          f"experiments along {leading}; write a .nc file, or select one experiment "
