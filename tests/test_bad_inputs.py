@@ -801,6 +801,16 @@ API = [
          ("window", "12.5", "not rounded")),
     Case("sweep_window_whole_float", lambda e: sweep(e.small, window=12.0, degrees="2-2-2"),
          check=lambda res, e: res.window.values.tolist() == [12] or pytest.fail(str(res.window.values))),
+    # one number in a 0-d array (a sweep choice's .values) is that number, as for identify
+    # (a 0-d array was iterated: numpy's "iteration over a 0-d array")
+    Case("sweep_window_zero_dim_array", lambda e: sweep(e.small, window=np.array(12), degrees="2-2-2"),
+         check=lambda res, e: res.window.values.tolist() == [12] or pytest.fail(str(res.window.values))),
+    Case("sweep_window_zero_dim_dataarray", lambda e: sweep(e.small, window=xr.DataArray(12.0), degrees="2-2-2"),
+         check=lambda res, e: res.window.values.tolist() == [12] or pytest.fail(str(res.window.values))),
+    Case("sweep_pool_zero_dim_array", lambda e: sweep(xr.concat([e.small, e.small], "experiment"), window=12,
+                                                      degrees="2-2-2", pool=np.array(2)),
+         check=lambda res, e: xr.testing.assert_identical(
+             res, sweep(xr.concat([e.small, e.small], "experiment"), window=12, degrees="2-2-2", pool=2))),
     Case("sweep_pool_fractional", lambda e: sweep(xr.concat([e.small, e.small], "experiment"), window=12, pool=1.5),
          ValueError, ("pool", "1.5", "not rounded")),
     Case("sweep_degrees_label", lambda e: sweep(e.small, window=[12], degrees=["3-3"]), ValueError,
