@@ -12,6 +12,10 @@ library's entry points: ``window``, ``frequency_chunks``, ``transient_periods``,
 degrees, ``periods``, ``experiments_per_task``, ``n_samples``, ...): ints, numpy ints and
 integral floats (``30.0``) are accepted; a fraction (``30.5``) is a ``ValueError`` (never
 rounded); a bool, a string or another non-number is a ``TypeError`` naming the argument.
+The degrees are also text (``"3-3-3"``, so ``("3", 3, 3)`` is read too), and any malformed
+degrees (``(True, 3, 3)``, ``(2.5, 3, 3)``) are one ``ValueError`` (:func:`parse_degrees`);
+on the command line the same rule reads ``--samples 3600.0`` as 3600
+(:func:`lcmr_xr._cli_support.integer_argument`).
 
 A leaf module (it imports only numpy) like :mod:`lcmr_xr.conventions`.  The kernels do not
 import it (they import nothing outside :mod:`lcmr_xr.kernels`); the closed-loop variants
