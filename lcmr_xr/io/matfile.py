@@ -284,7 +284,8 @@ def open_mat_experiment(path, *, r="r", u="u", y="y", factor=FACTOR_NAME,
         turned into names such as ``"1.0"``.
     input_units, output_units : str, optional
         Units of ``r``/``u`` and of ``y``.  Default None: the file's ``input_units`` /
-        ``output_units`` strings when present, else ``"1"``.
+        ``output_units`` strings when present (a char row, or one unit in a cell such as
+        iddata's ``{'V'}``; different units in one are refused), else ``"1"``.
 
     Returns
     -------
