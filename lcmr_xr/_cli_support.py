@@ -66,11 +66,17 @@ def integer_argument(text: str) -> int:
     except ValueError:
         pass
     try:
-        return as_integer(float(text), "value")
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number; give one in "
+                                         "digits") from None
+    try:
+        return as_integer(value, "value")
     except ValueError:
         pass
+    nearest = f"{int(value // 1)} or another" if value == value and abs(value) != float("inf") else "a"
     raise argparse.ArgumentTypeError(f"{text!r} is not a whole number (it is not rounded); "
-                                     "give one such as 2")
+                                     f"give {nearest} whole number")
 
 
 def add_overwrite(parser: argparse.ArgumentParser) -> None:
