@@ -635,6 +635,16 @@ API = [
     # a bad chunks argument is not reported as a damaged file
     Case("open_chunks_fractional", lambda e: open_frf("frf.nc", chunks={"frequency": 2.5}), ValueError,
          ("chunks", "2.5", "whole number"), absent=("not a valid NetCDF",)),
+    # the integer rule: a whole float is that chunk size ({'frequency': 100.0} was refused
+    # as "must be a whole number"; chunks=100.0 a TypeError), a fraction is refused, not rounded
+    Case("open_chunks_whole_float", lambda e: open_frf("frf.nc", chunks={"frequency": 100.0, "input": (1.0, 1)}),
+         check=lambda res, e: (res.P.chunks == open_frf("frf.nc", chunks={"frequency": 100, "input": (1, 1)}).P.chunks
+                               and res.P.chunks[0][0] == 100) or pytest.fail(str(res.P.chunks))),
+    Case("open_chunks_whole_float_scalar", lambda e: open_dataset("exp.nc", chunks=100.0),
+         check=lambda res, e: res.r.chunks == open_dataset("exp.nc", chunks=100).r.chunks or pytest.fail(
+             str(res.r.chunks))),
+    Case("open_chunks_fractional_scalar", lambda e: open_dataset("exp.nc", chunks=100.5), ValueError,
+         ("chunks", "100.5", "not rounded"), absent=("not a valid NetCDF",)),
     Case("open_chunks_text", lambda e: open_dataset("frf.nc", chunks="x"), TypeError, ("chunks", "'x'"),
          absent=("not a valid NetCDF",)),
     Case("open_text_file", lambda e: open_dataset("notes.nc"), ValueError, ("notes.nc", "not a valid NetCDF")),
