@@ -161,6 +161,7 @@ def as_integer(value, name: str, *, minimum: int | None = None, example=None) ->
     >>> as_integer(np.int64(30), "window"), as_integer(30.0, "window")
     (30, 30)
     """
+    remedy = f"; pass e.g. {name}={example}" if example is not None else f"; pass {name} >= {minimum}"
     example = value if example is None else example
     if isinstance(value, np.ndarray) and value.ndim == 0 or (
             type(value).__name__ == "DataArray" and getattr(value, "ndim", None) == 0):
@@ -177,7 +178,7 @@ def as_integer(value, name: str, *, minimum: int | None = None, example=None) ->
                              f"or another whole number.")
         out = int(value)
     if minimum is not None and out < minimum:
-        raise ValueError(f"{name} must be >= {minimum}, got {out}.")
+        raise ValueError(f"{name} must be >= {minimum}, got {out}{remedy}.")
     return out
 
 

@@ -405,7 +405,7 @@ API = [
     Case("simulate_fast_output_text", lambda e: hdd.simulate(n_samples=400, noise=False, fast_output="yes"),
          TypeError, ("fast_output", "True or False")),
     Case("simulate_seed_negative", lambda e: hdd.simulate(n_samples=400, noise=False, seed=-1), ValueError,
-         ("seed", ">= 0")),
+         ("seed", ">= 0", "pass e.g. seed=0")),  # the remedy: "seed must be >= 0, got -1." had none
     Case("simulate_seed_fractional", lambda e: hdd.simulate(n_samples=400, noise=False, seed=1.5), ValueError,
          ("seed", "1.5", "not rounded")),
     Case("simulate_seed_none", lambda e: hdd.simulate(n_samples=400, noise=False, seed=None), TypeError,
@@ -733,7 +733,7 @@ API = [
          ValueError, ("workers must be >= 1", "-1")),
     Case("sweep_to_disk_workers_zero", lambda e: sweep_to_disk(open_archive("arc1.nc"), "out.nc", window=[12],
                                                                degrees=["2-2-2"], workers=0),
-         ValueError, ("workers must be >= 1", "0")),
+         ValueError, ("workers must be >= 1", "0", "workers=")),
     Case("sweep_to_disk_workers_fractional", lambda e: sweep_to_disk(open_archive("arc1.nc"), "out.nc",
                                                                      window=[12], degrees=["2-2-2"], workers=2.5),
          ValueError, ("workers must be an integer", "2.5", "not rounded")),
