@@ -34,7 +34,10 @@ degrees 3-3-3):
    production's window choice (:func:`pooled_band_decomposition`), with the error the split
    halves share against the truth and the candidate bias terms ``b2_W`` (chosen window
    against the pilot) and, with ``--hausman``, ``b2_H`` (pooled least squares against IV);
-   ``--circular-fan`` and ``--instruments-without-own-transient`` measure variants.
+   ``--circular-fan`` measures a variant of the decomposition;
+   ``--instruments-without-own-transient``, ``--second-order-c-s`` and
+   ``--noise-covariance-as-estimated`` variants of the estimator and band (with or without
+   ``--decompose``).
 6. Window 0 exactness for F = 3 (a SISO loop, E = F nu + 1 = 4 experiments).
 7. Cost: 64 experiments of N = 3600 pooled in one local model against identifying them
    one by one (one call over the experiment dim, and a loop of calls), window 30.
@@ -270,6 +273,7 @@ BAND_FORMS = {
     "exact 2nd order": lambda v, v2, q, rv: v + v2 / (1 - q) ** 2,
     "variance form": lambda v, v2, q, rv: v * (1 + (rv / (1 - q)) ** 2),
     "1/(1 - k rho)": lambda v, v2, q, rv: v / (1 - q) ** 2,
+    "2nd-order factor": lambda v, v2, q, rv: v * (1 + 2 * (q / K95 / (1 - q)) ** 2),
     "no c_S": lambda v, v2, q, rv: v,
 }
 #: The form ``identify`` uses for pooled fits calibrated by their halves (on top of the
@@ -429,18 +433,26 @@ def _captured_candidates(calibrations=None):
 
 
 @contextlib.contextmanager
-def _variant(circular_fan: bool = False, own_transient: bool = True):
-    """Measurement variants of :func:`pooled_band_decomposition` (not production):
+def _variant(circular_fan: bool = False, own_transient: bool = True, psd: bool = True,
+             second_order: bool = False):
+    """Measurement variants of :func:`pooled_band_decomposition` and
+    :func:`disturbances_pooled` (not production):
     ``circular_fan``: the fan vibration as the periodic steady state of its filter (the
     noise's DFT times the filter's FRF at the fast bins: no transient, no leakage in its
     spectrum); ``own_transient=False``: the pooled IV's instruments ``G1 R`` without each
     experiment's own first-fit transient ``T1`` (which is fitted to that experiment's
-    noise)."""
+    noise); ``psd=False``: every pooled fit's ``G_cov`` from its residual noise covariance
+    as estimated, entry by entry (production up to session 14; now mended by
+    :func:`lcmr_xr.kernels.pooling.nearest_correlation`); ``second_order``: the pooled
+    band's nonlinearity factor :func:`lcmr_xr.kernels.adaptive.second_order_factor`
+    instead of ``1 / (1 - k rho)`` (pooled fits calibrated by their halves only)."""
     from lcmr_xr.hdd import benchmark as hb, disturbances as hd
     from lcmr_xr.kernels import identification as kid
+    from lcmr_xr.kernels.adaptive import second_order_factor
     from lcmr_xr.kernels.lti import frequency_response
 
     fan, prediction = hb.fan_vibration, kid._prediction
+    nearest, pooled_factor = kid.nearest_correlation, kid.pooled_nonlinearity_factor
 
     def circular(n, rng):
         e = hd.NOISE_SCALE * rng.uniform(-0.5, 0.5, size=int(n))
@@ -456,10 +468,15 @@ def _variant(circular_fan: bool = False, own_transient: bool = True):
         hb.fan_vibration = circular
     if not own_transient:
         kid._prediction = without_own_transient
+    if not psd:
+        kid.nearest_correlation = lambda s: s
+    if second_order:
+        kid.pooled_nonlinearity_factor = second_order_factor
     try:
         yield
     finally:
         hb.fan_vibration, kid._prediction = fan, prediction
+        kid.nearest_correlation, kid.pooled_nonlinearity_factor = nearest, pooled_factor
 
 
 def _widest_flag_kept(calls, q_widest, choice):
@@ -479,7 +496,7 @@ def _widest_flag_kept(calls, q_widest, choice):
     return ~(q * np.sqrt(share[k % m]) <= UNDETERMINED_LIMIT)
 
 
-def _band_pieces(fit, kw, out, ratio=None):
+def _band_pieces(fit, kw, out, ratio=None, production_form=PRODUCTION_FORM):
     """Per fast bin of one candidate: ``v``, ``v2``, ``q``, ``rho_v`` (broadcast to ``P``),
     the small-sample factor, and the calibration and undetermined flag it used.
     ``ratio``: another split-half ratio than production's (the pieces are then those
@@ -514,7 +531,7 @@ def _band_pieces(fit, kw, out, ratio=None):
         np.testing.assert_allclose(pf, out["P_spread_calibration"], rtol=1e-9)
         with np.errstate(divide="ignore", invalid="ignore"):
             check = np.where(und, np.inf,
-                             dof ** 2 * pf * BAND_FORMS[PRODUCTION_FORM](
+                             dof ** 2 * pf * BAND_FORMS[production_form](
                                  v, v2, K95 * rho[slow, None, None], rho_v[slow, None, None]))
         ok = np.isfinite(out["P_var"])
         np.testing.assert_allclose(check[ok], out["P_var"][ok], rtol=1e-9)
@@ -769,7 +786,8 @@ HAUSMAN_ROWS = {
 
 def pooled_band_decomposition(groups: int, first_group: int = 0, n_exp: int = 8,
                               denominator="iv", disturbances=None, hausman: bool = False,
-                              circular_fan: bool = False, own_transient: bool = True):
+                              circular_fan: bool = False, own_transient: bool = True,
+                              psd: bool = True, second_order: bool = False):
     """Coverage of the pooled 95 % discs per band with the band built from some of its
     ingredients (:data:`DECOMPOSITION`), at production's window choice and flag (so every
     row has ``identify``'s ``P``; a flagged bin counts as covered).  One pooled
@@ -787,7 +805,10 @@ def pooled_band_decomposition(groups: int, first_group: int = 0, n_exp: int = 8,
     ``hausman``: also the rows of :data:`HAUSMAN_ROWS`, with ``b2H`` from two more pooled
     fits per group at the widest window (least squares and IV), whose difference bounds
     least squares' errors-in-variables bias (an upper term for IV's).  ``circular_fan``,
-    ``own_transient``: measurement variants (:func:`_variant`)."""
+    ``own_transient``, ``psd``, ``second_order``: measurement variants (:func:`_variant`;
+    with ``second_order`` the row "production (all)" is that variant's band).  Also
+    reported: the fraction of unflagged bins whose first-order variance is exactly 0 (a
+    negative variance of a covariance that is not positive semidefinite, clipped)."""
     from lcmr_xr.demo import BANDS_HZ
     from lcmr_xr.kernels.adaptive import second_order_factor
 
@@ -798,13 +819,14 @@ def pooled_band_decomposition(groups: int, first_group: int = 0, n_exp: int = 8,
     flagged = np.zeros((groups, len(BANDS_HZ)))
     medians = {}
     for gi, g in enumerate(range(first_group, first_group + groups)):
-        with _variant(circular_fan, own_transient):
+        with _variant(circular_fan, own_transient, psd, second_order):
             exps = [hdd.simulate(N, case=CASE, seed=500 + n_exp * g + e, **which)
                     for e in range(n_exp)]
-        with _captured_candidates({}) as calls, _variant(circular_fan, own_transient):
+        with _captured_candidates({}) as calls, _variant(circular_fan, own_transient, psd, second_order):
             pooled = lcmr_xr.identify(xr.concat(exps, "experiment"), combine="experiment",
                                       errors="ignore", denominator=denominator)
-        pieces = [_band_pieces(fit, kw, out) for fit, kw, out in calls]
+        form = "2nd-order factor" if second_order else PRODUCTION_FORM
+        pieces = [_band_pieces(fit, kw, out, production_form=form) for fit, kw, out in calls]
         f = pooled.frequency.values
         m = pooled.sizes["slow_frequency"]
         slow = np.arange(f.size) % m
@@ -828,7 +850,8 @@ def pooled_band_decomposition(groups: int, first_group: int = 0, n_exp: int = 8,
                              ("pf", p["pf"]), ("pf_nf", _p_factor_raw(*P_h, p["v"], und, w, False)),
                              ("pf_raw", _p_factor_raw(*P_h, v_raw, und, w, True)),
                              ("pf_raw_nf", _p_factor_raw(*P_h, v_raw, und, w, False)),
-                             ("cs", np.where(und[:, None, None], 1.0, 1.0 / (1.0 - p["q"]))),
+                             ("cs", np.where(und[:, None, None], 1.0, cs2 if second_order
+                                             else 1.0 / (1.0 - p["q"]))),
                              ("cs2", cs2),
                              ("csq", weak_direction_quantile_factor(np.where(und[:, None, None], 0.0, rho))),
                              ("jk", jk), ("Pa", P_h[0]), ("Pb", P_h[1])):
@@ -853,7 +876,7 @@ def pooled_band_decomposition(groups: int, first_group: int = 0, n_exp: int = 8,
         c["b2W"] = denominator_bias(chosen(P), P[0], np.zeros(spread.shape), spread,
                                     determined=~undetermined & np.isfinite(spread))
         if hausman:  # pooled least squares against pooled IV, both at the widest window
-            with _variant(circular_fan, own_transient):
+            with _variant(circular_fan, own_transient, psd, second_order):
                 twins = [lcmr_xr.identify(xr.concat(exps, "experiment"), combine="experiment",
                                           errors="ignore", denominator=d, window=WINDOW)
                          for d in ("ls", "iv")]
@@ -864,7 +887,7 @@ def pooled_band_decomposition(groups: int, first_group: int = 0, n_exp: int = 8,
             # the same comparison with the variance of the difference measured by the
             # split halves (random groups, equal halves: w = 1/4) instead of the fits'
             # reported variances: mean over the neighbours of |d|^2 - |d_a - d_b|^2 / 4
-            with _variant(circular_fan, own_transient):
+            with _variant(circular_fan, own_transient, psd, second_order):
                 d_h = [lcmr_xr.identify(xr.concat(exps[h::2], "experiment"),
                                         combine="experiment", errors="ignore", denominator="ls",
                                         window=WINDOW).P.values
@@ -896,7 +919,8 @@ def pooled_band_decomposition(groups: int, first_group: int = 0, n_exp: int = 8,
                          np.real((c["Pa"] - truth) * np.conj(c["Pb"] - truth)) / (c["dof"] ** 2 * c["v"]),
                      "w |e_a - e_b|^2 / (c_dof^2 v) (mean)":
                          0.25 * np.abs(c["Pa"] - c["Pb"]) ** 2 / (c["dof"] ** 2 * c["v"]),
-                     "err^2 / (c_dof^2 v) (mean)": err2 / (c["dof"] ** 2 * c["v"])}
+                     "err^2 / (c_dof^2 v) (mean)": err2 / (c["dof"] ** 2 * c["v"]),
+                     "first-order variance 0 (mean)": (c["v"] == 0).astype(float)}
         for b, (lo, hi) in enumerate(BANDS_HZ):
             sel = (f > lo) & (f < hi) & (f < f.max())
             flagged[gi, b] = undetermined[sel, 0, 0].mean()
@@ -1055,8 +1079,15 @@ def main(argv=None):
                         help="with --decompose: the fan vibration as its filter's periodic "
                              "steady state (no leakage; a measurement variant)")
     parser.add_argument("--instruments-without-own-transient", action="store_true",
-                        help="with --decompose: pooled IV instruments G1 R without each "
+                        help="with --only-disturbances: pooled IV instruments G1 R without each "
                              "experiment's own first-fit transient (a measurement variant)")
+    parser.add_argument("--noise-covariance-as-estimated", action="store_true",
+                        help="with --only-disturbances: pooled fits' G_cov from the residual noise "
+                             "covariance entry by entry, not mended to a covariance (session 14's "
+                             "production; a measurement variant)")
+    parser.add_argument("--second-order-c-s", action="store_true",
+                        help="with --only-disturbances: the pooled band's nonlinearity factor "
+                             "second_order_factor instead of 1/(1 - k rho) (a measurement variant)")
     parser.add_argument("--disturbances", nargs="+", default=None,
                         choices=["rotational", "fan", "runout"],
                         help="with --decompose: only these disturbances (default: all)")
@@ -1088,7 +1119,9 @@ def main(argv=None):
                     args.groups, args.first_group, denominator=d,
                     disturbances=args.disturbances, hausman=args.hausman,
                     circular_fan=args.circular_fan,
-                    own_transient=not args.instruments_without_own_transient),
+                    own_transient=not args.instruments_without_own_transient,
+                    psd=not args.noise_covariance_as_estimated,
+                    second_order=args.second_order_c_s),
                     first_group=args.first_group, denominator=d)
             return
         if args.band_forms:
@@ -1098,8 +1131,11 @@ def main(argv=None):
                                                      calibrations=args.calibrations),
                                   first_group=args.first_group, denominator=d)
             return
-        report_disturbances(*disturbances_pooled(args.groups, first_group=args.first_group,
-                                                 denominators=args.denominator))
+        with _variant(own_transient=not args.instruments_without_own_transient,
+                      psd=not args.noise_covariance_as_estimated,
+                      second_order=args.second_order_c_s):
+            report_disturbances(*disturbances_pooled(args.groups, first_group=args.first_group,
+                                                     denominators=args.denominator))
         return
     if args.seeds < 3:
         parser.error(f"--seeds must be at least 3 to estimate a variance, got {args.seeds}")

@@ -240,15 +240,24 @@ def test_pooling_decomposition_variants():
     """The measurement variants of --decompose (benchmarks/pooling.py _variant): the
     circular fan vibration is its filter's periodic steady state (its DFT is the filter's
     FRF times the noise's DFT, its standard deviation the stationary one, 3.0 nm); the
-    pooled instruments without their own transient are G1 R; both undone on exit."""
+    pooled instruments without their own transient are G1 R; the noise covariance as
+    estimated is not mended; the pooled band's nonlinearity factor is the second-order one;
+    all undone on exit."""
     from lcmr_xr.hdd import benchmark as hb, disturbances as hd
     from lcmr_xr.kernels import identification as kid
     from lcmr_xr.kernels.lti import frequency_response
 
     module = _load("pooling")
+    from lcmr_xr.kernels.adaptive import second_order_factor
+
     fan, prediction = hb.fan_vibration, kid._prediction
+    nearest, pooled_factor = kid.nearest_correlation, kid.pooled_nonlinearity_factor
+    s = np.array([[1.0, 2.2], [2.2, 4.0]]) + 0j  # correlation 1.1
+    assert abs(kid.nearest_correlation(s)[0, 1] - 2.0) < 1e-12  # production: mended
     n = 1 << 16
-    with module._variant(circular_fan=True, own_transient=False):
+    with module._variant(circular_fan=True, own_transient=False, psd=False, second_order=True):
+        np.testing.assert_array_equal(kid.nearest_correlation(s), s)
+        assert kid.pooled_nonlinearity_factor is second_order_factor
         x = hb.fan_vibration(n, np.random.default_rng(3))
         e = hd.NOISE_SCALE * np.random.default_rng(3).uniform(-0.5, 0.5, size=n)
         H = frequency_response(hd.fan_filter(), np.fft.rfftfreq(n, d=hd.FAST_PERIOD))[:, 0, 0]
@@ -265,6 +274,7 @@ def test_pooling_decomposition_variants():
         np.testing.assert_allclose(kid._prediction(G, T[0], R[0], Z[0], circular=False),
                                    np.einsum("mip,mp->mi", G, R[0]) + T[0])  # one record: as before
     assert hb.fan_vibration is fan and kid._prediction is prediction
+    assert kid.nearest_correlation is nearest and kid.pooled_nonlinearity_factor is pooled_factor
 
 
 def test_accuracy_window_tally_splits_the_band_table_by_chosen_window():

@@ -19,7 +19,8 @@ from lcmr_xr.kernels.lifting import frf_from_first_block_row, lift
 from lcmr_xr.kernels.local_models import (CovarianceBuffer, _restart_interval, fits_half,
                                           hermitian, local_model, parameters_per_row)
 from lcmr_xr.kernels.pooling import (MIN_SPLIT_EXPERIMENTS, group_weight, half_variances,
-                                     mean_and_covariance, p_spread_factor, pooled_least_squares,
+                                     mean_and_covariance, nearest_correlation, p_spread_factor,
+                                     pooled_least_squares,
                                      rescale_covariance, split_halves, spread_calibration,
                                      spread_ratio, window_mean)
 
@@ -470,9 +471,13 @@ def _fit_terms(R, Z, *, half_width, degrees, circular, covariance, known_covaria
                       instruments=instruments if denominator == "iv" else None, bins=bins,
                       select=select, **({} if buffers is None else {"buffers": buffers}))
     G_cov = fit.G_cov
+    n_exp = _n_experiments(R, Z, experiment_axis)
     if covariance and known_covariance is not None:
         G_cov = rescale_covariance(G_cov, fit.noise_covariance, known_covariance)
-    n_exp = _n_experiments(R, Z, experiment_axis)
+    elif covariance and n_exp is not None:
+        # pooled: the residual noise covariance made positive semidefinite (its entries
+        # are estimated one by one), so that G_cov is a covariance
+        G_cov = _positive_semidefinite(G_cov, fit.noise_covariance)
     out = {"G": fit.G, "T": fit.T if n_exp is None else np.moveaxis(fit.T, -3, -2),
            "noise_variance": fit.noise_variance, "condition": fit.condition,
            "ill_posed": fit.ill_posed}
@@ -504,6 +509,26 @@ def _fit_terms(R, Z, *, half_width, degrees, circular, covariance, known_covaria
                                  denominator=denominator, instruments=halves_instruments,
                                  closed_loop=closed_loop))
     return out
+
+
+def _positive_semidefinite(G_cov, noise_covariance):
+    """``G_cov`` (..., M, nz nr, nz nr) of a pooled fit rebuilt from the
+    :func:`lcmr_xr.kernels.pooling.nearest_correlation` of its residual
+    ``noise_covariance`` (..., M, nz, nz) (:func:`lcmr_xr.kernels.pooling.rescale_covariance`)
+    at the bins where that changes it; the others are left bit for bit.  Every
+    ``Cov(G_i, G_j) = s_ij h_i h_j^H`` is then a covariance (a positive semidefinite ``s``
+    and the Schur product theorem): the first-order variance of ``P`` is never negative.
+    Measured on the HDD benchmark (8 experiments, IV, window 19): correlations above 1.01
+    at 65 % of the bins (median of the largest per bin 1.025) before, and exact zeros of
+    ``P``'s first-order variance (negative ones clipped) at window 12 (docs/uncertainty.md,
+    "A pooled noise covariance that is a covariance")."""
+    new = nearest_correlation(noise_covariance)
+    changed = np.any(new != noise_covariance, axis=(-2, -1)) \
+        & np.all(np.isfinite(noise_covariance), axis=(-2, -1))
+    if not np.any(changed):
+        return G_cov
+    return np.where(changed[..., None, None],
+                    rescale_covariance(G_cov, noise_covariance, new), G_cov)
 
 
 def _spread_ratio(R, Z, terms, **kwargs) -> dict:

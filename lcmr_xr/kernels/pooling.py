@@ -40,7 +40,8 @@ import numpy as np
 from lcmr_xr.kernels.local_models import CONDITION_LIMIT
 
 __all__ = ["MIN_SPLIT_EXPERIMENTS", "PooledFit", "SPREAD_SMOOTHING", "group_weight",
-           "half_variances", "mean_and_covariance", "p_spread_factor", "pooled_least_squares",
+           "half_variances", "mean_and_covariance", "nearest_correlation", "p_spread_factor",
+           "pooled_least_squares",
            "rescale_covariance", "split_halves", "spread_calibration", "spread_ratio",
            "window_mean"]
 
@@ -186,6 +187,56 @@ def rescale_covariance(G_cov: np.ndarray, noise_used: np.ndarray, noise_new: np.
     C = G_cov.reshape(G_cov.shape[:-2] + (nz, nr, nz, nr))
     out = C * ratio[..., :, None, :, None]
     return out.reshape(G_cov.shape)
+
+
+def nearest_correlation(s: np.ndarray) -> np.ndarray:
+    """A positive semidefinite noise covariance with the diagonal of ``s``, per bin.
+
+    The local model estimates every entry of its noise covariance on its own,
+    ``s_ij = sum_r e_i(r) conj(e_j(r)) / tau_ij`` with each pair's own expected residual
+    energy ``tau_ij`` (:func:`lcmr_xr.kernels.local_models.local_model`, Notes): unbiased
+    entry by entry, but not a covariance as a whole.  ``|tau_ij| <= sqrt(tau_ii tau_jj)``
+    (Cauchy-Schwarz: ``tau_ij`` is an inner product of the rows' residual-maker matrices),
+    so where the rows' noise is nearly collinear (the lifted ``u`` and ``y`` of a loop share
+    their disturbances) the estimated correlations exceed 1, the matrix has negative
+    eigenvalues, and so may the first-order variance of ``P`` derived from it
+    (:func:`lcmr_xr.kernels.closed_loop.frf_variance_from_first_row` clips it to 0).  Here
+    the correlation matrix ``s_ij / sqrt(s_ii s_jj)`` loses its negative eigenvalues and is
+    scaled back to a unit diagonal (one step of Higham's nearest correlation matrix,
+    IMA J. Numer. Anal. 22(3), 2002), and every row keeps its variance.  A bin whose
+    correlation matrix has no negative eigenvalue, or with a variance that is not finite
+    and positive, is returned as it is (bit for bit).
+
+    Parameters
+    ----------
+    s : ndarray, complex, shape (..., nz, nz)
+        Hermitian noise covariance estimates (per bin).
+
+    Returns
+    -------
+    ndarray, shape of ``s``
+
+    Examples
+    --------
+    >>> s = np.array([[1.0, 1.2], [1.2, 4.0]]) + 0j        # correlation 0.6: kept
+    >>> bool(np.array_equal(nearest_correlation(s), s))
+    True
+    >>> t = nearest_correlation(np.array([[1.0, 2.2], [2.2, 4.0]]) + 0j)   # 1.1: not
+    >>> np.round(t.real, 6).tolist()
+    [[1.0, 2.0], [2.0, 4.0]]
+    """
+    s = np.asarray(s)
+    d = np.sqrt(np.real(np.diagonal(s, axis1=-2, axis2=-1)))
+    with np.errstate(all="ignore"):
+        c = s / (d[..., :, None] * d[..., None, :])
+        c = (c + np.conj(np.swapaxes(c, -1, -2))) / 2
+        valid = np.all(np.isfinite(c), axis=(-2, -1)) & np.all(d > 0, axis=-1)
+        lam, vec = np.linalg.eigh(np.where(valid[..., None, None], c, np.eye(c.shape[-1])))
+        fix = valid & (lam[..., 0] < 0)
+        c = (vec * np.maximum(lam, 0.0)[..., None, :]) @ np.conj(np.swapaxes(vec, -1, -2))
+        e = np.sqrt(np.real(np.diagonal(c, axis1=-2, axis2=-1)))
+        out = c / (e[..., :, None] * e[..., None, :]) * d[..., :, None] * d[..., None, :]
+    return np.where(fix[..., None, None], out, s)
 
 
 class PooledFit(NamedTuple):
