@@ -423,18 +423,51 @@ def test_below_500_hz_the_seeds_that_fooled_the_plain_ratio_are_covered(seed):
 @settings(max_examples=60, deadline=None)
 def test_crowd_undetermined_is_the_majority_of_the_neighbourhood(seed, half, n, circular):
     """Bin by bin: more than half of the bins within ``half`` of it fail (those that exist,
-    or on the circle of bins: ``2 half + 1`` of them, bins counted again when the circle is
-    shorter)."""
+    or on the circle of bins: ``2 half + 1`` of them, or every bin of a shorter circle, each
+    counted once)."""
     rng = np.random.default_rng(seed)
     u = rng.random((3, n)) < rng.random()
     got = crowd_undetermined(u, half, circular=circular)
     for row in range(3):
         for k in range(n):
-            near = (u[row, np.arange(k - half, k + half + 1) % n] if circular
+            near = (u[row, np.unique(np.arange(k - half, k + half + 1) % n)] if circular
                     else u[row, max(0, k - half):k + half + 1])
             assert got[row, k] == (near.sum() > near.size / 2)
     # along another axis alike
     np.testing.assert_array_equal(crowd_undetermined(u.T, half, axis=0, circular=circular), got.T)
+
+
+def test_crowd_undetermined_counts_each_bin_of_a_short_circle_once():
+    """Fewer slow bins than the neighbourhood (M < 13: a short record, low degrees): the
+    neighbourhood is every bin once.  Two of four failing is not more than half; counting
+    the circle round (13 positions on 4 bins, the opposite bin 4 times) flagged all four."""
+    u = np.array([0, 1, 1, 0], bool)
+    np.testing.assert_array_equal(crowd_undetermined(u, 6, circular=True), [0, 0, 0, 0])
+    np.testing.assert_array_equal(crowd_undetermined(np.array([0, 1, 1, 1]), 6, circular=True),
+                                  [1, 1, 1, 1])
+
+
+@pytest.mark.parametrize("m", [16, 17, 40])
+@pytest.mark.parametrize("factor", [1, 2, 3])
+def test_auto_neighbourhood_sees_the_mirrored_slow_bins(m, factor):
+    """The neighbourhood rule of window='auto' runs on the circle of all M slow bins.  With
+    F = 1 the fast bins (N/2 + 1 of them) reach only slow bins 0..M/2: the others are their
+    mirrors (slow bin M - t has bin t's test, real signals), and were read as passing, so
+    near DC and the slow Nyquist bin a majority was missed."""
+    from lcmr_xr.kernels.identification import _finish_choice
+
+    rng = np.random.default_rng(m * 10 + factor)
+    n_fast = factor * m
+    k = np.arange(n_fast // 2 + 1)
+    for _ in range(20):
+        slow = rng.random(m) < rng.random()
+        slow[m - np.arange(1, m)] |= slow[1:]  # a real signal's slow bins: t and M - t alike
+        out = {"P_undetermined": np.zeros(k.size, bool), "P_var": np.ones((k.size, 1, 1))}
+        got = _finish_choice(out, np.zeros(m, int), np.zeros(k.size, int),
+                             np.zeros((1, k.size, 1, 1)), slow[k % m], np.array([5]))
+        want = slow[k % m] | np.array([
+            slow[np.unique(np.arange(j - 6, j + 7) % m)].mean() > 0.5 for j in k % m])
+        np.testing.assert_array_equal(got["P_undetermined"], want)
 
 
 @pytest.mark.parametrize("window", ["auto", 30])

@@ -561,7 +561,8 @@ def crowd_undetermined(undetermined, smoothing: int = BIAS_SMOOTHING, axis: int 
                        circular: bool = False) -> np.ndarray:
     """Bins most of whose neighbours fail the determinacy test: ``undetermined`` at more
     than half of the ``2 smoothing + 1`` bins centred on each (``circular``: the bins are a
-    circle, as the slow bins of a DFT; else at the edges the available ones).
+    circle, as the slow bins of a DFT, and a circle of fewer bins is each bin's
+    neighbourhood whole, every bin counted once; else at the edges the available ones).
 
     The test's ``rho`` (:func:`weak_direction`) estimates the noise of the weakest direction
     of ``S`` relative to ``S``'s own smallest singular value.  Where that direction is
@@ -601,6 +602,8 @@ def crowd_undetermined(undetermined, smoothing: int = BIAS_SMOOTHING, axis: int 
     n = u.shape[axis]
     if not circular or half <= 0 or n == 0:
         return _running_mean(u.astype(float), half, axis) > 0.5
+    if n < 2 * half + 1:  # the window would go round the circle: every bin once
+        return np.broadcast_to(u.mean(axis=axis, keepdims=True) > 0.5, u.shape).copy()
     # the circle unrolled by ``half`` bins each side: every bin then has its whole window
     ring = np.take(u, np.arange(-half, n + half) % n, axis=axis).astype(float)
     frac = np.take(_running_mean(ring, half, axis), np.arange(half, half + n), axis=axis)

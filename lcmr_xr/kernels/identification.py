@@ -1336,6 +1336,9 @@ def _finish_choice(out, choice, fast_choice, bias2, widest_undetermined, windows
     k = np.arange(fast_choice.shape[-1])
     slow = np.zeros(widest_undetermined.shape[:-1] + (m,), dtype=bool)
     slow[..., k % m] = widest_undetermined  # (a fast bin carries its slow bin's flag)
+    if k.size < m:  # F = 1: the fast bins reach slow bin M/2; past it, the mirrors M - t
+        past = np.arange(k.size, m)
+        slow[..., past] = slow[..., m - past]
     undetermined = out["P_undetermined"] | widest_undetermined | np.take(
         crowd_undetermined(slow, circular=True), k % m, axis=-1)
     out["P_undetermined"] = undetermined
