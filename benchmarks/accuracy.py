@@ -12,7 +12,7 @@ Usage: ``python benchmarks/accuracy.py [--seeds 10] [--cases 1-9] [--n-samples 3
 [--denominator ls iv] [--band-forms] [--decomposition [--records 30] [--half-width 30]
 [--degrees 3 3 3] [--denominator ls] [--instruments narrow] [--first-window 30]
 [--noise VARIANT ...]] [--instrument-coverage [--first-window 30]] [--attribution]
-[--cost [--repeats 5]] [--per-window]``.
+[--cost [--repeats 5]] [--per-window] [--windows 30 12 auto]``.
 ``--band-forms`` prints only the coverage of candidate forms of the ``S^-1`` nonlinearity
 factor (:func:`band_forms`); ``--decomposition`` only the bias / variance decomposition of
 the local model's error at fixed excitations (:func:`covariance_decomposition`; with
@@ -25,6 +25,8 @@ against one fixed-window fit (:func:`cost`, issue 13's bound 3x; the full run pr
 count of bins, flagged and unflagged, and the coverage of the unflagged bins
 (:func:`window_tally`: a flagged bin counts as covered in the band table, so a small class
 of released bins whose band lies hides in it; the full run prints this table too).
+``--windows`` (half-widths or ``auto``) replaces the windows of the band tables (fixed 30
+and auto; ``--per-window``: auto) and tallies each of them per window.
 Prints progress to stderr; takes minutes (one identification per seed, case and setting).
 """
 
@@ -72,7 +74,10 @@ def window_tally(frf, truth, tally=None) -> dict:
     hit = (np.abs(frf.P.values - t) <= K95 * frf.P_std.values)[:, 0, :]
     flag = frf.P_undetermined.values
     m = frf.sizes["slow_frequency"]
-    window = frf.local_window.values[np.arange(f.size) % m]
+    if "local_window" in frf:
+        window = frf.local_window.values[np.arange(f.size) % m]
+    else:  # a fixed window: the same at every bin
+        window = np.full(f.size, int(frf.attrs["window"]))
     interior = (f > 0) & (f < f.max())
     for b, (lo, hi) in enumerate(BANDS):
         sel = interior & (f > lo) & (f < hi)
@@ -102,8 +107,8 @@ def run(settings, *, cases, seeds, n_samples, noise, disturbances=hdd.DISTURBANC
         tallies=None):
     """stats[setting] -> array (case, seed, band, input, 3).
 
-    ``tallies``: a dict whose keys are settings with ``window="auto"``; each gets the
-    :func:`window_tally` of that setting's results over every case and seed."""
+    ``tallies``: a dict whose keys are settings; each gets the :func:`window_tally` of
+    that setting's results over every case and seed."""
     stats = {name: [] for name in settings}
     for case in cases:
         per = {name: [] for name in settings}
@@ -700,6 +705,9 @@ def main(argv=None):
                     help="only window='auto' with the disturbances: the band table, then per "
                          "band and chosen window the number of bins, flagged and unflagged, and "
                          "the coverage of the unflagged bins (the full run prints it too)")
+    ap.add_argument("--windows", nargs="+", default=[],
+                    help="the windows of the band tables and the per-window tallies "
+                         "(half-widths or auto; default: 30 and auto, --per-window: auto)")
     args = ap.parse_args(argv)
     if args.cost:
         print_cost(cost(n_samples=args.n_samples, repeats=args.repeats,
@@ -761,8 +769,12 @@ def main(argv=None):
             _print_cover_row(name, 20, mean, worst)
         print(f"({time.perf_counter() - t0:.0f} s; machine shared with other jobs)")
         return
-    windows = (("auto", "auto"),) if args.per_window else (("fixed window 30", 30), ("auto", "auto"))
-    tallies = {f"auto, denominator {d}": None for d in args.denominator}
+    named = [("auto", "auto") if w == "auto" else (f"fixed window {w}", int(w))
+             for w in args.windows]
+    windows = tuple(named) if args.windows else (
+        (("auto", "auto"),) if args.per_window else (("fixed window 30", 30), ("auto", "auto")))
+    tallies = {f"{name}, denominator {d}": None for d in args.denominator
+               for name, _ in windows if args.windows or name == "auto"}
     noisy = run({f"{name}, denominator {d}": (w, d) for d in args.denominator
                  for name, w in windows}, cases=cases,
                 seeds=args.seeds, n_samples=args.n_samples, noise=True, tallies=tallies)

@@ -47,6 +47,38 @@ def error_line(command: str, exc: BaseException) -> str:
     return f"lcmr-xr {command}: error: {message}"
 
 
+def integer_argument(text: str) -> int:
+    """A command line's whole-number token (``--samples``, ``--seed``, ``--case``,
+    ``--pool``) by the library's one integer rule (:func:`lcmr_xr.settings.as_integer`):
+    ``400`` and ``400.0`` are 400, ``400.5`` is refused (never rounded), as in Python
+    and as ``--window`` does.  argparse puts the option's name before the message.
+
+    Examples
+    --------
+    >>> integer_argument("400"), integer_argument("400.0")
+    (400, 400)
+    """
+    from lcmr_xr.settings import as_integer
+
+    text = str(text).strip()
+    try:
+        return int(text)
+    except ValueError:
+        pass
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number; give one in "
+                                         "digits") from None
+    try:
+        return as_integer(value, "value")
+    except ValueError:
+        pass
+    nearest = f"{int(value // 1)} or another" if value == value and abs(value) != float("inf") else "a"
+    raise argparse.ArgumentTypeError(f"{text!r} is not a whole number (it is not rounded); "
+                                     f"give {nearest} whole number")
+
+
 def add_overwrite(parser: argparse.ArgumentParser) -> None:
     """The ``--overwrite`` flag: replace existing output files (never an input)."""
     parser.add_argument("--overwrite", action="store_true",

@@ -27,7 +27,8 @@ import sys
 from pathlib import Path
 
 from lcmr_xr._cli_support import (DENOMINATOR_HELP, FIGURE_SUFFIXES, NETCDF_SUFFIXES, HelpFormatter,
-                                  add_overwrite, check_outputs, error_line, heartbeat)
+                                  add_overwrite, check_outputs, error_line, heartbeat,
+                                  integer_argument)
 from lcmr_xr.settings import CLOSED_LOOP, DEFAULT_WINDOW, DENOMINATOR, METHODS, window_argument
 
 MAT_SUFFIX = ".mat"  # lcmr_xr.io.matfile's (not imported here: it would import xarray)
@@ -84,10 +85,10 @@ def _parser() -> argparse.ArgumentParser:
                          formatter_class=HelpFormatter)
     sim.add_argument("-o", "--output", type=Path, required=True,
                      help="experiment NetCDF file to write (.nc)")
-    sim.add_argument("--samples", type=int, default=3600, help="number N of fast samples")
-    sim.add_argument("--case", type=int, default=2, choices=range(1, 10), metavar="1..9",
+    sim.add_argument("--samples", type=integer_argument, default=3600, help="number N of fast samples")
+    sim.add_argument("--case", type=integer_argument, default=2, choices=range(1, 10), metavar="1..9",
                      help="HDD benchmark case (plant variant)")
-    sim.add_argument("--seed", type=int, default=0, help="seed of the excitation and noise")
+    sim.add_argument("--seed", type=integer_argument, default=0, help="seed of the excitation and noise")
     sim.add_argument("--noiseless", action="store_true",
                      help="no disturbances or measurement noise (default: with noise)")
     sim.add_argument("--disturbances", nargs="+", choices=DISTURBANCES, default=list(DISTURBANCES),
@@ -130,7 +131,8 @@ def _identify(args) -> int:
                    "--plot": (args.plot, FIGURE_SUFFIXES)},
                   inputs=[args.experiment], overwrite=args.overwrite)
     exp = open_experiment(args.experiment)
-    leading = [d for d in exp["r"].dims if d not in (cv.TIME, cv.INPUT)]
+    # the dims that stay in the result (the periods of a record are pooled into its FRF)
+    leading = [d for d in exp["r"].dims if d not in (cv.TIME, cv.INPUT, cv.PERIOD)]
     if leading and args.output.suffix.lower() == MAT_SUFFIX:  # before the work, not after it
         raise ValueError(f"-o {args.output}: a .mat file holds one FRF, but {args.experiment} holds "
                          f"experiments along {leading}; write a .nc file, or select one experiment "

@@ -12,6 +12,10 @@ library's entry points: ``window``, ``frequency_chunks``, ``transient_periods``,
 degrees, ``periods``, ``experiments_per_task``, ``n_samples``, ...): ints, numpy ints and
 integral floats (``30.0``) are accepted; a fraction (``30.5``) is a ``ValueError`` (never
 rounded); a bool, a string or another non-number is a ``TypeError`` naming the argument.
+The degrees are also text (``"3-3-3"``, so ``("3", 3, 3)`` is read too), and any malformed
+degrees (``(True, 3, 3)``, ``(2.5, 3, 3)``) are one ``ValueError`` (:func:`parse_degrees`);
+on the command line the same rule reads ``--samples 3600.0`` as 3600
+(:func:`lcmr_xr._cli_support.integer_argument`).
 
 A leaf module (it imports only numpy) like :mod:`lcmr_xr.conventions`.  The kernels do not
 import it (they import nothing outside :mod:`lcmr_xr.kernels`); the closed-loop variants
@@ -157,6 +161,7 @@ def as_integer(value, name: str, *, minimum: int | None = None, example=None) ->
     >>> as_integer(np.int64(30), "window"), as_integer(30.0, "window")
     (30, 30)
     """
+    remedy = f"; pass e.g. {name}={example}" if example is not None else f"; pass {name} >= {minimum}"
     example = value if example is None else example
     if isinstance(value, np.ndarray) and value.ndim == 0 or (
             type(value).__name__ == "DataArray" and getattr(value, "ndim", None) == 0):
@@ -173,7 +178,7 @@ def as_integer(value, name: str, *, minimum: int | None = None, example=None) ->
                              f"or another whole number.")
         out = int(value)
     if minimum is not None and out < minimum:
-        raise ValueError(f"{name} must be >= {minimum}, got {out}.")
+        raise ValueError(f"{name} must be >= {minimum}, got {out}{remedy}.")
     return out
 
 

@@ -298,7 +298,8 @@ API = [
     Case("sampling_period_1x1_from_loadmat", lambda e: e.build(sampling_period=np.array([[TH]])),
          check=lambda ds, e: np.testing.assert_allclose(float(ds.time[1]), TH, rtol=1e-12)),
     Case("factor_vector", lambda e: e.build(factor=np.array([2, 2])), TypeError, ("factor", "single", "(2,)")),
-    Case("factor_fraction", lambda e: e.build(factor=2.5), ValueError, ("factor", "positive integer")),
+    Case("factor_fraction", lambda e: e.build(factor=2.5), ValueError,
+         ("factor", "positive integer", "not rounded", "factor=2")),
     Case("factor_zero", lambda e: e.build(factor=0), ValueError, ("factor", "positive integer")),
     Case("factor_bool", lambda e: e.build(factor=True), TypeError, ("factor", "boolean")),
     Case("factor_string", lambda e: e.build(factor="2"), TypeError, ("factor", "number")),
@@ -404,7 +405,7 @@ API = [
     Case("simulate_fast_output_text", lambda e: hdd.simulate(n_samples=400, noise=False, fast_output="yes"),
          TypeError, ("fast_output", "True or False")),
     Case("simulate_seed_negative", lambda e: hdd.simulate(n_samples=400, noise=False, seed=-1), ValueError,
-         ("seed", ">= 0")),
+         ("seed", ">= 0", "pass e.g. seed=0")),  # the remedy: "seed must be >= 0, got -1." had none
     Case("simulate_seed_fractional", lambda e: hdd.simulate(n_samples=400, noise=False, seed=1.5), ValueError,
          ("seed", "1.5", "not rounded")),
     Case("simulate_seed_none", lambda e: hdd.simulate(n_samples=400, noise=False, seed=None), TypeError,
@@ -635,6 +636,16 @@ API = [
     # a bad chunks argument is not reported as a damaged file
     Case("open_chunks_fractional", lambda e: open_frf("frf.nc", chunks={"frequency": 2.5}), ValueError,
          ("chunks", "2.5", "whole number"), absent=("not a valid NetCDF",)),
+    # the integer rule: a whole float is that chunk size ({'frequency': 100.0} was refused
+    # as "must be a whole number"; chunks=100.0 a TypeError), a fraction is refused, not rounded
+    Case("open_chunks_whole_float", lambda e: open_frf("frf.nc", chunks={"frequency": 100.0, "input": (1.0, 1)}),
+         check=lambda res, e: (res.P.chunks == open_frf("frf.nc", chunks={"frequency": 100, "input": (1, 1)}).P.chunks
+                               and res.P.chunks[0][0] == 100) or pytest.fail(str(res.P.chunks))),
+    Case("open_chunks_whole_float_scalar", lambda e: open_dataset("exp.nc", chunks=100.0),
+         check=lambda res, e: res.r.chunks == open_dataset("exp.nc", chunks=100).r.chunks or pytest.fail(
+             str(res.r.chunks))),
+    Case("open_chunks_fractional_scalar", lambda e: open_dataset("exp.nc", chunks=100.5), ValueError,
+         ("chunks", "100.5", "not rounded"), absent=("not a valid NetCDF",)),
     Case("open_chunks_text", lambda e: open_dataset("frf.nc", chunks="x"), TypeError, ("chunks", "'x'"),
          absent=("not a valid NetCDF",)),
     Case("open_text_file", lambda e: open_dataset("notes.nc"), ValueError, ("notes.nc", "not a valid NetCDF")),
@@ -722,7 +733,7 @@ API = [
          ValueError, ("workers must be >= 1", "-1")),
     Case("sweep_to_disk_workers_zero", lambda e: sweep_to_disk(open_archive("arc1.nc"), "out.nc", window=[12],
                                                                degrees=["2-2-2"], workers=0),
-         ValueError, ("workers must be >= 1", "0")),
+         ValueError, ("workers must be >= 1", "0", "workers=")),
     Case("sweep_to_disk_workers_fractional", lambda e: sweep_to_disk(open_archive("arc1.nc"), "out.nc",
                                                                      window=[12], degrees=["2-2-2"], workers=2.5),
          ValueError, ("workers must be an integer", "2.5", "not rounded")),
@@ -801,6 +812,16 @@ API = [
          ("window", "12.5", "not rounded")),
     Case("sweep_window_whole_float", lambda e: sweep(e.small, window=12.0, degrees="2-2-2"),
          check=lambda res, e: res.window.values.tolist() == [12] or pytest.fail(str(res.window.values))),
+    # one number in a 0-d array (a sweep choice's .values) is that number, as for identify
+    # (a 0-d array was iterated: numpy's "iteration over a 0-d array")
+    Case("sweep_window_zero_dim_array", lambda e: sweep(e.small, window=np.array(12), degrees="2-2-2"),
+         check=lambda res, e: res.window.values.tolist() == [12] or pytest.fail(str(res.window.values))),
+    Case("sweep_window_zero_dim_dataarray", lambda e: sweep(e.small, window=xr.DataArray(12.0), degrees="2-2-2"),
+         check=lambda res, e: res.window.values.tolist() == [12] or pytest.fail(str(res.window.values))),
+    Case("sweep_pool_zero_dim_array", lambda e: sweep(xr.concat([e.small, e.small], "experiment"), window=12,
+                                                      degrees="2-2-2", pool=np.array(2)),
+         check=lambda res, e: xr.testing.assert_identical(
+             res, sweep(xr.concat([e.small, e.small], "experiment"), window=12, degrees="2-2-2", pool=2))),
     Case("sweep_pool_fractional", lambda e: sweep(xr.concat([e.small, e.small], "experiment"), window=12, pool=1.5),
          ValueError, ("pool", "1.5", "not rounded")),
     Case("sweep_degrees_label", lambda e: sweep(e.small, window=[12], degrees=["3-3"]), ValueError,

@@ -310,3 +310,12 @@ def test_accuracy_window_tally_splits_the_band_table_by_chosen_window():
     twice = module.window_tally(frf, truth, module.window_tally(frf, truth))
     assert all(twice[k]["bins"] == 2 * tally[k]["bins"] and
                np.all(twice[k]["covered"] == 2 * tally[k]["covered"]) for k in tally)
+    # a fixed window (--windows 30): one row per band, that window's, adding up to the band
+    fixed = identify(exp, window=30, denominator="ls")
+    stats = module.band_stats(fixed, truth)
+    tally = module.window_tally(fixed, truth)
+    assert sorted(tally) == [(b, 30) for b in range(len(module.BANDS))]
+    for (b, _), r in tally.items():
+        n = ((f > module.BANDS[b][0]) & (f < module.BANDS[b][1]) & (f > 0) & (f < f.max())).sum()
+        assert r["bins"] == n
+        np.testing.assert_allclose((r["covered"] + r["flagged"]) / n, stats[b, :, 1], atol=1e-12)

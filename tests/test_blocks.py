@@ -79,7 +79,7 @@ def test_blocks_equal_one_fit_over_all_bins(monkeypatch, record, real):
     # (its noise covariance mended to a covariance, as every fit's: _positive_semidefinite)
     fit = fit._replace(G_cov=ki._positive_semidefinite(fit.G_cov, fit.noise_covariance))
     ref = ki.recover_frf(fit.G, fit.G_cov, ny=Z.shape[-1] - R.shape[-1], ill_posed=fit.ill_posed,
-                         dof=fit.dof, **shape)
+                         dof=fit.dof, neighbourhood=True, **shape)
     ref.update(G=fit.G, T=fit.T, noise_variance=fit.noise_variance, condition=fit.condition,
                ill_posed=fit.ill_posed,
                G_var=np.real(np.diagonal(fit.G_cov, axis1=-2, axis2=-1)).reshape(fit.G.shape))
@@ -222,7 +222,8 @@ def _old_auto(R, Z, windows, **kw):
     """``window="auto"`` as it was before the refits: every candidate finished whole (one
     block over all bins), then gathered bin by bin (``_choose_windows``, which
     ``finish_packed_auto`` still runs on the frequency-chunked fits)."""
-    outs = [ki.identify_spectra(R, Z, half_width=w, **kw) for w in windows]
+    # (each candidate's own test: the neighbourhood's is the widest one's, _finish_choice)
+    outs = [ki.identify_spectra(R, Z, half_width=w, neighbourhood=False, **kw) for w in windows]
     twin = None  # the least-squares denominator's bias from the widest window's IV fit
     n_exp = ki._n_experiments(R, Z, kw.get("experiment_axis"))
     if ki.checks_denominator_bias(kw.get("denominator", "ls"), kw["degrees"],

@@ -127,6 +127,32 @@ def test_cli_simulate_chooses_the_disturbances(tmp_path, capsys):
     assert "invalid choice: 'wind'" in capsys.readouterr().err
 
 
+def test_cli_integers_follow_the_integer_rule(tmp_path, capsys):
+    """Whole numbers on the command line as in Python (lcmr_xr.settings.as_integer): 400.0
+    is 400 (as --window 30.0 and hdd.simulate(400.0, case=2.0, seed=4.0) are), 400.5 is
+    refused naming the option, never rounded; --case and --pool alike."""
+    path = tmp_path / "exp.nc"
+    assert cli.main(["simulate", "-o", str(path), "--samples", "400.0", "--seed", "4.0",
+                     "--case", "2.0", "--noiseless"]) == 0
+    got = lcmr_xr.open_experiment(path)
+    np.testing.assert_array_equal(got.y.values, hdd.simulate(400, case=2, seed=4, noise=False).y.values)
+    for option, value in (("--samples", "400.5"), ("--seed", "1.5"), ("--case", "2.5"),
+                          ("--samples", "four")):
+        with pytest.raises(SystemExit):
+            cli.main(["simulate", "-o", str(tmp_path / "x.nc"), option, value])
+        err = capsys.readouterr().err
+        assert option in err and value in err and "whole number" in err, err
+        assert not (tmp_path / "x.nc").exists()
+    with pytest.raises(SystemExit):
+        cli.main(["simulate", "-o", str(tmp_path / "x.nc"), "--case", "10.0"])
+    assert "invalid choice: 10" in capsys.readouterr().err
+    args = cli._parser().parse_args(["sweep", "arc", "-o", "r.nc", "--pool", "2.0", "3"])
+    assert args.pool == [2, 3] and all(type(k) is int for k in args.pool)
+    with pytest.raises(SystemExit):
+        cli._parser().parse_args(["sweep", "arc", "-o", "r.nc", "--pool", "2.5"])
+    assert "--pool" in capsys.readouterr().err
+
+
 def test_cli_identify_and_plot(tmp_path, capsys):
     exp_path = tmp_path / "exp.nc"
     assert cli.main(["simulate", "-o", str(exp_path), "--samples", "1200", "--noiseless",

@@ -193,3 +193,23 @@ def test_identify_reads_and_writes_matlab_files(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "a .mat file holds one FRF" in err and "identifying" not in err, err
     assert not (tmp_path / "g.mat").exists()
+
+
+def test_identify_writes_a_periodic_experiment_to_mat(tmp_path, capsys):
+    """A record of repeated periods (a 'period' dim) is identified into ONE FRF (its periods
+    pooled), but -o .mat refused it as 'experiments along ['period']' with the remedy of
+    keeping one period (isel(period=0): the others thrown away).  Only the dims that stay in
+    the result (experiments) make a stack that a .mat cannot hold."""
+    import numpy as np
+    import scipy.io
+
+    import lcmr_xr
+
+    exp = hdd.simulate(n_samples=400, noise=True, seed=1, periods=3)
+    save(exp, tmp_path / "p.nc")
+    args = ["--window", "12", "--degrees", "2-2-2"]
+    assert cli.main(["identify", str(tmp_path / "p.nc"), "-o", str(tmp_path / "p.mat"), *args]) == 0, \
+        capsys.readouterr().err
+    m = scipy.io.loadmat(tmp_path / "p.mat")
+    want = lcmr_xr.identify(exp, window=12, degrees=(2, 2, 2))
+    np.testing.assert_array_equal(m["P"], want.P.transpose("output", "input", "frequency").values)

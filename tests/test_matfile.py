@@ -179,6 +179,35 @@ def test_names_and_units_must_be_text(exp, tmp_path):
     assert ds.input.values.tolist() == ["vcm", "pz"] and ds.output.values.tolist() == ["position"]
 
 
+def test_units_in_a_cell_are_read_several_refused(exp, tmp_path):
+    """A unit kept as MATLAB keeps iddata's InputUnit, a cell {'V'}, was refused as 'holds no
+    text (a object array) ... a number is not read as one' (it is text, no number); before
+    that it became the unit "['V']".  One unit in a cell or a char matrix is that unit;
+    several different ones are refused naming them (one unit for r and u), not 'no text'."""
+    path = tmp_path / "x.mat"
+    signals = {"r": exp.r.values, "u": exp.u.values, "y": exp.y.values, "Ts": TH, "F": 2.0}
+    one = np.empty((1, 1), dtype=object)
+    one[0, 0] = "V"
+    two = np.empty((1, 2), dtype=object)
+    two[0, 0], two[0, 1] = "V", "V"
+    for units in (one, two, np.array(["V ", "V "])):
+        scipy.io.savemat(path, {**signals, "input_units": units, "output_units": one})
+        ds = lcmr_xr.open_experiment(path)
+        assert ds.r.attrs["units"] == "V" and ds.u.attrs["units"] == "V" and ds.y.attrs["units"] == "V"
+    mixed = np.empty((1, 2), dtype=object)
+    mixed[0, 0], mixed[0, 1] = "V", "mA"
+    for units in (mixed, np.array(["V ", "mA"])):
+        scipy.io.savemat(path, {**signals, "input_units": units})
+        with pytest.raises(ValueError, match=r"x.mat: variable 'input_units' holds 2 units \('V', 'mA'\); "
+                                             r"it is one unit for r and u.*input_units="):
+            lcmr_xr.open_experiment(path)
+    numbers = np.empty((1, 1), dtype=object)
+    numbers[0, 0] = 1.0
+    scipy.io.savemat(path, {**signals, "input_units": numbers})
+    with pytest.raises(ValueError, match=r"'input_units' \(a unit string\) holds numbers"):
+        lcmr_xr.open_experiment(path)
+
+
 def test_logical_signals_are_refused_integers_read(exp, tmp_path):
     """A MATLAB logical array was cast to 0.0/1.0 and identified as a signal."""
     path = tmp_path / "x.mat"

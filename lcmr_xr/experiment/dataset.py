@@ -210,7 +210,9 @@ def experiment(
             )
     factor_value = _scalar(factor, "factor", "the multirate factor F = Tl/Th")
     if not np.isfinite(factor_value) or int(factor_value) != factor_value or factor_value < 1:
-        raise ValueError(f"factor must be a positive integer, got {factor!r}.")
+        whole = int(factor_value // 1) if np.isfinite(factor_value) and factor_value >= 1 else 2
+        raise ValueError(f"factor must be a positive integer (the multirate factor F = Tl/Th; it "
+                         f"is not rounded), got {factor!r}; pass e.g. factor={whole}.")
     factor = int(factor_value)
     if sampling_period is not None:
         sampling_period = _scalar(sampling_period, "sampling_period", "the fast sample time Th in s")

@@ -567,6 +567,7 @@ def _estimate(r: xr.DataArray, u: xr.DataArray, y: xr.DataArray, s, *, factor: i
                                                  **shape), **split)
             return _split(finish_packed(p[0], covariance=s.covariance, n_exp=n_exp,
                                         dof=window_dof(s.window, nr_, s.degrees, n_exp or 1),
+                                        neighbourhood=not pooled and noise is None,
                                         **shape), **split)
 
         # the recovery gathers every slow bin (P(k) uses bin k mod M): one chunk along it

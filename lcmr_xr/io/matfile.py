@@ -226,15 +226,33 @@ def _labels(data: dict, given, name: str, path: Path):
 
 
 def _text(data: dict, given, name: str, path: Path):
-    """A units string (a char row)."""
+    """A units string: a char row, or one unit in a cell (``{'V'}``, as iddata's
+    ``InputUnit``) or a char matrix (every row or cell the same unit)."""
     if given is not None or name not in data:
         return given
     value = data[name]
-    text = _cell_text(value) if isinstance(value, str) or np.asarray(value).dtype.kind == "U" else None
-    if text is None:
-        parameter = name  # input_units / output_units: the keyword has the variable's name
-        raise _not_text(path, name, value, "a unit string", parameter, "'m'")
-    return text
+    array = np.asarray(value)
+    if isinstance(value, str):
+        texts = [value]
+    elif array.dtype.kind == "U":  # a char row, or a char matrix: a unit per row
+        texts = [str(row).rstrip() for row in array.ravel()]
+    elif array.dtype == object:  # a cell array of char rows
+        texts = [_cell_text(cell) for cell in array.ravel()]
+    else:
+        texts = [None]
+    if texts and all(text is not None for text in texts):
+        if len(set(texts)) > 1:
+            signals = "r and u" if name == INPUT_UNITS else "y"
+            raise ValueError(
+                f"{path}: variable {name!r} holds {len(texts)} units ({', '.join(map(repr, texts))}); "
+                f"it is one unit for {signals}: keep one in MATLAB ({name} = {texts[0]!r}) or pass "
+                f"{name}= to open_experiment."
+            )
+        return texts[0]
+    if array.dtype == object and array.size:  # name the cell that is not text
+        array = next(np.asarray(c) for c, text in zip(array.ravel(), texts) if text is None)
+    parameter = name  # input_units / output_units: the keyword has the variable's name
+    raise _not_text(path, name, array, "a unit string", parameter, "'m'")
 
 
 def open_mat_experiment(path, *, r="r", u="u", y="y", factor=FACTOR_NAME,
@@ -266,7 +284,8 @@ def open_mat_experiment(path, *, r="r", u="u", y="y", factor=FACTOR_NAME,
         turned into names such as ``"1.0"``.
     input_units, output_units : str, optional
         Units of ``r``/``u`` and of ``y``.  Default None: the file's ``input_units`` /
-        ``output_units`` strings when present, else ``"1"``.
+        ``output_units`` strings when present (a char row, or one unit in a cell such as
+        iddata's ``{'V'}``; different units in one are refused), else ``"1"``.
 
     Returns
     -------

@@ -217,6 +217,7 @@ def open_dataset(path, chunks=None) -> xr.Dataset:
     chunks : dict or "auto", optional
         Dask chunks.  Default ``None``: the data are loaded into memory and the file is
         closed (experiment and FRF files are small); with chunks the data stay lazy.
+        Sizes follow the library's integer rule: ``100.0`` is 100, ``100.5`` is refused.
 
     Returns
     -------
@@ -242,7 +243,7 @@ def open_dataset(path, chunks=None) -> xr.Dataset:
     [1.0, 2.0]
     """
     path = Path(path)
-    _check_chunks(chunks)  # before the read: a bad argument is not a corrupt file
+    chunks = _check_chunks(chunks)  # before the read: a bad argument is not a corrupt file
     if path.is_dir():
         raise IsADirectoryError(
             f"{path} is a directory, not a NetCDF file; for an archive directory use "
@@ -361,26 +362,42 @@ def _is_chunk_size(value) -> bool:
             and (value >= 1 or value == -1))
 
 
-def _check_chunks(chunks) -> None:
+def _whole(value):
+    """A whole float (``100.0``) as the int dask needs, by the settings' integer rule;
+    anything else unchanged (for :func:`_check_chunks` to judge)."""
+    if isinstance(value, (float, np.floating)) and np.isfinite(value) and value == int(value):
+        return int(value)
+    return value
+
+
+def _check_chunks(chunks):
     """``chunks`` as dask takes it: None, ``"auto"``, an int, or a dict of dim -> size
     (int, ``"auto"``, a byte size such as ``"64MiB"``, None, or a tuple of ints); anything
     else is refused here, before xarray's own ValueError would be reported as an
-    unreadable file."""
+    unreadable file.  Returns ``chunks`` with whole floats (``100.0``) as ints."""
+    chunks = _whole(chunks)
+    if isinstance(chunks, dict):
+        chunks = {k: tuple(_whole(c) for c in v) if isinstance(v, tuple) else _whole(v)
+                  for k, v in chunks.items()}
     if chunks is None or (isinstance(chunks, str) and chunks == "auto") or (
             _is_chunk_size(chunks) and not isinstance(chunks, str)):
-        return
+        return chunks
     if isinstance(chunks, dict):
         bad = {k: v for k, v in chunks.items()
                if not (v is None or _is_chunk_size(v)
                        or (isinstance(v, tuple) and v and all(_is_chunk_size(c) and not isinstance(c, str)
                                                               for c in v)))}
         if not bad:
-            return
+            return chunks
         raise ValueError(
             f"chunks {bad!r}: a chunk size must be a whole number (>= 1) of elements, 'auto', a size "
             "in bytes ('64MiB'), -1 (the whole dim) or None; pass e.g. "
             "chunks={'frequency': 100} or chunks={}."
         )
+    if isinstance(chunks, (float, np.floating)) and np.isfinite(chunks):
+        raise ValueError(f"chunks={chunks!r}: a chunk size is a whole number of elements, it is "
+                         f"not rounded; pass chunks={int(np.floor(chunks))} or chunks={{}} (one "
+                         "chunk per variable).")
     if isinstance(chunks, (int, np.integer)) and not isinstance(chunks, (bool, np.bool_)):
         raise ValueError(f"chunks={chunks!r}: a chunk size must be a whole number (>= 1) of "
                          "elements, or -1 (the whole dim); pass e.g. chunks={} (one chunk per "

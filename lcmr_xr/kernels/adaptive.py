@@ -27,7 +27,8 @@ Two questions the first-order covariance of ``P = PS_1 S^-1`` does not answer:
    estimate's smallest singular value is then the noise's) and scatters bin by bin, so a
    draw under the limit can release a bin that is not determined; ``window="auto"``
    therefore also flags a bin where most of its neighbourhood fails the widest window's
-   test (:func:`crowd_undetermined`).
+   test (:func:`crowd_undetermined`), and a fixed window on one record where most of its
+   neighbourhood fails the window's own test.
    With ``window="auto"`` and a least-squares LRM denominator (one record) the band uses
    the second-order factor (:func:`second_order_factor`) and adds the denominator's bias
    estimated from an IV fit of the widest window (:func:`denominator_bias`) instead: the
@@ -560,7 +561,8 @@ def crowd_undetermined(undetermined, smoothing: int = BIAS_SMOOTHING, axis: int 
                        circular: bool = False) -> np.ndarray:
     """Bins most of whose neighbours fail the determinacy test: ``undetermined`` at more
     than half of the ``2 smoothing + 1`` bins centred on each (``circular``: the bins are a
-    circle, as the slow bins of a DFT; else at the edges the available ones).
+    circle, as the slow bins of a DFT, and a circle of fewer bins is each bin's
+    neighbourhood whole, every bin counted once; else at the edges the available ones).
 
     The test's ``rho`` (:func:`weak_direction`) estimates the noise of the weakest direction
     of ``S`` relative to ``S``'s own smallest singular value.  Where that direction is
@@ -600,6 +602,8 @@ def crowd_undetermined(undetermined, smoothing: int = BIAS_SMOOTHING, axis: int 
     n = u.shape[axis]
     if not circular or half <= 0 or n == 0:
         return _running_mean(u.astype(float), half, axis) > 0.5
+    if n < 2 * half + 1:  # the window would go round the circle: every bin once
+        return np.broadcast_to(u.mean(axis=axis, keepdims=True) > 0.5, u.shape).copy()
     # the circle unrolled by ``half`` bins each side: every bin then has its whole window
     ring = np.take(u, np.arange(-half, n + half) % n, axis=axis).astype(float)
     frac = np.take(_running_mean(ring, half, axis), np.arange(half, half + n), axis=axis)

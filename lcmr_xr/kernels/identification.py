@@ -197,7 +197,8 @@ def experiment_spectra(r, u, y, *, factor: int, closed_loop: str = "indirect"):
 
 
 def recover_frf(G, G_cov, *, n_fast: int, factor: int, nu: int, ny: int,
-                closed_loop: str = "indirect", ill_posed=None, dof=None) -> dict:
+                closed_loop: str = "indirect", ill_posed=None, dof=None,
+                neighbourhood: bool = False) -> dict:
     """From the local-model ``G`` (..., M, nz, nr) per slow bin to the fast FRF.
 
     ``"indirect"``: ``P_1 = PS_1 S^-1`` with first-order covariance; ``"direct"``:
@@ -208,7 +209,8 @@ def recover_frf(G, G_cov, *, n_fast: int, factor: int, nu: int, ny: int,
     (see :mod:`lcmr_xr.kernels.adaptive`): the first-order variance ``P_var_linear`` times
     the squared small-sample factor of ``dof`` (scalar or (..., M); None: 1) and, for the
     indirect method, the squared nonlinearity factor of the weakest direction of ``S``;
-    ``inf`` where ``P`` is undetermined.
+    ``inf`` where ``P`` is undetermined (``neighbourhood``, the fit of one record at a
+    fixed window: also where most of the slow bins within +-6 are, :func:`finish_packed`).
 
     Two steps: :func:`slow_bin_terms` (per slow bin, the only step that reads ``G_cov``;
     the eager path runs it on blocks of bins) and the recovery over all bins from what it
@@ -223,7 +225,7 @@ def recover_frf(G, G_cov, *, n_fast: int, factor: int, nu: int, ny: int,
     """
     terms = slow_bin_terms(G, G_cov, nr=int(factor) * nu, closed_loop=closed_loop)
     return _recover(terms, n_fast=n_fast, factor=factor, nu=nu, ny=ny, closed_loop=closed_loop,
-                    ill_posed=ill_posed, dof=dof)
+                    ill_posed=ill_posed, dof=dof, neighbourhood=neighbourhood)
 
 
 def slow_bin_terms(G, G_cov, *, nr: int, closed_loop: str = "indirect",
@@ -298,7 +300,7 @@ def slow_bin_terms(G, G_cov, *, nr: int, closed_loop: str = "indirect",
 
 
 def _recover(terms, *, n_fast, factor, nu, ny, closed_loop, ill_posed, dof,
-             calibration=None, halves=None) -> dict:
+             calibration=None, halves=None, neighbourhood: bool = False) -> dict:
     """The fast FRF from :func:`slow_bin_terms` of every slow bin (:func:`recover_frf`).
 
     ``calibration`` (..., M), optional: the pooled fits' factor on ``G_cov``
@@ -310,6 +312,11 @@ def _recover(terms, *, n_fast, factor, nu, ny, closed_loop, ill_posed, dof,
     :func:`lcmr_xr.kernels.pooling.p_spread_factor`, which multiplies ``P_var`` (returned
     as ``P_spread_calibration``), and the nonlinearity factor is then the milder pooled
     form (:func:`lcmr_xr.kernels.adaptive.pooled_nonlinearity_factor`).
+    ``neighbourhood`` (``terms`` of every slow bin, one record at a fixed window): a bin
+    where more than half of the slow bins within
+    :data:`lcmr_xr.kernels.adaptive.BIAS_SMOOTHING` (on their circle) fail the test is
+    undetermined too (:func:`lcmr_xr.kernels.adaptive.crowd_undetermined`, as
+    ``window="auto"`` takes the widest window's test, :func:`_finish_choice`).
     """
     f_ = int(factor)
     p_factor = None
@@ -318,6 +325,9 @@ def _recover(terms, *, n_fast, factor, nu, ny, closed_loop, ill_posed, dof,
     slow = _slow_recovery(terms, closed_loop=closed_loop, ill_posed=ill_posed, dof=dof,
                           calibration=calibration, mild=mild)
     P1_cov, undetermined = terms["P1_cov"], slow["undetermined"]
+    if neighbourhood:  # a saturated ratio's lucky draw among failing neighbours
+        undetermined = undetermined | (crowd_undetermined(undetermined, circular=True)
+                                       & ~s_sing)
     if calibration is not None and P1_cov is not None:
         P1_cov = P1_cov * calibration[..., None, None]
     m = s_sing.shape[-1]
@@ -766,12 +776,17 @@ def _broadcast_leading(R, Z):
 
 def finish_packed(packed, *, nz: int, nr: int, n_fast: int, factor: int, nu: int, ny: int,
                   closed_loop: str = "indirect", covariance: bool = True, dof=None,
-                  n_exp: int | None = None) -> dict:
+                  n_exp: int | None = None, neighbourhood: bool = False) -> dict:
     """Unpack :func:`fit_packed` and recover the fast FRF (see :func:`identify_arrays`).
 
     ``dof``: degrees of freedom per row of the local model (scalar or per slow bin), for the
     small-sample factor of ``P_var``; None leaves it out.  ``n_exp``: the number of pooled
-    experiments (``T`` is then (..., M, E, nz)); None: not pooled.
+    experiments (``T`` is then (..., M, E, nz)); None: not pooled.  ``neighbourhood``: the
+    fit of one record at a fixed window, whose own covariance (from its residuals) also
+    flags a bin most of whose neighbours fail the weak-direction test (:func:`_recover`;
+    :func:`identify_spectra` does so).  Not for ``window="auto"``'s candidates, whose
+    choice reads each one's own test (:func:`_finish_choice` then takes the widest one's
+    neighbourhood).
     """
     packed = np.asarray(packed)
     lead_m = packed.shape[:-1]
@@ -800,10 +815,11 @@ def finish_packed(packed, *, nz: int, nr: int, n_fast: int, factor: int, nu: int
         terms["G_var"] = np.full(terms["G"].shape, np.nan)
         terms["rho"] = terms["rho_v"] = np.full(lead_m, np.nan)
     return _finish(terms, n_fast=n_fast, factor=factor, nu=nu, ny=ny, closed_loop=closed_loop,
-                   dof=dof)
+                   dof=dof, neighbourhood=neighbourhood)
 
 
-def _finish(fit: dict, *, n_fast, factor, nu, ny, closed_loop, dof) -> dict:
+def _finish(fit: dict, *, n_fast, factor, nu, ny, closed_loop, dof,
+            neighbourhood: bool = False) -> dict:
     """The fast FRF and the per-bin outputs from the fitted terms (:func:`_fit_terms`;
     ``T`` as :func:`finish_packed` returns it).  Pooled experiments
     (``fit["spread_ratio"]``): the covariance is scaled per bin by
@@ -811,14 +827,16 @@ def _finish(fit: dict, *, n_fast, factor, nu, ny, closed_loop, dof) -> dict:
     weak-direction test of ``S`` and ``G_var`` see the spread the halves show; the halves'
     ``P`` put a further factor on ``P_var`` (``P_spread_calibration``,
     :func:`lcmr_xr.kernels.pooling.p_spread_factor`) and the nonlinearity factor takes the
-    pooled form (:func:`lcmr_xr.kernels.adaptive.pooled_nonlinearity_factor`)."""
+    pooled form (:func:`lcmr_xr.kernels.adaptive.pooled_nonlinearity_factor`).
+    ``neighbourhood`` as :func:`finish_packed`."""
     calibration = halves = None
     if fit["P1_cov"] is not None and "spread_ratio" in fit:
         calibration = spread_calibration(fit["spread_ratio"])
         if "P1_half_a" in fit:
             halves = (fit["P1_half_a"], fit["P1_half_b"], fit["half_weight"])
     out = _recover(fit, n_fast=n_fast, factor=factor, nu=nu, ny=ny, closed_loop=closed_loop,
-                   ill_posed=fit["ill_posed"], dof=dof, calibration=calibration, halves=halves)
+                   ill_posed=fit["ill_posed"], dof=dof, calibration=calibration, halves=halves,
+                   neighbourhood=neighbourhood)
     G_var = fit["G_var"] if calibration is None else fit["G_var"] * calibration[..., None, None]
     out.update({"G": fit["G"], "G_var": G_var, "T": fit["T"],
                 "noise_variance": fit["noise_variance"], "condition": fit["condition"],
@@ -831,15 +849,17 @@ def _finish(fit: dict, *, n_fast, factor, nu, ny, closed_loop, dof) -> dict:
 def _fit_and_finish(R, Z, *, half_width, degrees, covariance, noise_covariance, experiment_axis,
                     n_fast, factor, nu, ny, closed_loop, n_exp, denominator="ls",
                     instruments=None, halves_instruments=None, fitted_half=None,
-                    buffers=None) -> dict:
-    """The local model in blocks of bins (:func:`_fit_blocks`), then :func:`_finish`."""
+                    buffers=None, neighbourhood: bool = False) -> dict:
+    """The local model in blocks of bins (:func:`_fit_blocks`), then :func:`_finish`
+    (``neighbourhood`` as :func:`finish_packed`)."""
     fit = _fit_blocks(R, Z, half_width=half_width, degrees=degrees, covariance=covariance,
                       noise_covariance=noise_covariance, experiment_axis=experiment_axis,
                       closed_loop=closed_loop, denominator=denominator,
                       instruments=instruments, halves_instruments=halves_instruments,
                       fitted_half=fitted_half, buffers=buffers)
     return _finish(fit, n_fast=n_fast, factor=factor, nu=nu, ny=ny, closed_loop=closed_loop,
-                   dof=window_dof(half_width, R.shape[-1], degrees, n_exp or 1))
+                   dof=window_dof(half_width, R.shape[-1], degrees, n_exp or 1),
+                   neighbourhood=neighbourhood)
 
 
 def identify_arrays(r, u, y, *, factor: int, half_width: int, degrees=(3, 3, 3),
@@ -887,7 +907,8 @@ def identify_arrays(r, u, y, *, factor: int, half_width: int, degrees=(3, 3, 3),
 def identify_spectra(R, Z, *, n_fast: int, factor: int, nu: int, half_width: int,
                      degrees=(3, 3, 3), closed_loop: str = "indirect",
                      covariance: bool = True, noise_covariance=None,
-                     experiment_axis: int | None = None, denominator: str = "ls") -> dict:
+                     experiment_axis: int | None = None, denominator: str = "ls",
+                     neighbourhood: bool | None = None) -> dict:
     """:func:`identify_arrays` from the spectra of :func:`experiment_spectra` (computed once).
 
     ``R`` (..., M, nr) and ``Z`` (..., M, nz); ``n_fast`` is ``N``, ``nu`` the number of
@@ -896,13 +917,23 @@ def identify_spectra(R, Z, *, n_fast: int, factor: int, nu: int, half_width: int
     experiments, shared ``G``, a transient each; ``T`` is then (..., M, E, nz)).
     ``denominator``: ``"ls"`` (least squares) or ``"iv"`` (instrumental variables,
     :func:`denominator_instruments`); ``"iv"`` needs ``Rd > 0``.
+
+    ``neighbourhood`` (None: one record whose covariance comes from its residuals, no
+    ``experiment_axis``, no ``noise_covariance``): ``P_undetermined`` also where more than
+    half of the slow bins within +-6 fail the weak-direction test (:func:`finish_packed`;
+    False: the window's own test only, as ``window="auto"`` finishes its candidates):
+    where the weak direction of ``S`` is drowned in noise its estimated ratio saturates near
+    1 and scatters, and a draw under the limit released bins with bands 40-150 times too
+    narrow (HDD below 500 Hz, docs/uncertainty.md, "A saturated ratio").
     """
     nz, nr = Z.shape[-1], R.shape[-1]
     ny = nz - nr if closed_loop == "indirect" else nz
     return _fit_and_finish(R, Z, half_width=half_width, degrees=degrees, covariance=covariance,
                            noise_covariance=noise_covariance, experiment_axis=experiment_axis,
                            n_fast=n_fast, factor=factor, nu=nu, ny=ny, closed_loop=closed_loop,
-                           n_exp=_n_experiments(R, Z, experiment_axis), denominator=denominator)
+                           n_exp=_n_experiments(R, Z, experiment_axis), denominator=denominator,
+                           neighbourhood=(experiment_axis is None and noise_covariance is None)
+                           if neighbourhood is None else neighbourhood)
 
 
 def _n_experiments(R, Z, experiment_axis):
@@ -1309,6 +1340,9 @@ def _finish_choice(out, choice, fast_choice, bias2, widest_undetermined, windows
     k = np.arange(fast_choice.shape[-1])
     slow = np.zeros(widest_undetermined.shape[:-1] + (m,), dtype=bool)
     slow[..., k % m] = widest_undetermined  # (a fast bin carries its slow bin's flag)
+    if k.size < m:  # F = 1: the fast bins reach slow bin M/2; past it, the mirrors M - t
+        past = np.arange(k.size, m)
+        slow[..., past] = slow[..., m - past]
     undetermined = out["P_undetermined"] | widest_undetermined | np.take(
         crowd_undetermined(slow, circular=True), k % m, axis=-1)
     out["P_undetermined"] = undetermined

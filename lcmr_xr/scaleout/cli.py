@@ -33,7 +33,8 @@ from pathlib import Path
 from urllib.parse import urlsplit
 
 from lcmr_xr._cli_support import (NETCDF_SUFFIXES, SWEEP_DENOMINATOR_HELP, HelpFormatter, add_overwrite,
-                                  check_outputs, error_line, futures_progress, progress)
+                                  check_outputs, error_line, futures_progress, integer_argument,
+                                  progress)
 
 from lcmr_xr import conventions as cv
 from lcmr_xr.settings import CLOSED_LOOP, DENOMINATOR, METHODS, window_argument
@@ -113,7 +114,7 @@ def add_sweep_parser(subparsers) -> argparse.ArgumentParser:
                          "dask scheduler, e.g. tcp://127.0.0.1:8786")
     sw.add_argument("--connect-timeout", type=float, default=CONNECT_TIMEOUT, metavar="SECONDS",
                     help="how long to wait for the scheduler at ADDRESS to answer")
-    sw.add_argument("--pool", type=int, nargs="+", default=None, metavar="K",
+    sw.add_argument("--pool", type=integer_argument, nargs="+", default=None, metavar="K",
                     help="also pool K experiments at a time, one estimate per group of K "
                          "consecutive experiments (result dims pool, pool_group instead of "
                          "experiment), e.g. --pool 1 2 4 8 (default: no pooling)")

@@ -58,6 +58,8 @@ def _as_list(value, what: str) -> list:
     # window=12.5 is refused as fractional), not a "sequence" error
     if isinstance(value, (str, numbers.Number, np.generic)):
         return [value]
+    if isinstance(value, (np.ndarray, xr.DataArray)) and value.ndim == 0:
+        return [value]  # one number (a sweep choice's .values): as_integer reads it
     if not isinstance(value, Iterable):
         raise TypeError(f"{what} must be a value or a sequence of values, got {type(value).__name__}.")
     items = list(value)
