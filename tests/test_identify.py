@@ -388,3 +388,24 @@ def test_weak_direction_on_mirrored_bins_equals_every_bin():
     got = recover_frf(G, C, n_fast=m * factor, factor=factor, nu=nu, ny=1)["s_weak_rel_std"]
     want, _ = weak_direction(G[:, :nr], C[:, : nr * nr, : nr * nr])
     np.testing.assert_allclose(got, want, rtol=1e-12)
+
+
+def test_a_one_element_factor_attribute_is_read_as_its_number():
+    """validate_experiment accepts ``factor`` as a one-element array (as an attribute may be
+    set in memory or come back from a reader); identify, its pooled path and the sweep read
+    it through ``experiment_factor`` (``int()`` of such an array is numpy's TypeError)."""
+    from lcmr_xr import hdd
+    from lcmr_xr.scaleout import sweep
+
+    exp = hdd.simulate(n_samples=400, seed=1)
+    odd = exp.assign_attrs(factor=np.array([2]))
+    want = identify(exp, window=12)
+    got = identify(odd, window=12)
+    np.testing.assert_array_equal(got.P.values, want.P.values)
+    assert got.attrs["factor"] == 2
+    two = xr.concat([exp, hdd.simulate(n_samples=400, seed=2)], dim="experiment")
+    pooled = identify(two.assign_attrs(factor=np.array([2])), window=12, combine="experiment")
+    np.testing.assert_array_equal(
+        pooled.P.values, identify(two, window=12, combine="experiment").P.values)
+    swept = sweep(two.assign_attrs(factor=np.array([2])), window=[12]).compute()
+    np.testing.assert_array_equal(swept.P.values, sweep(two, window=[12]).compute().P.values)

@@ -29,7 +29,7 @@ from lcmr_xr.settings import as_bool
 from lcmr_xr.transforms._coords import even_spacing
 from lcmr_xr.transforms._finite import channel_labels, describe_lazy_non_finite, describe_non_finite
 
-__all__ = ["experiment", "validate_experiment"]
+__all__ = ["experiment", "validate_experiment", "experiment_factor"]
 
 _LONG_NAMES = {
     "r": "fast-rate excitation",
@@ -582,6 +582,24 @@ def validate_experiment(ds: xr.Dataset, *, check_values: bool = True) -> xr.Data
         _fail("; ".join(said), f"Remove or interpolate the bad samples before identification "
               f"(e.g. {how}), or drop the experiments that hold them.")
     return ds
+
+
+def experiment_factor(ds) -> int:
+    """The multirate factor ``F`` of a validated experiment (or of the results made from
+    one), as a Python int.
+
+    :func:`validate_experiment` accepts the attribute as any whole positive number, also a
+    one-element array (as an attribute may come back from a file or be set in memory);
+    ``int()`` of such an array is an error in numpy 2, so every reader of the attribute
+    goes through here.
+
+    Examples
+    --------
+    >>> import numpy as np, xarray as xr
+    >>> experiment_factor(xr.Dataset(attrs={"factor": np.array([2])}))
+    2
+    """
+    return int(np.asarray(ds.attrs[FACTOR]).item())
 
 
 def _bad_samples(var: xr.DataArray) -> str:

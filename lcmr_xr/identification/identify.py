@@ -32,6 +32,7 @@ from lcmr_xr.kernels.identification import (
     packed_width,
     window_dof,
 )
+from lcmr_xr.experiment.dataset import experiment_factor
 from lcmr_xr.identification import _guards
 from lcmr_xr.kernels.adaptive import candidate_windows
 from lcmr_xr.kernels.local_models import parameters_per_row
@@ -251,7 +252,7 @@ Returns
                          "pass a local window (e.g. window=30).")
     stacked = as_bool(stacked, "stacked")
     ds, spread = _validate(experiment)
-    factor = int(ds.attrs[cv.FACTOR])
+    factor = experiment_factor(ds)
     th = even_spacing(ds[cv.TIME].values, cv.TIME)[1]
     # ---- pooling hook: periods / experiments (lcmr_xr.identification.pooling).  Rm = -1
     # (no transient term) only for steady-state averaged records (checked below).
@@ -915,7 +916,7 @@ def identify_single_rate(experiment: xr.Dataset, *, method: str = "lrm", window:
         raise ValueError("identify_single_rate takes an integer window (the comparison estimate "
                          "of the paper, e.g. window=30); window='auto' is for identify.")
     ds, spread = _validate(experiment)
-    factor = int(ds.attrs[cv.FACTOR])
+    factor = experiment_factor(ds)
     check_window_fits(s.window, s.degrees, ds.sizes[cv.INPUT], ds.sizes[cv.SLOW_TIME])
     th = even_spacing(ds[cv.TIME].values, cv.TIME)[1]
     # the lifted pipeline with F = 1 on the slow samples x(l F) of r and u
@@ -956,7 +957,7 @@ def result_template(ds: xr.Dataset, s, *, stacked: bool = False) -> xr.Dataset:
     """
     import dask.array as dsa
 
-    factor = int(ds.attrs[cv.FACTOR])
+    factor = experiment_factor(ds)
     th = even_spacing(ds[cv.TIME].values, cv.TIME)[1]
     r = ds["r"]
     lead = [d for d in r.dims if d not in (cv.TIME, cv.INPUT, cv.PERIOD)]  # periods: averaged

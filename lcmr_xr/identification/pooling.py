@@ -35,6 +35,7 @@ import numpy as np
 import xarray as xr
 
 from lcmr_xr import conventions as cv
+from lcmr_xr.experiment.dataset import experiment_factor
 from lcmr_xr.kernels.identification import experiment_spectra
 from lcmr_xr.kernels.pooling import mean_and_covariance
 
@@ -240,7 +241,7 @@ def plan(ds: xr.Dataset, *, window, transient_periods, combine, closed_loop: str
             steady = steady.chunk({cv.EXPERIMENT: -1, cv.PERIOD: -1})
         attrs.update({cv.RECORDS_AVERAGED: int(p_steady), cv.NOISE_ESTIMATE: noise,
                       cv.NOISE_DOF: int(p_steady - 1 if p_steady > 1 else
-                                        n_exp - ds.attrs[cv.FACTOR] * ds.sizes[cv.INPUT])})
+                                        n_exp - experiment_factor(ds) * ds.sizes[cv.INPUT])})
         return Plan(steady, True, None, attrs)
 
     pool = ([cv.PERIOD] if has_period else []) + ([cv.EXPERIMENT] if combine == "experiment" else [])
@@ -272,7 +273,7 @@ def plan(ds: xr.Dataset, *, window, transient_periods, combine, closed_loop: str
 
 
 def _check_window0(ds, steady, *, has_period, n_exp, p_steady, covariance):
-    factor, nu = int(ds.attrs[cv.FACTOR]), ds.sizes[cv.INPUT]
+    factor, nu = experiment_factor(ds), ds.sizes[cv.INPUT]
     nr = factor * nu
     if not has_period:
         raise ValueError(
@@ -319,7 +320,7 @@ def _average(steady: xr.Dataset, pool: list[str]) -> xr.Dataset:
 
 def _spread_covariance(steady: xr.Dataset, pool: list[str], closed_loop: str) -> xr.DataArray:
     """Noise covariance of the averaged spectra ``Z`` from the spread over the records."""
-    factor = int(steady.attrs[cv.FACTOR])
+    factor = experiment_factor(steady)
     m = steady.sizes[cv.SLOW_TIME]
     nz = steady.sizes[cv.OUTPUT] + (factor * steady.sizes[cv.INPUT] if closed_loop == "indirect" else 0)
 

@@ -28,6 +28,7 @@ import numpy as np
 import xarray as xr
 
 from lcmr_xr import conventions as cv
+from lcmr_xr.experiment.dataset import experiment_factor
 from lcmr_xr.settings import (
     AUTO_WINDOW,
     CLOSED_LOOP,
@@ -274,7 +275,7 @@ def _stacked_outputs(block: xr.Dataset, source, settings, keep=None) -> _Stacked
     try:
         s = estimator_settings(**settings, errors="ignore")
         ds = validate_experiment(block, check_values=False)
-        factor = int(ds.attrs[cv.FACTOR])
+        factor = experiment_factor(ds)
         nu, ny = ds.sizes[cv.INPUT], ds.sizes[cv.OUTPUT]
         check_window_fits(s.window, s.degrees, factor * nu, ds.sizes[cv.SLOW_TIME])
         th = even_spacing(ds[cv.TIME].values, cv.TIME)[1]
@@ -543,7 +544,7 @@ def sweep_settings(*, window=(30,), degrees=None, method=("lrm",), closed_loop="
     covariance = as_bool(covariance, "covariance")
     fits = None
     if experiments is not None:
-        factor = int(np.asarray(experiments.attrs[cv.FACTOR]).item())
+        factor = experiment_factor(experiments)
         fits = (factor * experiments.sizes[cv.INPUT], experiments.sizes[cv.SLOW_TIME])
     checked, problems = {}, []
     for m, deg, w in itertools.product(methods, degrees_list, windows):
@@ -722,7 +723,7 @@ def sweep(experiments: xr.Dataset, *, window=(30,), degrees=None, method=("lrm",
                             join="exact", compat="override", coords="minimal", data_vars="all")
     for key in _PER_SETTING_ATTRS:
         out.attrs.pop(key, None)
-    nr_factor = int(ds.attrs[cv.FACTOR]) * ds.sizes[cv.INPUT]
+    nr_factor = experiment_factor(ds) * ds.sizes[cv.INPUT]
     used = [[checked[m, d, windows[0]].degrees for d in degrees_list] for m in methods]
     ppr = np.array([[parameters_per_row(nr_factor, d) for d in row] for row in used])
     rd = np.array([[d[2] for d in row] for row in used])
