@@ -593,6 +593,16 @@ def experiment_factor(ds) -> int:
     ``int()`` of such an array is an error in numpy 2, so every reader of the attribute
     goes through here.
 
+    Parameters
+    ----------
+    ds : xarray.Dataset
+        An experiment that passed :func:`validate_experiment`, or a result of one.
+
+    Returns
+    -------
+    int
+        The attribute ``factor``.
+
     Examples
     --------
     >>> import numpy as np, xarray as xr
