@@ -45,7 +45,8 @@ from lcmr_xr.kernels.adaptive import (K95, candidate_windows,
                                       second_order_factor, second_order_variance,
                                       small_sample_factor, weak_direction)
 from lcmr_xr.kernels.closed_loop import frf_variance_from_first_row, indirect_first_row
-from lcmr_xr.kernels.identification import (_block_plan, denominator_instruments,
+from lcmr_xr.kernels.identification import (_block_plan, _positive_semidefinite,
+                                            denominator_instruments,
                                             experiment_spectra, identify_spectra,
                                             identify_spectra_auto, twin_bins, window_dof)
 from lcmr_xr.kernels.local_models import CovarianceBuffer, hermitian, local_model
@@ -398,6 +399,14 @@ def _band_terms(R, Z, *, half_width, n_fast, degrees=(3, 3, 3)):
     fit = local_model(R, Z, half_width=half_width, degrees=degrees, covariance="full")
     G, C = fit.G, fit.G_cov
     ind = indirect_first_row(G, nr, C)
+    # as production (kernels.identification._mend_indefinite): where cov(P_1) is not a
+    # covariance, G_cov from the noise covariance mended
+    V = ind.first_row_cov
+    ok = np.all(np.isfinite(V), axis=(-2, -1))
+    bad = ok & (np.linalg.eigvalsh(np.where(ok[..., None, None], V, np.eye(V.shape[-1])))[..., 0] < 0)
+    if bad.any():
+        C = np.where(bad[..., None, None], _positive_semidefinite(C, fit.noise_covariance), C)
+        ind = indirect_first_row(G, nr, C)
     m = G.shape[-3]
     bins = np.arange(n_fast // 2 + 1)
     var_lin = frf_variance_from_first_row(ind.first_row_cov, n_fast, hdd.FACTOR, bins,

@@ -509,7 +509,7 @@ def test_fixed_window_flags_where_most_of_the_neighbourhood_fails_its_test(monke
     got = ki.identify_spectra(R, Z, half_width=30, **shape)
     fit = local_model(R, Z, half_width=30)
     own = ki.recover_frf(fit.G, fit.G_cov, ny=Z.shape[-1] - R.shape[-1], ill_posed=fit.ill_posed,
-                         dof=fit.dof, **shape)
+                         dof=fit.dof, noise_covariance=fit.noise_covariance, **shape)
     k = np.arange(own["P"].shape[-3])
     slow = np.zeros(m, dtype=bool)
     slow[k % m] = own["P_undetermined"]

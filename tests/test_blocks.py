@@ -76,8 +76,10 @@ def test_blocks_equal_one_fit_over_all_bins(monkeypatch, record, real):
     # ... and to the whole-circle pipeline: one local model over all bins (mirrored by the
     # kernel for real signals), its full G_cov, then recover_frf
     fit = local_model(R, Z, half_width=WINDOW, degrees=(3, 3, 3))
+    # (with its noise covariance: the bins where cov(P_1) is not a covariance are mended)
     ref = ki.recover_frf(fit.G, fit.G_cov, ny=Z.shape[-1] - R.shape[-1], ill_posed=fit.ill_posed,
-                         dof=fit.dof, neighbourhood=True, **shape)
+                         dof=fit.dof, neighbourhood=True, noise_covariance=fit.noise_covariance,
+                         **shape)
     ref.update(G=fit.G, T=fit.T, noise_variance=fit.noise_variance, condition=fit.condition,
                ill_posed=fit.ill_posed,
                G_var=np.real(np.diagonal(fit.G_cov, axis1=-2, axis2=-1)).reshape(fit.G.shape))

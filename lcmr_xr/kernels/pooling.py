@@ -226,8 +226,8 @@ def nearest_correlation(s: np.ndarray) -> np.ndarray:
     [[1.0, 2.0], [2.0, 4.0]]
     """
     s = np.asarray(s)
-    d = np.sqrt(np.real(np.diagonal(s, axis1=-2, axis2=-1)))
-    with np.errstate(all="ignore"):
+    with np.errstate(all="ignore"):  # (a variance < 0 or NaN: returned as it is, below)
+        d = np.sqrt(np.real(np.diagonal(s, axis1=-2, axis2=-1)))
         c = s / (d[..., :, None] * d[..., None, :])
         c = (c + np.conj(np.swapaxes(c, -1, -2))) / 2
         valid = np.all(np.isfinite(c), axis=(-2, -1)) & np.all(d > 0, axis=-1)
