@@ -168,6 +168,9 @@ def _simulate(args) -> int:
     if args.noiseless and sorted(args.disturbances) != sorted(hdd.DISTURBANCES):
         raise ValueError("--noiseless switches every disturbance off; leave out --disturbances, "
                          "or drop --noiseless to simulate the chosen ones.")
+    # the options' own names in the messages (hdd.simulate's would say n_samples, seed=0)
+    hdd.benchmark.check_n_samples(args.samples, "--samples")
+    hdd.benchmark.check_seed(args.seed, "--seed")
     exp = hdd.simulate(n_samples=args.samples, case=args.case, noise=not args.noiseless,
                        seed=args.seed, disturbances=args.disturbances)
     save(exp, args.output)

@@ -201,3 +201,15 @@ def test_accessor_forwards_without_state():
     xr.testing.assert_identical(exp.r.lcmr.lift(2).lcmr.unlift(), exp.r)
     assert exp.lcmr.validate() is exp
     assert not vars(exp.lcmr).keys() - {"_obj"}
+
+
+def test_simulate_errors_name_the_options(tmp_path, capsys):
+    """A refused --samples or --seed is named as the command line spells it, with a remedy in
+    its syntax (hdd.simulate's own names, n_samples and seed=0, meant nothing there)."""
+    for option, value, said in (("--samples", "3", "--samples must be a multiple of the factor 2"),
+                                ("--samples", "401", "give e.g. 3600"),
+                                ("--seed", "-1", "--seed must be >= 0, got -1; pass e.g. --seed=0")):
+        assert cli.main(["simulate", "-o", str(tmp_path / "x.nc"), option, value]) == 2
+        err = capsys.readouterr().err
+        assert said in err and "n_samples" not in err and "seed=0" not in err.replace("--seed=0", ""), err
+        assert not (tmp_path / "x.nc").exists()

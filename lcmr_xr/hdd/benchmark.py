@@ -117,6 +117,56 @@ def true_frf(frequency, case: int = 2) -> xr.DataArray:
 DISTURBANCES = ("rotational", "fan", "runout")
 
 
+def check_n_samples(n_samples, name: str = "n_samples") -> int:
+    """The record length ``N`` that :func:`simulate` takes: a whole number (the integer
+    rule, :func:`lcmr_xr.settings.as_integer`), a multiple of :data:`FACTOR` and at least
+    two slow samples.
+
+    Parameters
+    ----------
+    n_samples : int
+        Number of fast samples.
+    name : str, default ``"n_samples"``
+        The argument's name in the message (the command line says ``"--samples"``).
+
+    Returns
+    -------
+    int
+
+    Examples
+    --------
+    >>> check_n_samples(3600.0)
+    3600
+    """
+    n_samples = as_integer(n_samples, name, example=3600)
+    if n_samples < 2 * FACTOR or n_samples % FACTOR:
+        raise ValueError(f"{name} must be a multiple of the factor {FACTOR} and at least "
+                         f"{2 * FACTOR}, got {n_samples}; give e.g. 3600.")
+    return n_samples
+
+
+def check_seed(seed, name: str = "seed") -> int:
+    """The seed that :func:`simulate` takes: a whole number, at least 0.
+
+    Parameters
+    ----------
+    seed : int
+        Seed of the excitation and the disturbances.
+    name : str, default ``"seed"``
+        The argument's name in the message (the command line says ``"--seed"``).
+
+    Returns
+    -------
+    int
+
+    Examples
+    --------
+    >>> check_seed(4.0)
+    4
+    """
+    return as_integer(seed, name, minimum=0, example=0)
+
+
 def simulate(n_samples: int = 3600, case: int = 2, noise: bool = True, seed: int = 0,
              rms=PAPER_RMS, *, fast_output: bool = False, periods: int | None = None,
              disturbances=DISTURBANCES) -> xr.Dataset:
@@ -197,13 +247,10 @@ def simulate(n_samples: int = 3600, case: int = 2, noise: bool = True, seed: int
     case = check_case(case)
     # whole numbers only (3600.5 is refused, never truncated), flags only True/False
     # (bool("no") is True): a wrong type gets this library's message, not numpy's
-    n_samples = as_integer(n_samples, "n_samples", example=3600)
+    n_samples = check_n_samples(n_samples)
     noise = as_bool(noise, "noise")
     chosen = _check_disturbances(disturbances, noise)
-    if n_samples < 2 * FACTOR or n_samples % FACTOR:
-        raise ValueError(f"n_samples must be a multiple of the factor {FACTOR} and at least "
-                         f"{2 * FACTOR}, got {n_samples}.")
-    seed = as_integer(seed, "seed", minimum=0, example=0)
+    seed = check_seed(seed)
     fast_output = as_bool(fast_output, "fast_output")
     try:
         rms = np.asarray(rms, dtype=float)
