@@ -159,7 +159,7 @@ def test_python_m_lcmr_xr_runs_the_command_line(tmp_path):
     assert ok.returncode == 0 and ok.stdout.startswith("usage: lcmr-xr simulate"), ok.stderr
     bad = subprocess.run([sys.executable, "-m", "lcmr_xr", "simulate", "-o", "x.nc", "--seed", "-1"],
                          capture_output=True, text=True, env=env, cwd=tmp_path)
-    assert bad.returncode == 2 and "lcmr-xr simulate: error: seed must be >= 0" in bad.stderr
+    assert bad.returncode == 2 and "lcmr-xr simulate: error: --seed must be >= 0" in bad.stderr
     assert list(tmp_path.iterdir()) == []
 
 
