@@ -38,6 +38,7 @@ from lcmr_xr import conventions as cv
 from lcmr_xr.experiment.dataset import experiment_factor
 from lcmr_xr.kernels.identification import experiment_spectra
 from lcmr_xr.kernels.pooling import mean_and_covariance
+from lcmr_xr.settings import as_integer
 
 COMBINE = (None, "experiment")
 #: Default number of leading periods dropped: the loop starts from rest in period 0.
@@ -122,13 +123,16 @@ def check_settings(*, window, transient_periods, combine, degrees) -> None:
     Raises
     ------
     ValueError
-        An unknown ``combine``, a ``transient_periods`` that is not a non-negative integer,
-        ``window=0`` without ``combine="experiment"``, or ``degrees`` with ``window=0``.
+        An unknown ``combine``, a ``transient_periods`` below 0 or not whole (the integer
+        rule, :func:`lcmr_xr.settings.as_integer`), ``window=0`` without
+        ``combine="experiment"``, or ``degrees`` with ``window=0``.
+    TypeError
+        A ``transient_periods`` that is not a number.
     """
     if combine not in COMBINE:
         raise ValueError(f"combine must be None or 'experiment', got {combine!r}.")
     if transient_periods is not None:
-        _check_int(transient_periods, "transient_periods", 0)
+        as_integer(transient_periods, "transient_periods", minimum=0, example=1)
     if not is_window0(window):
         return
     if combine != "experiment":
@@ -143,13 +147,6 @@ def check_settings(*, window, transient_periods, combine, degrees) -> None:
             f"window=0 fits no local model (G = Z R^+ bin by bin), so degrees={degrees!r} would "
             "be ignored; leave degrees out."
         )
-
-
-def _check_int(value, name: str, minimum: int) -> int:
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) \
-            or value < minimum:
-        raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}.")
-    return int(value)
 
 
 def _same_excitation(r: xr.DataArray, dim: str) -> bool:
@@ -217,8 +214,8 @@ def plan(ds: xr.Dataset, *, window, transient_periods, combine, closed_loop: str
     n_periods = ds.sizes.get(cv.PERIOD, 1)
     drop = 0
     if has_period:
-        drop = _check_int(DEFAULT_TRANSIENT_PERIODS if transient_periods is None
-                          else transient_periods, "transient_periods", 0)
+        drop = as_integer(DEFAULT_TRANSIENT_PERIODS if transient_periods is None
+                          else transient_periods, "transient_periods", minimum=0, example=1)
         if drop >= n_periods:
             raise ValueError(
                 f"transient_periods={drop} drops all {n_periods} period(s); keep at least one "
