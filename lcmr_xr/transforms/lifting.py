@@ -19,6 +19,7 @@ import xarray as xr
 
 from lcmr_xr.conventions import FACTOR, LIFT_PHASE, TIME
 from lcmr_xr.kernels.lifting import whole_factor
+from lcmr_xr.settings import as_integer
 from lcmr_xr.transforms._coords import slow_dim_for
 
 __all__ = ["lift", "unlift"]
@@ -53,17 +54,13 @@ def _back(ds: xr.Dataset, was_dataarray: bool, name: Hashable | None):
 
 def _resolve_factor(x, factor) -> int:
     if factor is not None:  # the settings' integer rule: 2.0 yes, 2.5 no (ValueError), "2" no (TypeError)
-        from lcmr_xr.settings import as_integer
-
         return as_integer(factor, "factor", minimum=1, example=2)
-    if factor is None:
-        if FACTOR not in x.attrs:
-            raise ValueError(
-                "lift needs the lifting factor F: pass factor=F, or set the attribute "
-                f"x.attrs[{FACTOR!r}] = F."
-            )
-        factor = x.attrs[FACTOR]
-    return whole_factor(factor)
+    if FACTOR not in x.attrs:
+        raise ValueError(
+            "lift needs the lifting factor F: pass factor=F, or set the attribute "
+            f"x.attrs[{FACTOR!r}] = F."
+        )
+    return whole_factor(x.attrs[FACTOR])
 
 
 def lift(x, factor: int | None = None, *, dim: str = TIME):
