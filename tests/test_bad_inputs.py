@@ -646,6 +646,19 @@ API = [
              str(res.r.chunks))),
     Case("open_chunks_fractional_scalar", lambda e: open_dataset("exp.nc", chunks=100.5), ValueError,
          ("chunks", "100.5", "not rounded"), absent=("not a valid NetCDF",)),
+    # a 0-d integer array (a value taken from an array, e.g. ds.sizes-derived .values) was a
+    # TypeError; the settings' integer rule reads it as the number it holds
+    Case("open_chunks_zero_d_array", lambda e: open_dataset("exp.nc", chunks=np.array(100)),
+         check=lambda res, e: res.r.chunks == open_dataset("exp.nc", chunks=100).r.chunks or pytest.fail(
+             str(res.r.chunks))),
+    Case("open_chunks_zero_d_arrays_in_dict", lambda e: open_dataset("exp.nc", chunks={"time": np.array(100.0),
+                                                                                       "input": (np.int64(1), 1)}),
+         check=lambda res, e: res.r.chunks == open_dataset("exp.nc", chunks={"time": 100, "input": (1, 1)}).r.chunks
+         or pytest.fail(str(res.r.chunks))),
+    Case("open_chunks_zero_d_array_fractional", lambda e: open_dataset("exp.nc", chunks=np.array(100.5)), ValueError,
+         ("chunks", "100.5", "not rounded"), absent=("not a valid NetCDF",)),
+    Case("open_chunks_zero_d_array_text", lambda e: open_dataset("exp.nc", chunks=np.array("x")), TypeError,
+         ("chunks", "'x'"), absent=("not a valid NetCDF",)),
     Case("open_chunks_text", lambda e: open_dataset("frf.nc", chunks="x"), TypeError, ("chunks", "'x'"),
          absent=("not a valid NetCDF",)),
     Case("open_text_file", lambda e: open_dataset("notes.nc"), ValueError, ("notes.nc", "not a valid NetCDF")),

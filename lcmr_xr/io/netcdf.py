@@ -9,6 +9,7 @@ types recorded in a JSON attribute ``lcmr_attr_types`` on the same object, so th
 from __future__ import annotations
 
 import json
+import numbers
 import warnings
 from numbers import Number
 from pathlib import Path
@@ -21,6 +22,7 @@ from lcmr_xr.io._atomic import atomic_write
 from lcmr_xr.io.matfile import is_mat_path, open_mat_experiment, save_mat
 from lcmr_xr.io._guards import check_not_own_source
 from lcmr_xr.experiment.dataset import validate_experiment
+from lcmr_xr.settings import as_integer
 
 __all__ = ["open_dataset", "open_experiment", "open_frf", "save"]
 
@@ -217,7 +219,8 @@ def open_dataset(path, chunks=None) -> xr.Dataset:
     chunks : dict or "auto", optional
         Dask chunks.  Default ``None``: the data are loaded into memory and the file is
         closed (experiment and FRF files are small); with chunks the data stay lazy.
-        Sizes follow the library's integer rule: ``100.0`` is 100, ``100.5`` is refused.
+        Sizes follow the library's integer rule (:func:`lcmr_xr.settings.as_integer`):
+        ``100.0`` and a 0-d array ``np.array(100)`` are 100, ``100.5`` is refused.
 
     Returns
     -------
@@ -363,10 +366,17 @@ def _is_chunk_size(value) -> bool:
 
 
 def _whole(value):
-    """A whole float (``100.0``) as the int dask needs, by the settings' integer rule;
-    anything else unchanged (for :func:`_check_chunks` to judge)."""
-    if isinstance(value, (float, np.floating)) and np.isfinite(value) and value == int(value):
-        return int(value)
+    """A whole number as the int dask needs, by the settings' integer rule
+    (:func:`lcmr_xr.settings.as_integer`: ``100.0``, ``np.int64(100)`` and a 0-d array
+    ``np.array(100)`` are 100); a 0-d array of anything else is read as what it holds, and
+    anything else is returned unchanged (for :func:`_check_chunks` to judge and word)."""
+    if (isinstance(value, np.ndarray) or type(value).__name__ == "DataArray") and value.ndim == 0:
+        value = value.item()
+    if isinstance(value, numbers.Real) and not isinstance(value, (bool, np.bool_)):
+        try:
+            return as_integer(value, "chunks")
+        except ValueError:  # a fraction, NaN or inf: _check_chunks's message names the remedy
+            return value
     return value
 
 
