@@ -375,6 +375,12 @@ API = [
          ValueError, ("not a multiple", "factor=3", "= 2")),
     Case("factor_attr_text", lambda e: validate_experiment(_set_attr(e.small, factor="two")), ValueError,
          ("positive integer",)),
+    # the attribute is read by the one reader of a stored factor (settings.recorded_factor):
+    # inf failed inside int() with an OverflowError, [True] was read as the factor 1
+    Case("factor_attr_inf", lambda e: validate_experiment(_set_attr(e.small, factor=np.inf)), ValueError,
+         ("'factor' must be a positive integer", "inf", "set ds.attrs['factor'] = F")),
+    Case("factor_attr_bool_array", lambda e: validate_experiment(_set_attr(e.small, factor=np.array([True]))),
+         ValueError, ("'factor' must be a positive integer", "True")),
     Case("variable_y_missing", lambda e: validate_experiment(e.small.drop_vars("y")), ValueError,
          ("'y' is missing",)),
     Case("units_missing", lambda e: validate_experiment(e.changed(r=e.small.r.drop_attrs())), ValueError,
@@ -422,6 +428,17 @@ API = [
          ("factor", "2.5", "not rounded")),
     Case("lift_factor_whole_float", lambda e: lcmr_xr.lift(e.small.r, 2.0),
          check=lambda res, e: xr.testing.assert_identical(res, lcmr_xr.lift(e.small.r, 2))),
+    # an explicit factor other than the one the signal records lifted by it, and the result
+    # carried the recorded one on; the same factor (also as 2.0 or a file's [2]) is accepted
+    Case("lift_factor_disagrees_with_attribute", lambda e: lcmr_xr.lift(e.small, 4), ValueError,
+         ("factor=4", "F = 2", "attrs['factor']", "factor=2", "assign_attrs(factor=4)")),
+    Case("lift_factor_disagrees_with_dataarray_attribute",
+         lambda e: lcmr_xr.lift(e.small.r.assign_attrs(factor=np.array([2])), 4), ValueError,
+         ("factor=4", "F = 2")),
+    Case("lift_factor_agrees_with_attribute", lambda e: lcmr_xr.lift(e.small.assign_attrs(factor=np.array([2])), 2.0),
+         check=lambda res, e: xr.testing.assert_identical(res, lcmr_xr.lift(e.small.assign_attrs(factor=np.array([2]))))),
+    Case("lift_factor_attribute_text", lambda e: lcmr_xr.lift(e.small.r.assign_attrs(factor="two")), ValueError,
+         ("x.attrs['factor']", "'two'", "not a lifting factor", "factor=F")),
     Case("unlift_reordered_phases", lambda e: lcmr_xr.unlift(lcmr_xr.lift(e.small.r, 2).sortby("lift_phase", ascending=False)),
          ValueError, ("lift_phase", "[1, 0]", "sortby")),
     Case("unlift_selected_phase", lambda e: lcmr_xr.unlift(lcmr_xr.lift(e.small.r.drop_vars("time"), 2).isel(lift_phase=[1])),
