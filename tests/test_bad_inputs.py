@@ -633,6 +633,14 @@ API = [
     Case("save_dataarray", lambda e: save(e.small.r, "x.nc"), TypeError, ("to_dataset",)),
     Case("save_into_missing_directory", lambda e: save(e.small, "nodir/x.nc"), FileNotFoundError,
          ("nodir", "does not exist")),
+    # save wrote NetCDF-4 under any name (x.txt, or none); sweep_to_disk found out only at the
+    # end, after every task (save), or never; the accepted endings are named, in any case
+    Case("save_text_suffix", lambda e: save(e.small, "x.txt"), ValueError,
+         ("x.txt", "'.txt'", ".nc, .nc4, .netcdf or .mat", "e.g. x.nc")),
+    Case("save_no_suffix", lambda e: save(e.small, "result"), ValueError,
+         ("result", "(no suffix)", ".nc", ".mat", "e.g. result.nc")),
+    Case("sweep_to_disk_text_suffix", lambda e: sweep_to_disk(open_archive("arc"), "r.txt", window=[12]), ValueError,
+         ("r.txt", "'.txt'", ".nc, .nc4 or .netcdf"), absent=(".mat",)),
     Case("save_onto_a_directory", lambda e: save(e.small, "arc"), IsADirectoryError, ("cannot write arc", "is a directory"),
          absent=(".tmp",)),
     Case("save_where_not_writable", _fake_readonly, PermissionError, ("cannot write out.nc",), absent=(".x.tmp",)),

@@ -20,7 +20,8 @@ import xarray as xr
 from lcmr_xr.conventions import CONVENTIONS, FREQUENCY, INPUT, OUTPUT
 from lcmr_xr.io._atomic import atomic_write
 from lcmr_xr.io.matfile import is_mat_path, open_mat_experiment, save_mat
-from lcmr_xr.io._guards import check_not_own_source
+from lcmr_xr.io._atomic import check_writable_target
+from lcmr_xr.io._guards import MAT_SUFFIX, NETCDF_SUFFIXES, check_not_own_source, check_suffix
 from lcmr_xr.experiment.dataset import validate_experiment
 from lcmr_xr.settings import as_integer
 
@@ -149,7 +150,8 @@ def save(ds: xr.Dataset, path) -> Path:
         (bool, tuple, list, None) are converted and restored by :func:`open_dataset`;
         complex attribute values are refused (TypeError: NetCDF has no complex attributes).
     path : str or os.PathLike
-        Target file; its directory must exist.  An existing file is replaced.  A path
+        Target file; its directory must exist.  An existing file is replaced.  Its name
+        ends in ``.nc``, ``.nc4`` or ``.netcdf`` (NetCDF-4; any case), or ``.mat``: a path
         ending in ``.mat`` writes an FRF or experiment dataset for MATLAB instead
         (:func:`lcmr_xr.io.matfile.save_mat`: ``P`` as ``ny x nu x nf``, frequency in Hz,
         ``Ts``, channel names, so that ``frd`` takes it in one line).  The file a lazy
@@ -159,6 +161,16 @@ def save(ds: xr.Dataset, path) -> Path:
     -------
     pathlib.Path
         The path written.
+
+    Raises
+    ------
+    ValueError
+        If ``path`` ends in another suffix (``x.txt``, or none): the accepted ones are
+        named; or it is the file a lazy ``ds`` still reads.
+    IsADirectoryError, PermissionError
+        If ``path`` is a directory or lies in one that cannot be written.
+    TypeError
+        If ``ds`` is not a Dataset.
 
     Notes
     -----
@@ -188,6 +200,9 @@ def save(ds: xr.Dataset, path) -> Path:
             "x.to_dataset(name='...')."
         )
     check_not_own_source(ds, path)
+    check_writable_target(path)  # (a directory is named as one, not as a wrong file type)
+    # the name says the format: x.txt or x (no suffix) held NetCDF-4 and nothing said so
+    check_suffix(path, NETCDF_SUFFIXES + (MAT_SUFFIX,))
     if is_mat_path(path):
         return save_mat(ds, path)
     flat = _checksummed(_map_attrs(ds, _flatten_attrs))
