@@ -110,3 +110,31 @@ def test_readme_links_the_docs_and_no_code_cites_an_outside_design_doc():
     stale = [str(p.relative_to(ROOT)) for p in (ROOT / "lcmr_xr").rglob("*.py")
              if "shared/conventions.md" in p.read_text()]
     assert stale == [], f"{stale} cite shared/conventions.md; cite docs/conventions.md"
+
+
+@pytest.mark.parametrize("units,squared", [
+    ("m", "m2"), ("V", "V2"), ("um", "um2"), ("rad", "rad2"),  # a symbol: exponent 2, as UDUNITS
+    ("m2", "m4"), ("s-1", "s-2"), ("m^3", "m6"),             # an exponent doubles (not m22)
+    ("m/s", "(m/s)2"), ("m s-1", "(m s-1)2"), ("1e-3 m", "(1e-3 m)2"),  # else parenthesised
+    ("1", "1"), ("", "1"),
+])
+def test_squared_units(units, squared):
+    assert cv.squared_units(units) == squared
+
+
+def test_noise_variance_units_are_the_signals_units_squared():
+    """The noise variances' units read (m)2 for an output in m (every unit was
+    parenthesised); now UDUNITS' own spelling: m2, and (m/s)2 where parentheses are needed.
+    Residual (identify) and period-spread (pooled) variances, outputs and lifted inputs."""
+    exp = hdd.simulate(n_samples=1200, periods=3, seed=0, noise=False)
+    exp["u"].attrs["units"] = "m/s"
+    frf = lcmr_xr.identify(exp, window=12, degrees=(2, 2, 2))
+    assert frf[cv.NOISE_VARIANCE_Y].attrs["units"] == "m2"
+    assert frf[cv.PERIOD_NOISE_VARIANCE_Y].attrs["units"] == "m2"
+    assert frf[cv.NOISE_VARIANCE_U].attrs["units"] == "(m/s)2"
+    assert frf[cv.PERIOD_NOISE_VARIANCE_U].attrs["units"] == "(m/s)2"
+    exp["u"].attrs["units"] = "1"
+    frf = lcmr_xr.identify(exp.isel(period=0), window=12, degrees=(2, 2, 2))
+    assert frf[cv.NOISE_VARIANCE_U].attrs["units"] == "1" and frf[cv.NOISE_VARIANCE_Y].attrs["units"] == "m2"
+    stacked = lcmr_xr.identify(exp.isel(period=0), window=12, degrees=(2, 2, 2), stacked=True)
+    assert stacked["noise_variance"].attrs["units"] == "1 (u rows), m2 (y rows)"
