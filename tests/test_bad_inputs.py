@@ -1065,6 +1065,21 @@ def test_cli_sweep_checks_connect_timeout_before_it_starts(timeout, scheduler, w
     assert snapshot(workdir) == before
 
 
+@pytest.mark.parametrize("server", ["unused", "junk"])
+def test_cli_sweep_says_sweeping_only_once_connected(server, workdir, servers, capsys):
+    """lcmr-xr sweep printed "sweeping {...} on scheduler tcp://..." before it connected, so
+    a scheduler that is not there looked like a sweep that started and failed.  Now the
+    failed connection is the only line; with a local scheduler the line still comes first."""
+    before = snapshot(workdir)
+    status = cli.main(["sweep", "arc", "-o", "r.nc", "--window", "12", "--scheduler",
+                       f"tcp://127.0.0.1:{servers[server]}", "--connect-timeout", "3"])
+    err = capsys.readouterr().err
+    assert status == 2
+    assert err.splitlines() == [err.strip()] and err.startswith("lcmr-xr sweep: error: "), err
+    assert "sweeping" not in err, err
+    assert snapshot(workdir) == before
+
+
 def test_catalogue_size():
     """The catalogue covers the issue's ~90 bad inputs (API, CLI and files)."""
     assert len(API) + len(CLI) >= 90
