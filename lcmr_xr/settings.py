@@ -73,7 +73,8 @@ DENOMINATOR = {
 #: ``denominator=None`` means this for a model with a denominator (``Rd > 0``) fitted to
 #: one record.  Measured on the HDD benchmark (docs/uncertainty.md, "Instrumental
 #: variables"): on one record IV changes the error and the coverage by a few per cent and
-#: costs 1.8-2.4x the time, so least squares stays the default there.
+#: costs 1.33-1.41x the CPU time at window 30 (1.11-1.18x with ``window="auto"``;
+#: ``benchmarks/accuracy.py --cost``), so least squares stays the default there.
 DEFAULT_DENOMINATOR = "ls"
 #: ... and this for experiments pooled in one local model (``combine="experiment"`` with
 #: different excitations and a local window), where least squares' noise-induced bias,

@@ -138,3 +138,25 @@ def test_noise_variance_units_are_the_signals_units_squared():
     assert frf[cv.NOISE_VARIANCE_U].attrs["units"] == "1" and frf[cv.NOISE_VARIANCE_Y].attrs["units"] == "m2"
     stacked = lcmr_xr.identify(exp.isel(period=0), window=12, degrees=(2, 2, 2), stacked=True)
     assert stacked["noise_variance"].attrs["units"] == "1 (u rows), m2 (y rows)"
+
+
+def test_one_figure_for_the_cost_of_iv_on_one_record():
+    """The README (1.2-1.9x), lcmr_xr.settings (1.8-2.4x), identify's docstring (about
+    twice) and docs/uncertainty.md (1.88x) each gave their own cost of IV on one record;
+    they give the one measured in docs/uncertainty.md (benchmarks/accuracy.py --cost)."""
+    import lcmr_xr.settings
+
+    def one(pattern, text, where):
+        found = re.findall(pattern, " ".join(text.split()))
+        assert len(found) == 1, (where, found)
+        return found[0]
+
+    figure = r"(\d\.\d+-\d\.\d+x)"
+    measured = one(r"Cost of IV against least squares, one record .*?: window 30 " + figure,
+                   (DOCS / "uncertainty.md").read_text(), "uncertainty.md")
+    assert one(r"IV changes the result by a few per cent at " + figure + " the CPU time, window 30",
+               README.read_text(), "README") == measured
+    assert one(r"costs " + figure + " the CPU time at window 30",
+               Path(lcmr_xr.settings.__file__).read_text().replace("#:", ""), "settings") == measured
+    assert one(r"at " + figure + " the CPU time at window 30",
+               lcmr_xr.identify.__doc__, "identify") == measured

@@ -180,7 +180,7 @@ def identify(experiment: xr.Dataset, *, method: str = "lrm", window=DEFAULT_WIND
         window).  Default (None): ``"iv"`` where experiments are pooled in one local model
         (``combine="experiment"`` with different excitations: least squares' bias does not
         pool away), ``"ls"`` otherwise (one record: IV changes the error by a few per cent
-        at about twice the cost); :data:`lcmr_xr.settings.DEFAULT_DENOMINATOR`,
+        at 1.33-1.41x the CPU time at window 30, docs/uncertainty.md); :data:`lcmr_xr.settings.DEFAULT_DENOMINATOR`,
         :data:`lcmr_xr.settings.POOLED_DEFAULT_DENOMINATOR`.  A model without a
         denominator (``Rd = 0``: the LPM, window 0) is least squares, and ``"iv"`` is
         refused there.  Recorded as the attribute ``denominator``
