@@ -463,9 +463,25 @@ API = [
     Case("dft_numpy", lambda e: lcmr_xr.dft(e.r), TypeError, ("dft", "xr.DataArray"), absent=("attribute",)),
     Case("idft_numpy", lambda e: lcmr_xr.idft(np.fft.fft(e.r, axis=0)), TypeError, ("idft", "xr.DataArray"),
          absent=("attribute",)),
+    # factor follows the settings' integer rule: "2" and True were told "factor=2 does not
+    # match the 2 lifting phases" (a ValueError), 2.5 "does not match" instead of "not rounded"
     Case("fast_spectrum_factor_fractional", lambda e: lcmr_xr.fast_spectrum_from_lifted(
-        lcmr_xr.dft(lcmr_xr.lift(e.small.r, 2), dim="slow_time"), factor=2.5), ValueError,
-        ("factor=2.5", "2 lifting phases")),
+        _lifted_spectrum(e), factor=2.5), ValueError,
+        ("factor must be an integer", "2.5", "not rounded", "factor=2"), absent=("does not match",)),
+    Case("fast_spectrum_factor_text", lambda e: lcmr_xr.fast_spectrum_from_lifted(_lifted_spectrum(e), factor="2"),
+         TypeError, ("factor must be an integer", "'2'", "(str)", "pass e.g. factor=2"), absent=("does not match",)),
+    Case("fast_spectrum_factor_bool", lambda e: lcmr_xr.fast_spectrum_from_lifted(_lifted_spectrum(e), factor=True),
+         TypeError, ("factor must be an integer", "True", "(bool)"), absent=("does not match",)),
+    Case("fast_spectrum_factor_numpy_bool", lambda e: lcmr_xr.fast_spectrum_from_lifted(
+        _lifted_spectrum(e), factor=np.True_), TypeError, ("factor must be an integer", "True")),
+    Case("fast_spectrum_factor_zero", lambda e: lcmr_xr.fast_spectrum_from_lifted(_lifted_spectrum(e), factor=0),
+         ValueError, ("factor must be >= 1", "got 0")),
+    Case("fast_spectrum_factor_other", lambda e: lcmr_xr.fast_spectrum_from_lifted(_lifted_spectrum(e), factor=3),
+         ValueError, ("factor=3 does not match the 2 lifting phases", "omit factor")),
+    Case("fast_spectrum_factor_whole", lambda e: [lcmr_xr.fast_spectrum_from_lifted(_lifted_spectrum(e), factor=f)
+                                                  for f in (2.0, np.array(2), np.int64(2))],
+         check=lambda res, e: [xr.testing.assert_identical(r, lcmr_xr.fast_spectrum_from_lifted(_lifted_spectrum(e)))
+                               for r in res]),
     Case("dft_one_sided_text", lambda e: lcmr_xr.dft(e.small.r, one_sided="no"), TypeError,
          ("one_sided", "True or False")),
     # NaN made every bin of the spectrum NaN, silently
