@@ -845,6 +845,26 @@ API = [
          ValueError, ("chunks['experiment'] = 1.5", "positive number of experiments")),
     Case("archive_consolidated_chunks_whole", lambda e: open_archive("arc1.nc", chunks={"experiment": -1}),
          check=lambda ds, e: ds.r.chunks[0] == (1,) or pytest.fail(str(ds.r.chunks))),
+    # sizes by the library's integer rule, as open_dataset's chunks: a 0-d array and a whole
+    # float were "no positive number of experiments per chunk" (open_dataset takes them), a
+    # directory's {'time': np.array(100)} failed inside dask ("chunks can only contain
+    # integers") and {'time': 100.5} likewise
+    Case("archive_consolidated_chunks_zero_d_array", lambda e: open_archive("arc1.nc", chunks={"experiment": np.array(1)}),
+         check=lambda ds, e: ds.r.chunks == open_archive("arc1.nc", chunks={"experiment": 1}).r.chunks
+         or pytest.fail(str(ds.r.chunks))),
+    Case("archive_directory_chunks_zero_d_array", lambda e: open_archive("arc", chunks={"experiment": np.array(1)}),
+         check=lambda ds, e: ds.r.chunks[0] == (1, 1) or pytest.fail(str(ds.r.chunks))),
+    Case("archive_directory_chunks_whole_float", lambda e: open_archive("arc", chunks={"experiment": 1.0}),
+         check=lambda ds, e: ds.r.chunks[0] == (1, 1) or pytest.fail(str(ds.r.chunks))),
+    Case("archive_directory_chunks_time_zero_d_array", lambda e: open_archive("arc", chunks={"time": np.array(100)}),
+         check=lambda ds, e: ds.r.chunks == open_archive("arc", chunks={"time": 100}).r.chunks
+         and ds.r.chunks[1] == (100,) * 4 or pytest.fail(str(ds.r.chunks))),
+    Case("archive_directory_chunks_time_fractional", lambda e: open_archive("arc", chunks={"time": 100.5}),
+         ValueError, ("chunks {'time': 100.5}", "whole number (>= 1)"), absent=("can only contain",)),
+    Case("archive_directory_chunks_zero_d_fractional", lambda e: open_archive("arc", chunks={"experiment": np.array(1.5)}),
+         ValueError, ("chunks['experiment'] = 1.5", "positive number of experiments")),
+    Case("archive_consolidated_chunks_zero_d_bool", lambda e: open_archive("arc1.nc", chunks={"experiment": np.array(True)}),
+         ValueError, ("chunks['experiment'] = True", "positive number of experiments")),
     # chunks={'time': -2} was reported as "not a valid NetCDF-4 file (truncated, corrupt,
     # ...)" (xarray's refusal of the argument); 0 silently meant the whole dim
     Case("open_chunks_negative", lambda e: open_dataset("exp.nc", chunks={"time": -2}), ValueError,
