@@ -210,7 +210,10 @@ def recorded_factor(value) -> int | None:
     >>> recorded_factor(np.array([[2.0]])), recorded_factor("2"), recorded_factor(2.5)
     (2, None, None)
     """
-    array = np.asarray(value)
+    try:
+        array = np.asarray(value)
+    except (ValueError, TypeError):  # ragged ([1, [2]]): numpy's own error, not the caller's words
+        return None
     if array.size != 1 or array.dtype.kind not in "iuf":
         return None
     number = array.item()

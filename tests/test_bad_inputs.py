@@ -238,6 +238,18 @@ def _spectrum(e):
     return lcmr_xr.dft(e.small.r)
 
 
+def _lifted_slow_output(res, exp, factor):
+    """``res`` is ``exp`` lifted by ``factor`` along ``slow_time``: ``y[l F + j]`` at
+    ``[l, j]``, ``r`` and ``u`` passed through, the experiment's ``factor`` kept."""
+    m = exp.sizes["slow_time"] // factor
+    want = exp.y.values.reshape(m, factor, exp.sizes["output"])
+    assert res.y.dims == ("slow_slow_time", "lift_phase", "output"), res.y.dims
+    np.testing.assert_array_equal(res.y.values, want)
+    xr.testing.assert_identical(res.r, exp.r)
+    assert res.attrs["factor"] == exp.attrs["factor"]
+    assert res.lift_phase.attrs["lift_factor"] == factor
+
+
 def _lifted_spectrum(e):
     return lcmr_xr.dft(lcmr_xr.lift(e.small.r, 2), dim="slow_time")
 
@@ -439,6 +451,11 @@ API = [
          check=lambda res, e: xr.testing.assert_identical(res, lcmr_xr.lift(e.small.assign_attrs(factor=np.array([2]))))),
     Case("lift_factor_attribute_text", lambda e: lcmr_xr.lift(e.small.r.assign_attrs(factor="two")), ValueError,
          ("x.attrs['factor']", "'two'", "not a lifting factor", "factor=F")),
+    # the recorded factor is time's ratio to slow_time: lifting along another dim (the slow
+    # output by 4) was refused since the check came in (session 16), and told to set the
+    # experiment's factor to 4; a lifting along slow_time is not held to it
+    Case("lift_other_dim_not_held_to_recorded_factor", lambda e: lcmr_xr.lift(e.small, 4, dim="slow_time"),
+         check=lambda res, e: _lifted_slow_output(res, e.small, 4)),
     Case("unlift_reordered_phases", lambda e: lcmr_xr.unlift(lcmr_xr.lift(e.small.r, 2).sortby("lift_phase", ascending=False)),
          ValueError, ("lift_phase", "[1, 0]", "sortby")),
     Case("unlift_selected_phase", lambda e: lcmr_xr.unlift(lcmr_xr.lift(e.small.r.drop_vars("time"), 2).isel(lift_phase=[1])),
@@ -446,9 +463,25 @@ API = [
     Case("dft_numpy", lambda e: lcmr_xr.dft(e.r), TypeError, ("dft", "xr.DataArray"), absent=("attribute",)),
     Case("idft_numpy", lambda e: lcmr_xr.idft(np.fft.fft(e.r, axis=0)), TypeError, ("idft", "xr.DataArray"),
          absent=("attribute",)),
+    # factor follows the settings' integer rule: "2" and True were told "factor=2 does not
+    # match the 2 lifting phases" (a ValueError), 2.5 "does not match" instead of "not rounded"
     Case("fast_spectrum_factor_fractional", lambda e: lcmr_xr.fast_spectrum_from_lifted(
-        lcmr_xr.dft(lcmr_xr.lift(e.small.r, 2), dim="slow_time"), factor=2.5), ValueError,
-        ("factor=2.5", "2 lifting phases")),
+        _lifted_spectrum(e), factor=2.5), ValueError,
+        ("factor must be an integer", "2.5", "not rounded", "factor=2"), absent=("does not match",)),
+    Case("fast_spectrum_factor_text", lambda e: lcmr_xr.fast_spectrum_from_lifted(_lifted_spectrum(e), factor="2"),
+         TypeError, ("factor must be an integer", "'2'", "(str)", "pass e.g. factor=2"), absent=("does not match",)),
+    Case("fast_spectrum_factor_bool", lambda e: lcmr_xr.fast_spectrum_from_lifted(_lifted_spectrum(e), factor=True),
+         TypeError, ("factor must be an integer", "True", "(bool)"), absent=("does not match",)),
+    Case("fast_spectrum_factor_numpy_bool", lambda e: lcmr_xr.fast_spectrum_from_lifted(
+        _lifted_spectrum(e), factor=np.True_), TypeError, ("factor must be an integer", "True")),
+    Case("fast_spectrum_factor_zero", lambda e: lcmr_xr.fast_spectrum_from_lifted(_lifted_spectrum(e), factor=0),
+         ValueError, ("factor must be >= 1", "got 0")),
+    Case("fast_spectrum_factor_other", lambda e: lcmr_xr.fast_spectrum_from_lifted(_lifted_spectrum(e), factor=3),
+         ValueError, ("factor=3 does not match the 2 lifting phases", "omit factor")),
+    Case("fast_spectrum_factor_whole", lambda e: [lcmr_xr.fast_spectrum_from_lifted(_lifted_spectrum(e), factor=f)
+                                                  for f in (2.0, np.array(2), np.int64(2))],
+         check=lambda res, e: [xr.testing.assert_identical(r, lcmr_xr.fast_spectrum_from_lifted(_lifted_spectrum(e)))
+                               for r in res]),
     Case("dft_one_sided_text", lambda e: lcmr_xr.dft(e.small.r, one_sided="no"), TypeError,
          ("one_sided", "True or False")),
     # NaN made every bin of the spectrum NaN, silently
@@ -812,6 +845,26 @@ API = [
          ValueError, ("chunks['experiment'] = 1.5", "positive number of experiments")),
     Case("archive_consolidated_chunks_whole", lambda e: open_archive("arc1.nc", chunks={"experiment": -1}),
          check=lambda ds, e: ds.r.chunks[0] == (1,) or pytest.fail(str(ds.r.chunks))),
+    # sizes by the library's integer rule, as open_dataset's chunks: a 0-d array and a whole
+    # float were "no positive number of experiments per chunk" (open_dataset takes them), a
+    # directory's {'time': np.array(100)} failed inside dask ("chunks can only contain
+    # integers") and {'time': 100.5} likewise
+    Case("archive_consolidated_chunks_zero_d_array", lambda e: open_archive("arc1.nc", chunks={"experiment": np.array(1)}),
+         check=lambda ds, e: ds.r.chunks == open_archive("arc1.nc", chunks={"experiment": 1}).r.chunks
+         or pytest.fail(str(ds.r.chunks))),
+    Case("archive_directory_chunks_zero_d_array", lambda e: open_archive("arc", chunks={"experiment": np.array(1)}),
+         check=lambda ds, e: ds.r.chunks[0] == (1, 1) or pytest.fail(str(ds.r.chunks))),
+    Case("archive_directory_chunks_whole_float", lambda e: open_archive("arc", chunks={"experiment": 1.0}),
+         check=lambda ds, e: ds.r.chunks[0] == (1, 1) or pytest.fail(str(ds.r.chunks))),
+    Case("archive_directory_chunks_time_zero_d_array", lambda e: open_archive("arc", chunks={"time": np.array(100)}),
+         check=lambda ds, e: ds.r.chunks == open_archive("arc", chunks={"time": 100}).r.chunks
+         and ds.r.chunks[1] == (100,) * 4 or pytest.fail(str(ds.r.chunks))),
+    Case("archive_directory_chunks_time_fractional", lambda e: open_archive("arc", chunks={"time": 100.5}),
+         ValueError, ("chunks {'time': 100.5}", "whole number (>= 1)"), absent=("can only contain",)),
+    Case("archive_directory_chunks_zero_d_fractional", lambda e: open_archive("arc", chunks={"experiment": np.array(1.5)}),
+         ValueError, ("chunks['experiment'] = 1.5", "positive number of experiments")),
+    Case("archive_consolidated_chunks_zero_d_bool", lambda e: open_archive("arc1.nc", chunks={"experiment": np.array(True)}),
+         ValueError, ("chunks['experiment'] = True", "positive number of experiments")),
     # chunks={'time': -2} was reported as "not a valid NetCDF-4 file (truncated, corrupt,
     # ...)" (xarray's refusal of the argument); 0 silently meant the whole dim
     Case("open_chunks_negative", lambda e: open_dataset("exp.nc", chunks={"time": -2}), ValueError,

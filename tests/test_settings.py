@@ -290,7 +290,7 @@ def test_one_reader_of_a_stored_factor():
     small = hdd.simulate(n_samples=400, noise=False, seed=1)
     good = [2, 2.0, np.int32(2), np.array([2]), np.array([[2.0]]), np.uint8(2), [2]]
     bad = ["2", "two", 2.5, 0, -2, np.nan, np.inf, True, np.array([True]), np.array([2, 2]),
-           np.array([]), None, [2, 2], 2 + 0j]
+           np.array([]), None, [2, 2], 2 + 0j, [1, [2]]]  # ragged: numpy's ValueError escaped
     for value in good:
         assert recorded_factor(value) == 2 and type(recorded_factor(value)) is int
         assert experiment_factor(small.assign_attrs(factor=value)) == 2

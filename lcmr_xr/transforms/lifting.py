@@ -51,16 +51,17 @@ def _back(ds: xr.Dataset, was_dataarray: bool, name: Hashable | None):
     return out
 
 
-def _resolve_factor(x, factor) -> int:
-    """The lifting factor: ``factor`` if given, else ``x.attrs["factor"]``; both given, they
-    must agree (a signal lifted by another F than it records would carry a wrong
-    ``factor`` on)."""
+def _resolve_factor(x, factor, dim: str = TIME) -> int:
+    """The lifting factor: ``factor`` if given, else ``x.attrs["factor"]``; both given and
+    lifting along ``time``, they must agree (a signal lifted by another F than it records
+    would carry a wrong ``factor`` on).  The recorded factor is the ratio of ``time`` to
+    ``slow_time``: a lifting along another dim (``dim="slow_time"``) is not held to it."""
     attrs = getattr(x, "attrs", {})
     stored = attrs.get(FACTOR)
     recorded = None if stored is None else recorded_factor(stored)
     if factor is not None:  # the settings' integer rule: 2.0 yes, 2.5 no (ValueError), "2" no (TypeError)
         factor = as_integer(factor, "factor", minimum=1, example=2)
-        if recorded is not None and recorded != factor:
+        if recorded is not None and recorded != factor and dim == TIME:
             raise ValueError(
                 f"cannot lift by factor={factor}: the signal records the factor F = {recorded} "
                 f"(x.attrs[{FACTOR!r}]). Pass factor={recorded} (or omit factor to use it); to "
@@ -91,8 +92,9 @@ def lift(x, factor: int | None = None, *, dim: str = TIME):
         Signal(s) with dimension ``dim``; any other dims (in any order) are kept.  In a
         Dataset, variables without ``dim`` (e.g. ``y`` on ``slow_time``) pass through.
     factor : int, optional
-        Lifting factor F.  Default: ``x.attrs["factor"]``; if both are given they must
-        be equal.
+        Lifting factor F.  Default: ``x.attrs["factor"]``; if both are given and ``dim``
+        is ``"time"`` (the dim whose ratio to ``slow_time`` the attribute records) they
+        must be equal.
     dim : str, default "time"
         The fast dimension.  The slow dimension is named ``"slow_" + dim``.
 
@@ -110,8 +112,8 @@ def lift(x, factor: int | None = None, *, dim: str = TIME):
     ------
     ValueError
         If N is not a multiple of F, no factor is known, ``factor`` is fractional or
-        below 1 (never rounded), differs from the factor ``x.attrs["factor"]`` records,
-        or ``dim`` is missing.
+        below 1 (never rounded), differs from the factor ``x.attrs["factor"]`` records
+        (lifting along ``time``), or ``dim`` is missing.
     TypeError
         If ``factor`` is not a number (``"2"``, a bool).
 
@@ -124,7 +126,7 @@ def lift(x, factor: int | None = None, *, dim: str = TIME):
     >>> xr.testing.assert_identical(unlift(lift(x, 2)), x)
     """
     ds, name = _as_dataset(x)
-    factor = _resolve_factor(x, factor)
+    factor = _resolve_factor(x, factor, dim)
     slow = slow_dim_for(dim)
     if dim not in ds.dims:
         raise ValueError(
