@@ -558,11 +558,12 @@ def _rounding_floor(rho, s_condition, noise_variance, Z, *, half_width, dof, cir
     that ``rho`` holds (``Z`` is the whole circle); ``circular=False``: ``Z`` is padded as
     the fit's (bins without a full window are NaN and left alone)."""
     n = int(half_width)
-    z2 = np.abs(np.asarray(Z)) ** 2
+    Z = np.asarray(Z)
     if bins is not None:  # the block and its halo only
         a, b = bins
-        z2 = np.take(z2, np.arange(a - n, b + n) % z2.shape[-2], axis=-2)
+        Z = np.take(Z, np.arange(a - n, b + n) % Z.shape[-2], axis=-2)
         circular = False
+    z2 = np.abs(Z) ** 2
     mean = window_mean(z2, n, axis=-2, circular=circular)
     if bins is not None:
         mean = mean[..., n:mean.shape[-2] - n, :]
