@@ -375,6 +375,12 @@ API = [
          ValueError, ("not a multiple", "factor=3", "= 2")),
     Case("factor_attr_text", lambda e: validate_experiment(_set_attr(e.small, factor="two")), ValueError,
          ("positive integer",)),
+    # the attribute is read by the one reader of a stored factor (settings.recorded_factor):
+    # inf failed inside int() with an OverflowError, [True] was read as the factor 1
+    Case("factor_attr_inf", lambda e: validate_experiment(_set_attr(e.small, factor=np.inf)), ValueError,
+         ("'factor' must be a positive integer", "inf", "set ds.attrs['factor'] = F")),
+    Case("factor_attr_bool_array", lambda e: validate_experiment(_set_attr(e.small, factor=np.array([True]))),
+         ValueError, ("'factor' must be a positive integer", "True")),
     Case("variable_y_missing", lambda e: validate_experiment(e.small.drop_vars("y")), ValueError,
          ("'y' is missing",)),
     Case("units_missing", lambda e: validate_experiment(e.changed(r=e.small.r.drop_attrs())), ValueError,
@@ -422,6 +428,17 @@ API = [
          ("factor", "2.5", "not rounded")),
     Case("lift_factor_whole_float", lambda e: lcmr_xr.lift(e.small.r, 2.0),
          check=lambda res, e: xr.testing.assert_identical(res, lcmr_xr.lift(e.small.r, 2))),
+    # an explicit factor other than the one the signal records lifted by it, and the result
+    # carried the recorded one on; the same factor (also as 2.0 or a file's [2]) is accepted
+    Case("lift_factor_disagrees_with_attribute", lambda e: lcmr_xr.lift(e.small, 4), ValueError,
+         ("factor=4", "F = 2", "attrs['factor']", "factor=2", "assign_attrs(factor=4)")),
+    Case("lift_factor_disagrees_with_dataarray_attribute",
+         lambda e: lcmr_xr.lift(e.small.r.assign_attrs(factor=np.array([2])), 4), ValueError,
+         ("factor=4", "F = 2")),
+    Case("lift_factor_agrees_with_attribute", lambda e: lcmr_xr.lift(e.small.assign_attrs(factor=np.array([2])), 2.0),
+         check=lambda res, e: xr.testing.assert_identical(res, lcmr_xr.lift(e.small.assign_attrs(factor=np.array([2]))))),
+    Case("lift_factor_attribute_text", lambda e: lcmr_xr.lift(e.small.r.assign_attrs(factor="two")), ValueError,
+         ("x.attrs['factor']", "'two'", "not a lifting factor", "factor=F")),
     Case("unlift_reordered_phases", lambda e: lcmr_xr.unlift(lcmr_xr.lift(e.small.r, 2).sortby("lift_phase", ascending=False)),
          ValueError, ("lift_phase", "[1, 0]", "sortby")),
     Case("unlift_selected_phase", lambda e: lcmr_xr.unlift(lcmr_xr.lift(e.small.r.drop_vars("time"), 2).isel(lift_phase=[1])),
@@ -616,6 +633,14 @@ API = [
     Case("save_dataarray", lambda e: save(e.small.r, "x.nc"), TypeError, ("to_dataset",)),
     Case("save_into_missing_directory", lambda e: save(e.small, "nodir/x.nc"), FileNotFoundError,
          ("nodir", "does not exist")),
+    # save wrote NetCDF-4 under any name (x.txt, or none); sweep_to_disk found out only at the
+    # end, after every task (save), or never; the accepted endings are named, in any case
+    Case("save_text_suffix", lambda e: save(e.small, "x.txt"), ValueError,
+         ("x.txt", "'.txt'", ".nc, .nc4, .netcdf or .mat", "e.g. x.nc")),
+    Case("save_no_suffix", lambda e: save(e.small, "result"), ValueError,
+         ("result", "(no suffix)", ".nc", ".mat", "e.g. result.nc")),
+    Case("sweep_to_disk_text_suffix", lambda e: sweep_to_disk(open_archive("arc"), "r.txt", window=[12]), ValueError,
+         ("r.txt", "'.txt'", ".nc, .nc4 or .netcdf"), absent=(".mat",)),
     Case("save_onto_a_directory", lambda e: save(e.small, "arc"), IsADirectoryError, ("cannot write arc", "is a directory"),
          absent=(".tmp",)),
     Case("save_where_not_writable", _fake_readonly, PermissionError, ("cannot write out.nc",), absent=(".x.tmp",)),
@@ -646,6 +671,19 @@ API = [
              str(res.r.chunks))),
     Case("open_chunks_fractional_scalar", lambda e: open_dataset("exp.nc", chunks=100.5), ValueError,
          ("chunks", "100.5", "not rounded"), absent=("not a valid NetCDF",)),
+    # a 0-d integer array (a value taken from an array, e.g. ds.sizes-derived .values) was a
+    # TypeError; the settings' integer rule reads it as the number it holds
+    Case("open_chunks_zero_d_array", lambda e: open_dataset("exp.nc", chunks=np.array(100)),
+         check=lambda res, e: res.r.chunks == open_dataset("exp.nc", chunks=100).r.chunks or pytest.fail(
+             str(res.r.chunks))),
+    Case("open_chunks_zero_d_arrays_in_dict", lambda e: open_dataset("exp.nc", chunks={"time": np.array(100.0),
+                                                                                       "input": (np.int64(1), 1)}),
+         check=lambda res, e: res.r.chunks == open_dataset("exp.nc", chunks={"time": 100, "input": (1, 1)}).r.chunks
+         or pytest.fail(str(res.r.chunks))),
+    Case("open_chunks_zero_d_array_fractional", lambda e: open_dataset("exp.nc", chunks=np.array(100.5)), ValueError,
+         ("chunks", "100.5", "not rounded"), absent=("not a valid NetCDF",)),
+    Case("open_chunks_zero_d_array_text", lambda e: open_dataset("exp.nc", chunks=np.array("x")), TypeError,
+         ("chunks", "'x'"), absent=("not a valid NetCDF",)),
     Case("open_chunks_text", lambda e: open_dataset("frf.nc", chunks="x"), TypeError, ("chunks", "'x'"),
          absent=("not a valid NetCDF",)),
     Case("open_text_file", lambda e: open_dataset("notes.nc"), ValueError, ("notes.nc", "not a valid NetCDF")),
@@ -1024,6 +1062,21 @@ def test_cli_sweep_checks_connect_timeout_before_it_starts(timeout, scheduler, w
     assert status == 2
     assert err.splitlines() == [err.strip()] and err.startswith("lcmr-xr sweep: error: --connect-timeout"), err
     assert "positive number of seconds" in err and "--connect-timeout 10" in err, err
+    assert snapshot(workdir) == before
+
+
+@pytest.mark.parametrize("server", ["unused", "junk"])
+def test_cli_sweep_says_sweeping_only_once_connected(server, workdir, servers, capsys):
+    """lcmr-xr sweep printed "sweeping {...} on scheduler tcp://..." before it connected, so
+    a scheduler that is not there looked like a sweep that started and failed.  Now the
+    failed connection is the only line; with a local scheduler the line still comes first."""
+    before = snapshot(workdir)
+    status = cli.main(["sweep", "arc", "-o", "r.nc", "--window", "12", "--scheduler",
+                       f"tcp://127.0.0.1:{servers[server]}", "--connect-timeout", "3"])
+    err = capsys.readouterr().err
+    assert status == 2
+    assert err.splitlines() == [err.strip()] and err.startswith("lcmr-xr sweep: error: "), err
+    assert "sweeping" not in err, err
     assert snapshot(workdir) == before
 
 
