@@ -517,8 +517,13 @@ def _fit_terms(R, Z, *, half_width, degrees, circular, covariance, known_covaria
             if name in fitted:
                 out[name][_bins_at(ax, on)] = fitted[name]
     if covariance and n_exp is None and known_covariance is None:
-        # one record: the same mend where cov(P_1) is not a covariance (below)
-        out.update(_mend_indefinite(out, fit.G, G_cov, fit.noise_covariance, terms))
+        # one record: residuals below the moments' resolution give G_cov no width there
+        floored, G_cov, s = _resolution_floor(out, fit, G_cov, R, Z, terms,
+                                              half_width=half_width, degrees=degrees,
+                                              circular=circular, bins=bins, select=select)
+        out.update(floored)
+        # the same mend where cov(P_1) is not a covariance (below)
+        out.update(_mend_indefinite(out, fit.G, G_cov, s, terms))
         if closed_loop == "indirect" and not first_row_only:
             out["rho"] = _rounding_floor(out["rho"], out["s_condition"], fit.noise_variance,
                                          Z, half_width=half_width, dof=fit.dof,
@@ -533,6 +538,91 @@ def _fit_terms(R, Z, *, half_width, degrees, circular, covariance, known_covaria
                                  denominator=denominator, instruments=halves_instruments,
                                  closed_loop=closed_loop))
     return out
+
+
+def _resolution_level(Z, *, half_width, dof, circular, bins=None):
+    """``eps (2 n + 1) mean_window |Z_i|^2 / dof`` (..., B, nz): the smallest residual
+    noise variance of row ``i`` that the local model's moments resolve (its residual
+    energy is a difference of sums of ``|Z|^2``).  ``bins``: the block ``(start, stop)``
+    of the circle ``Z``; ``circular=False``: ``Z`` padded as the fit's."""
+    n = int(half_width)
+    Z = np.asarray(Z)
+    if bins is not None:  # the block and its halo only
+        a, b = bins
+        Z = np.take(Z, np.arange(a - n, b + n) % Z.shape[-2], axis=-2)
+        circular = False
+    mean = window_mean(np.abs(Z) ** 2, n, axis=-2, circular=circular)
+    if bins is not None:
+        mean = mean[..., n:mean.shape[-2] - n, :]
+    dof = np.asarray(dof, dtype=float)
+    eps = np.finfo(float).eps
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return eps * (2 * n + 1) * mean / (dof[..., None] if dof.ndim else dof)
+
+
+#: Relative amplitude of the probe added to ``Z`` by :func:`_resolution_floor` to read
+#: the local model's regression factor where a row's residual is unresolved.
+PROBE_AMPLITUDE = 1e-6
+
+
+def _resolution_floor(out, fit, G_cov, R, Z, terms, *, half_width, degrees, circular,
+                      bins=None, select=None):
+    """One record's :func:`slow_bin_terms` ``out`` recomputed at the bins where a row's
+    residual noise variance is below the resolution of the local model's moments
+    (:func:`_resolution_level`): that row's noise variance is raised to the resolution
+    level, its correlations with the other rows dropped, and ``G_cov`` rebuilt from it.
+
+    The local model's ``G_cov`` is ``s_ij X_ij`` (:func:`rescale_covariance`); where
+    ``s_ii`` is rounding (often exactly 0 on noiseless data) ``X_ii`` cannot be read back
+    from ``G_cov``, so it is read from a second fit of those bins only, on ``Z`` plus a
+    deterministic probe of relative amplitude :data:`PROBE_AMPLITUDE` (its residuals are
+    resolved; ``X`` moves by that relative amount times the fit's condition).  Every other
+    bin's terms are left bit for bit (noisy data: no bin is unresolved).  Returns the
+    recomputed entries (copies), and ``G_cov`` and the noise covariance with those bins
+    replaced (the arguments themselves where nothing is)."""
+    s = fit.noise_covariance
+    if not circular or G_cov is None:
+        return {}, G_cov, s
+    level = _resolution_level(Z, half_width=half_width, dof=fit.dof, circular=circular,
+                              bins=bins)
+    low = np.real(np.diagonal(s, axis1=-2, axis2=-1)) < level  # (..., B, nz)
+    bad = np.any(low, axis=-1) & np.isfinite(fit.G).all(axis=(-2, -1))
+    if not np.any(bad):
+        return {}, G_cov, s
+    Z = np.asarray(Z)
+    m, nz = Z.shape[-2:]
+    start = 0 if bins is None else bins[0]
+    on = np.zeros(m, dtype=bool)
+    on[start:start + bad.shape[-1]] = np.any(bad.reshape(-1, bad.shape[-1]), axis=0)
+    if select is not None:
+        on &= np.asarray(select, dtype=bool)
+    # a deterministic probe of unit modulus (golden-ratio phases) times the local rms
+    k = np.arange(m)[:, None] * nz + np.arange(nz)
+    phase = np.exp(2j * np.pi * ((k * 0.6180339887498949) % 1.0))
+    rms = np.sqrt(window_mean(np.abs(Z) ** 2, int(half_width), axis=-2, circular=True))
+    probed = local_model(R, Z + PROBE_AMPLITUDE * rms * phase, half_width=half_width,
+                         degrees=tuple(degrees), circular=True, covariance="full",
+                         bins=bins, select=on)
+    # the new noise covariance: diagonal (a covariance whatever the rounding of the
+    # resolved rows' correlations), every row at least at the resolution level
+    var = np.maximum(np.real(np.diagonal(s, axis1=-2, axis2=-1)), level)
+    s_new = var[..., :, None] * np.eye(nz)
+    sp = probed.noise_covariance
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = np.where(sp != 0, s_new / sp, 0)
+    nr = np.shape(R)[-1]
+    C = probed.G_cov.reshape(probed.G_cov.shape[:-2] + (nz, nr, nz, nr))
+    floor = (C * ratio[..., :, None, :, None]).reshape(probed.G_cov.shape)
+    G_cov = np.where(bad[..., None, None], floor, G_cov)
+    s = np.where(bad[..., None, None], s_new, s)
+    fixed = slow_bin_terms(fit.G[bad], G_cov[bad], **terms)
+    mended = {}
+    for name, value in fixed.items():
+        if value is None or out.get(name) is None:
+            continue
+        mended[name] = np.array(out[name], copy=True)
+        mended[name][bad] = value
+    return mended, G_cov, s
 
 
 def _rounding_floor(rho, s_condition, noise_variance, Z, *, half_width, dof, circular,
