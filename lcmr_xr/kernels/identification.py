@@ -605,7 +605,8 @@ def _resolution_floor(out, fit, G_cov, R, Z, terms, *, half_width, degrees, circ
                          bins=bins, select=on)
     # the new noise covariance: diagonal (a covariance whatever the rounding of the
     # resolved rows' correlations), every row at least at the resolution level
-    var = np.maximum(np.real(np.diagonal(s, axis1=-2, axis2=-1)), level)
+    var = np.maximum(np.real(np.diagonal(s, axis1=-2, axis2=-1)), level * fit.dof[..., None]
+                     if np.ndim(fit.dof) else level * fit.dof)
     s_new = var[..., :, None] * np.eye(nz)
     sp = probed.noise_covariance
     with np.errstate(divide="ignore", invalid="ignore"):
