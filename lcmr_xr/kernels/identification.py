@@ -568,25 +568,38 @@ PROBE_AMPLITUDE = 1e-6
 def _resolution_floor(out, fit, G_cov, R, Z, terms, *, half_width, degrees, circular,
                       bins=None, select=None):
     """One record's :func:`slow_bin_terms` ``out`` recomputed at the bins where a row's
-    residual noise variance is below the resolution of the local model's moments
-    (:func:`_resolution_level`): that row's noise variance is raised to the resolution
-    level, its correlations with the other rows dropped, and ``G_cov`` rebuilt from it.
+    residual noise variance is below the floor of what the local model's moments resolve,
+    with ``G_cov`` rebuilt from a diagonal noise covariance raised to that floor.
+
+    The residual energy is a difference of sums of ``|Z|^2``, so a row's residual of energy
+    below ``eps sum_window |Z_i|^2`` is rounding (:func:`_resolution_level` is that over
+    ``dof``: the variance resolved).  The fit's error from such an unresolved equation
+    error ``e`` (rounding of the moments, or a model error the residual does not resolve)
+    is not white: ``|dtheta_p| = |k_p^H e| <= |k_p| |e|`` (Cauchy-Schwarz, ``k_p^H`` the row
+    of the regression's inverse), so the noise variance is floored at
+    ``eps sum_window |Z_i|^2`` (the resolution level times ``dof``), not the white-noise
+    share of it.  An unresolved row's correlations are rounding and are dropped; the
+    resolved rows keep theirs (made a covariance by :func:`nearest_correlation`).  Noiseless HDD records: P_std exactly
+    0 at 1750 released fast-bin entries (N = 36 000, window 30) before; docs/uncertainty.md,
+    "Slow DC and fast N/2".
 
     The local model's ``G_cov`` is ``s_ij X_ij`` (:func:`rescale_covariance`); where
-    ``s_ii`` is rounding (often exactly 0 on noiseless data) ``X_ii`` cannot be read back
+    ``s_ii`` is rounding (often exactly 0 or negative) ``X_ii`` cannot be read back
     from ``G_cov``, so it is read from a second fit of those bins only, on ``Z`` plus a
     deterministic probe of relative amplitude :data:`PROBE_AMPLITUDE` (its residuals are
     resolved; ``X`` moves by that relative amount times the fit's condition).  Every other
-    bin's terms are left bit for bit (noisy data: no bin is unresolved).  Returns the
-    recomputed entries (copies), and ``G_cov`` and the noise covariance with those bins
-    replaced (the arguments themselves where nothing is)."""
+    bin's terms are left bit for bit (the HDD's noisy records: no bin is below the floor).
+    Returns the recomputed entries (copies), and ``G_cov`` and the noise covariance with
+    those bins replaced (the arguments themselves where nothing is)."""
     s = fit.noise_covariance
     if not circular or G_cov is None:
         return {}, G_cov, s
     level = _resolution_level(Z, half_width=half_width, dof=fit.dof, circular=circular,
                               bins=bins)
-    low = np.real(np.diagonal(s, axis1=-2, axis2=-1)) < level  # (..., B, nz)
-    bad = np.any(low, axis=-1) & np.isfinite(fit.G).all(axis=(-2, -1))
+    floor = level * (np.asarray(fit.dof, dtype=float)[..., None] if np.ndim(fit.dof)
+                     else float(fit.dof))
+    var = np.real(np.diagonal(s, axis1=-2, axis2=-1))
+    bad = np.any(var < floor, axis=-1) & np.isfinite(fit.G).all(axis=(-2, -1))
     if not np.any(bad):
         return {}, G_cov, s
     Z = np.asarray(Z)
@@ -603,18 +616,19 @@ def _resolution_floor(out, fit, G_cov, R, Z, terms, *, half_width, degrees, circ
     probed = local_model(R, Z + PROBE_AMPLITUDE * rms * phase, half_width=half_width,
                          degrees=tuple(degrees), circular=True, covariance="full",
                          bins=bins, select=on)
-    # the new noise covariance: diagonal (a covariance whatever the rounding of the
-    # resolved rows' correlations), every row at least at the resolution level
-    var = np.maximum(np.real(np.diagonal(s, axis1=-2, axis2=-1)), level * fit.dof[..., None]
-                     if np.ndim(fit.dof) else level * fit.dof)
-    s_new = var[..., :, None] * np.eye(nz)
+    # every row's variance at least the floor; an unresolved row's correlations
+    # (rounding) dropped, the resolved rows' kept, made a covariance
+    eye = np.eye(nz, dtype=bool)
+    low = var < level
+    s_new = np.where((low[..., :, None] | low[..., None, :]) & ~eye, 0, s)
+    s_new = nearest_correlation(np.where(eye, np.maximum(var, floor)[..., :, None], s_new))
     sp = probed.noise_covariance
     with np.errstate(divide="ignore", invalid="ignore"):
         ratio = np.where(sp != 0, s_new / sp, 0)
     nr = np.shape(R)[-1]
     C = probed.G_cov.reshape(probed.G_cov.shape[:-2] + (nz, nr, nz, nr))
-    floor = (C * ratio[..., :, None, :, None]).reshape(probed.G_cov.shape)
-    G_cov = np.where(bad[..., None, None], floor, G_cov)
+    floored = (C * ratio[..., :, None, :, None]).reshape(probed.G_cov.shape)
+    G_cov = np.where(bad[..., None, None], floored, G_cov)
     s = np.where(bad[..., None, None], s_new, s)
     fixed = slow_bin_terms(fit.G[bad], G_cov[bad], **terms)
     mended = {}
