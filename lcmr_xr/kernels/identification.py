@@ -518,7 +518,9 @@ def _fit_terms(R, Z, *, half_width, degrees, circular, covariance, known_covaria
                 out[name][_bins_at(ax, on)] = fitted[name]
     if covariance and n_exp is None and known_covariance is None:
         # one record: residuals below the moments' resolution give G_cov no width there
-        floored, G_cov, s = _resolution_floor(out, fit, G_cov, R, Z, terms,
+        level = _resolution_level(Z, half_width=half_width, dof=fit.dof, circular=circular,
+                                  bins=bins)
+        floored, G_cov, s = _resolution_floor(out, fit, G_cov, R, Z, terms, level=level,
                                               half_width=half_width, degrees=degrees,
                                               circular=circular, bins=bins, select=select)
         out.update(floored)
@@ -527,7 +529,7 @@ def _fit_terms(R, Z, *, half_width, degrees, circular, covariance, known_covaria
         if closed_loop == "indirect" and not first_row_only:
             out["rho"] = _rounding_floor(out["rho"], out["s_condition"], fit.noise_variance,
                                          Z, half_width=half_width, dof=fit.dof,
-                                         circular=circular, bins=bins)
+                                         circular=circular, bins=bins, level=level)
     if buffers is not None:  # (G_var is a view of G_cov's diagonal: the next fit reuses it)
         out = {k: v.copy() if isinstance(v, np.ndarray) and np.may_share_memory(v, fit.G_cov)
                else v for k, v in out.items()}
@@ -566,7 +568,7 @@ PROBE_AMPLITUDE = 1e-6
 
 
 def _resolution_floor(out, fit, G_cov, R, Z, terms, *, half_width, degrees, circular,
-                      bins=None, select=None):
+                      bins=None, select=None, level=None):
     """One record's :func:`slow_bin_terms` ``out`` recomputed at the bins where a row's
     residual noise variance is below the floor of what the local model's moments resolve,
     with ``G_cov`` rebuilt from a diagonal noise covariance raised to that floor.
@@ -590,12 +592,14 @@ def _resolution_floor(out, fit, G_cov, R, Z, terms, *, half_width, degrees, circ
     resolved; ``X`` moves by that relative amount times the fit's condition).  Every other
     bin's terms are left bit for bit (the HDD's noisy records: no bin is below the floor).
     Returns the recomputed entries (copies), and ``G_cov`` and the noise covariance with
-    those bins replaced (the arguments themselves where nothing is)."""
+    those bins replaced (the arguments themselves where nothing is).  ``level``: the
+    :func:`_resolution_level`, when the caller has it."""
     s = fit.noise_covariance
     if not circular or G_cov is None:
         return {}, G_cov, s
-    level = _resolution_level(Z, half_width=half_width, dof=fit.dof, circular=circular,
-                              bins=bins)
+    if level is None:
+        level = _resolution_level(Z, half_width=half_width, dof=fit.dof, circular=circular,
+                                  bins=bins)
     floor = level * (np.asarray(fit.dof, dtype=float)[..., None] if np.ndim(fit.dof)
                      else float(fit.dof))
     var = np.real(np.diagonal(s, axis1=-2, axis2=-1))
@@ -641,7 +645,7 @@ def _resolution_floor(out, fit, G_cov, R, Z, terms, *, half_width, degrees, circ
 
 
 def _rounding_floor(rho, s_condition, noise_variance, Z, *, half_width, dof, circular,
-                    bins=None):
+                    bins=None, level=None):
     """``rho`` (..., B) of one record's fit raised to the rounding floor of its weakest
     direction at the bins where that floor alone leaves the weak direction undetermined
     (``K95 * floor > UNDETERMINED_LIMIT``) and the residuals are below the resolution of
@@ -661,23 +665,15 @@ def _rounding_floor(rho, s_condition, noise_variance, Z, *, half_width, dof, cir
     ``S`` singular: released before with a zero-width band and ``P`` off by 4-7x at the
     fast bins 0 and N/2).  ``bins``: the block ``(start, stop)`` of the circle
     that ``rho`` holds (``Z`` is the whole circle); ``circular=False``: ``Z`` is padded as
-    the fit's (bins without a full window are NaN and left alone)."""
+    the fit's (bins without a full window are NaN and left alone).  ``level``: its
+    :func:`_resolution_level`, when the caller has it."""
     n = int(half_width)
-    Z = np.asarray(Z)
-    if bins is not None:  # the block and its halo only
-        a, b = bins
-        Z = np.take(Z, np.arange(a - n, b + n) % Z.shape[-2], axis=-2)
-        circular = False
-    z2 = np.abs(Z) ** 2
-    mean = window_mean(z2, n, axis=-2, circular=circular)
-    if bins is not None:
-        mean = mean[..., n:mean.shape[-2] - n, :]
+    if level is None:
+        level = _resolution_level(Z, half_width=n, dof=dof, circular=circular, bins=bins)
     dof = np.asarray(dof, dtype=float)
     eps = np.finfo(float).eps
     with np.errstate(invalid="ignore", divide="ignore"):
-        resolved = eps * (2 * n + 1) * mean / dof[..., None] if dof.ndim else \
-            eps * (2 * n + 1) * mean / dof
-        unresolved = np.any(noise_variance < resolved, axis=-1)
+        unresolved = np.any(noise_variance < level, axis=-1)
         floor = np.sqrt(eps * (2 * n + 1) / dof) * s_condition
     raise_ = unresolved & (K95 * floor > UNDETERMINED_LIMIT)
     if not np.any(raise_):
