@@ -478,8 +478,8 @@ def _fit_terms(R, Z, *, half_width, degrees, circular, covariance, known_covaria
     circle with ``bins``): fit and reduce only those bins, the others NaN (not fitted).
     ``buffers``: a :class:`lcmr_xr.kernels.local_models.CovarianceBuffer` for ``G_cov``
     (nothing returned views it).  ``unfloored`` (one record with its covariance from its
-    residuals): also ``P1_cov``, ``rho`` and ``rho_v`` without :func:`_resolution_floor`
-    (``P1_cov_unfloored``, ...; the same values where it changes nothing), for
+    residuals): where :func:`_resolution_floor` changes a bin, also ``P1_cov``, ``rho``
+    and ``rho_v`` without it (``P1_cov_unfloored``, ...; returned only then), for
     ``window="auto"``'s choice: the floor bounds the band, it is no variance estimate."""
     if check_denominator(denominator, degrees) and instruments is None:
         instruments = denominator_instruments(R, Z, degrees=degrees, circular=circular,
@@ -534,17 +534,14 @@ def _fit_terms(R, Z, *, half_width, degrees, circular, covariance, known_covaria
             out["rho"] = _rounding_floor(out["rho"], out["s_condition"], fit.noise_variance,
                                          Z, half_width=half_width, dof=fit.dof,
                                          circular=circular, bins=bins, level=level)
-        if unfloored:
-            if floored:  # the terms as they were without the floor (mended, rho's floor)
-                before.update(_mend_indefinite(before, fit.G, G_cov0, fit.noise_covariance,
-                                               terms))
-                if closed_loop == "indirect" and not first_row_only:
-                    before["rho"] = _rounding_floor(
-                        before["rho"], before["s_condition"], fit.noise_variance, Z,
-                        half_width=half_width, dof=fit.dof, circular=circular, bins=bins,
-                        level=level)
-            else:
-                before = out
+        if unfloored and floored:  # the terms as they were without the floor (mended,
+            # rho's rounding floor); nothing more where it changes no bin (noisy records)
+            before.update(_mend_indefinite(before, fit.G, G_cov0, fit.noise_covariance, terms))
+            if closed_loop == "indirect" and not first_row_only:
+                before["rho"] = _rounding_floor(
+                    before["rho"], before["s_condition"], fit.noise_variance, Z,
+                    half_width=half_width, dof=fit.dof, circular=circular, bins=bins,
+                    level=level)
             out.update({f"{k}_unfloored": before[k] for k in _UNFLOORED if k in before})
         del before, G_cov0
     if buffers is not None:  # (G_var is a view of G_cov's diagonal: the next fit reuses it)
@@ -827,7 +824,9 @@ def _fit_blocks(R, Z, *, half_width, degrees, covariance, noise_covariance, expe
     and the others are their mirrors, as in one fit over all bins
     (:func:`lcmr_xr.kernels.local_models.fits_half`).  ``first_row_only``: the terms of
     :func:`slow_bin_terms` with ``first_row_only``, no split-half spread.  ``fitted_half``
-    as :func:`_block_plan`; ``buffers`` and ``unfloored`` as :func:`_fit_terms`."""
+    as :func:`_block_plan`; ``buffers`` and ``unfloored`` as :func:`_fit_terms` (the
+    unfloored terms of every bin, the floored ones' values where a block has none, returned
+    if any block has them)."""
     R, Z = np.asarray(R), np.asarray(Z)
     iv = check_denominator(denominator, degrees)
     if iv and instruments is None:
@@ -852,9 +851,15 @@ def _fit_blocks(R, Z, *, half_width, degrees, covariance, noise_covariance, expe
             out = {k: (None if v is None else
                        np.empty(v.shape[:v.ndim + axes[k]] + (m,) + v.shape[v.ndim + axes[k] + 1:],
                                 v.dtype)) for k, v in block.items()}
+        for k in [k for k in block if k.endswith("_unfloored") and k not in out]:
+            # the first block with floored bins: the earlier blocks' unfloored terms are
+            # their floored ones (the later bins of the copy are written below)
+            base = k.removesuffix("_unfloored")
+            out[k], axes[k] = out[base].copy(), axes[base]
         keep = min(b, last) - a
         for k, ax in axes.items():
-            out[k][_bins_at(ax, slice(a, a + keep))] = block[k][_bins_at(ax, slice(0, keep))]
+            src = block[k] if k in block else block[k.removesuffix("_unfloored")]
+            out[k][_bins_at(ax, slice(a, a + keep))] = src[_bins_at(ax, slice(0, keep))]
         del block
     if half:  # bins M/2+1..M-1 are the conjugates of (M-1)/2..1 (as local_model mirrors)
         for k, ax in axes.items():
@@ -1055,8 +1060,7 @@ def _finish(fit: dict, *, n_fast, factor, nu, ny, closed_loop, dof,
         out["spread_calibration"] = calibration
     if "P1_cov_unfloored" in fit:  # window="auto"'s choice reads the unfloored variances
         raw = {k: fit[f"{k}_unfloored"] for k in _UNFLOORED}
-        same = all(np.array_equal(raw[k], fit[k], equal_nan=True) for k in _UNFLOORED)
-        choice = out if same else _recover(
+        choice = _recover(
             {**fit, **raw}, n_fast=n_fast, factor=factor, nu=nu, ny=ny,
             closed_loop=closed_loop, ill_posed=fit["ill_posed"], dof=dof,
             calibration=calibration, halves=halves, neighbourhood=neighbourhood)
@@ -1076,7 +1080,8 @@ def _fit_and_finish(R, Z, *, half_width, degrees, covariance, noise_covariance, 
                     buffers=None, neighbourhood: bool = False, unfloored: bool = False) -> dict:
     """The local model in blocks of bins (:func:`_fit_blocks`), then :func:`_finish`
     (``neighbourhood`` as :func:`finish_packed`; ``unfloored`` as :func:`_fit_terms`, and
-    :func:`_finish` then also returns ``P_var_choice`` and ``P_var_linear_choice``)."""
+    :func:`_finish` then also returns ``P_var_choice`` and ``P_var_linear_choice`` where
+    a bin was floored)."""
     fit = _fit_blocks(R, Z, half_width=half_width, degrees=degrees, covariance=covariance,
                       noise_covariance=noise_covariance, experiment_axis=experiment_axis,
                       closed_loop=closed_loop, denominator=denominator,
@@ -1247,6 +1252,8 @@ def identify_spectra_auto(R, Z, *, n_fast: int, factor: int, nu: int, windows,
         out = _fit_and_finish(R, Z, half_width=w, covariance=True, n_fast=n_fast,
                               factor=factor, nu=nu, ny=ny, n_exp=n_exp,
                               halves_instruments=halves, unfloored=True, **fit)
+        for k in ("P_var", "P_var_linear"):  # the same where no bin was floored
+            out.setdefault(f"{k}_choice", out[k])
         if fast is None:
             fast = {k: np.empty((len(windows),) + out[k].shape, out[k].dtype)
                     for k in _FAST if k in out}
