@@ -52,6 +52,27 @@ def test_consolidated_round_trip_is_lazy_and_selectable(tmp_path):
     arc.close()
 
 
+def test_new_consolidated_archives_are_named_as_netcdf_files_existing_ones_still_grow(tmp_path):
+    """A new consolidated archive's name ends in .nc, .nc4 or .netcdf (any case), as save
+    requires (campaign.h5 was written as NetCDF-4); an archive file written under another
+    name before the rule is still opened and appended to (refusing it would strand it),
+    but not replaced under that name; a directory archive's name is free."""
+    a, b = _labelled(0), _labelled(1)
+    for name in ("a.NC", "b.nc4", "c.NetCDF"):
+        save_archive(a, tmp_path / name)
+        assert open_archive(tmp_path / name).experiment.values.tolist() == ["run0"]
+    save_archive(a, tmp_path / "old.nc")
+    (tmp_path / "old.nc").rename(tmp_path / "old.h5")  # as an earlier version wrote it
+    append_to_archive(b, tmp_path / "old.h5")
+    save_archive(_labelled(2), tmp_path / "old.h5")
+    assert open_archive(tmp_path / "old.h5").experiment.values.tolist() == ["run0", "run1", "run2"]
+    with pytest.raises(ValueError, match=r"consolidated archive .*old\.h5: unsupported file type '\.h5'"):
+        save_archive(a, tmp_path / "old.h5", overwrite=True)
+    assert open_archive(tmp_path / "old.h5").sizes["experiment"] == 3
+    assert save_archive([a, b], tmp_path / "runs.h5", layout="files")[0] == tmp_path / "runs.h5" / "run0.nc"
+    assert sorted(os.listdir(tmp_path)) == sorted(["a.NC", "b.nc4", "c.NetCDF", "old.h5", "runs.h5"])
+
+
 def test_append_adds_one_experiment_and_an_interrupted_append_is_ignored(tmp_path):
     path = tmp_path / "a.nc"
     append_to_archive(_labelled(0), path)  # creates the archive

@@ -774,7 +774,21 @@ API = [
         xr.concat([e.small, e.small], "experiment").assign_coords(experiment=["a b", "a_b"]), "newarc",
         layout="files"),
         ValueError, ("same file names",)),
-    Case("save_archive_empty", lambda e: save_archive([], "newarc"), ValueError, ("empty",)),
+    Case("save_archive_empty", lambda e: save_archive([], "newarc.nc"), ValueError, ("empty",)),
+    # a new consolidated archive took any name (campaign.h5, runs) while save refused it: NetCDF-4
+    # under a name that says otherwise; the endings are named, and the directory layout
+    Case("save_archive_h5_name", lambda e: save_archive(e.small, "campaign.h5"), ValueError,
+         ("consolidated archive campaign.h5", "'.h5'", ".nc, .nc4 or .netcdf", "e.g. campaign.nc",
+          "layout='files'"), absent=(".mat",)),
+    Case("save_archive_no_suffix", lambda e: save_archive(e.small, "runs"), ValueError,
+         ("consolidated archive runs", "(no suffix)", "e.g. runs.nc", "layout='files'")),
+    Case("append_to_archive_new_h5", lambda e: append_to_archive(e.small, "new.h5"), ValueError,
+         ("consolidated archive new.h5", "'.h5'", "e.g. new.nc", "create the directory first")),
+    Case("consolidate_archive_h5_name", lambda e: consolidate_archive("arc", "all.h5"), ValueError,
+         ("consolidated archive all.h5", "'.h5'", ".nc, .nc4 or .netcdf", "e.g. all.nc"),
+         absent=("layout=",)),
+    Case("consolidate_archive_h5_overwrite", lambda e: consolidate_archive("arc", "all.h5", overwrite=True),
+         ValueError, ("'.h5'", "e.g. all.nc")),
     # overwrite="no" is truthy: it replaced the archive / the file (data lost); the snapshot
     # check of every case proves nothing changed
     Case("save_archive_overwrite_text", lambda e: save_archive(e.small, "arc1.nc", overwrite="no"), TypeError,
@@ -895,7 +909,7 @@ API = [
     Case("consolidate_archive_into_another_directory_archive",
          lambda e: consolidate_archive("arc", "damagedarc/all.nc"),
          ValueError, ("refusing to write the consolidated archive damagedarc/all.nc", "directory archive")),
-    Case("save_archive_not_datasets", lambda e: save_archive([e.small.r], "newarc"), TypeError, ("not an experiment Dataset",)),
+    Case("save_archive_not_datasets", lambda e: save_archive([e.small.r], "newarc.nc"), TypeError, ("not an experiment Dataset",)),
     # --- sweep / select ------------------------------------------------------------------------
     Case("sweep_window_too_small", lambda e: sweep(e.small, window=[3]), ValueError, ("Use window >=",)),
     # one number is one setting, judged by the settings' check (not "not a sequence")

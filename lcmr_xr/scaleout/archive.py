@@ -362,6 +362,20 @@ def _refuse_inside_directory_archive(path: Path) -> None:
     )
 
 
+def _check_archive_name(path: Path, directory_hint: str = "") -> None:
+    """Refuse a new consolidated archive whose name does not end in a NetCDF suffix
+    (:data:`lcmr_xr.io._guards.NETCDF_SUFFIXES`, any case), as :func:`lcmr_xr.io.save`
+    refuses such a name: ``campaign.h5`` or ``runs`` would hold NetCDF-4 under a name that
+    says otherwise.  The message names the accepted endings, then ``directory_hint`` (how
+    the caller writes a directory archive instead, whose name is free)."""
+    from lcmr_xr.io._guards import NETCDF_SUFFIXES, check_suffix
+
+    try:
+        check_suffix(path, NETCDF_SUFFIXES, "cannot write the consolidated archive")
+    except ValueError as err:
+        raise ValueError(f"{err}{' ' + directory_hint if directory_hint else ''}") from None
+
+
 def _layout(path: Path, layout) -> str:
     """``layout`` checked; by default a directory that exists is a files archive."""
     if layout is None:
@@ -419,7 +433,11 @@ def save_archive(experiments, path, *, overwrite: bool = False, layout: str | No
         Every one is validated (:func:`lcmr_xr.experiment.validate_experiment`).
     path : str or os.PathLike
         The archive: a file (consolidated) or a directory (files; created if missing).
-        A consolidated file is refused directly inside a directory archive (one with the
+        A new consolidated file's name ends in ``.nc``, ``.nc4`` or ``.netcdf`` (any case),
+        as :func:`lcmr_xr.io.save` requires of NetCDF files: other names (``campaign.h5``,
+        ``runs``) are refused, with the remedy; an existing archive file is appended to
+        whatever its name (one written before the rule came in).  A directory's name is
+        free.  A consolidated file is refused directly inside a directory archive (one with the
         header index): the directory's open would refuse a file of another structure.
     overwrite : bool, default False
         Consolidated: replace an existing archive file instead of appending to it.
@@ -487,6 +505,10 @@ def save_archive(experiments, path, *, overwrite: bool = False, layout: str | No
     overwrite = as_bool(overwrite, "overwrite")  # "no" must not replace an archive
     layout = _layout(path, layout)
     if layout == "consolidated":
+        if overwrite or not path.exists():  # a new file; an existing archive is appended to
+            _check_archive_name(path, "For an archive directory (one file per experiment) pass "
+                                f"layout='files': save_archive(experiments, {str(path)!r}, "
+                                "layout='files').")
         _refuse_inside_directory_archive(path)
     items, first = _validated(experiments)
     if layout == "files":
@@ -553,7 +575,9 @@ def append_to_archive(experiment, path) -> Path:
         an archive of text labels).  Several stacked along
         ``experiment`` are appended in order.
     path : str or os.PathLike
-        A consolidated archive file (created when missing) or an archive directory.
+        A consolidated archive file (created when missing; a new one's name ends in
+        ``.nc``, ``.nc4`` or ``.netcdf``, any case, as :func:`save_archive` requires) or an
+        archive directory.
 
     Returns
     -------
@@ -565,8 +589,9 @@ def append_to_archive(experiment, path) -> Path:
     ValueError
         The experiment is invalid, of another shape than the archive, carries other
         metadata, or its label is taken or of another kind than the archive's (integer
-        vs text); or ``path`` is a consolidated archive file directly inside a directory
-        archive (its open would refuse the file; see :func:`save_archive`).
+        vs text); ``path`` is a consolidated archive file directly inside a directory
+        archive (its open would refuse the file; see :func:`save_archive`); or ``path``
+        does not exist and its name does not end in a NetCDF suffix.
     FileExistsError
         Directory, where the write lock is not available (some network file systems):
         another append took the same file name while this one was writing (nothing was
@@ -614,7 +639,10 @@ def append_to_archive(experiment, path) -> Path:
             written = _save_files(items, first, path, overwrite=False, add_only=True, locked=True)
         _compact_if_due(path, written.due)
         return written[-1]
-    if not path.exists():
+    if not path.exists():  # a new consolidated archive: named as save names NetCDF files
+        _check_archive_name(path, "To append to an archive directory instead, create the "
+                            f"directory first (os.makedirs({str(path)!r})) or write it with "
+                            f"save_archive(experiment, {str(path)!r}, layout='files').")
         return save_archive(experiment, path, layout="consolidated")[0]
     _refuse_inside_directory_archive(path)
     if unlabelled:
@@ -634,7 +662,9 @@ def consolidate_archive(directory, path, *, overwrite: bool = False, progress=No
     directory : str or os.PathLike
         Archive directory (``*.nc`` experiment files).
     path : str or os.PathLike
-        The consolidated archive to write (atomically: temporary file, then rename); not
+        The consolidated archive to write (atomically: temporary file, then rename), its
+        name ending in ``.nc``, ``.nc4`` or ``.netcdf`` (any case; other names refused, as
+        :func:`lcmr_xr.io.save` refuses them); not
         ``directory`` itself nor inside it (refused, even with ``overwrite``: the file
         would break the directory archive or replace one of its experiments).
     overwrite : bool, default False
@@ -687,6 +717,7 @@ def consolidate_archive(directory, path, *, overwrite: bool = False, progress=No
             "inside the archive directory"
         raise ValueError(f"refusing to write {path}: it is {where} {directory}, which "
                          "consolidate_archive reads; choose another path, outside it.")
+    _check_archive_name(path)  # a new file: named as save names NetCDF files
     _refuse_inside_directory_archive(path)  # nor inside another directory archive
     if path.exists() and not overwrite:
         raise FileExistsError(f"{path} exists; pass overwrite=True (--overwrite) to replace it, "
