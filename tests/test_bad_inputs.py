@@ -877,6 +877,28 @@ API = [
          ValueError, ("chunks {'time': 100.5}", "whole number (>= 1)"), absent=("can only contain",)),
     Case("archive_directory_chunks_zero_d_fractional", lambda e: open_archive("arc", chunks={"experiment": np.array(1.5)}),
          ValueError, ("chunks['experiment'] = 1.5", "positive number of experiments")),
+    # a consolidated archive ignored every entry but 'experiment', malformed ones too, where a
+    # directory applied them ({'time': 'x'} refused, {'time': 4} applied); a directory ignored a
+    # malformed entry of a dim it lacks, which open_dataset refuses
+    Case("archive_consolidated_chunks_time_text", lambda e: open_archive("arc1.nc", chunks={"time": "x"}),
+         ValueError, ("chunks {'time': 'x'}", "whole number (>= 1)")),
+    Case("archive_consolidated_chunks_time_fractional", lambda e: open_archive("arc1.nc", chunks={"time": 100.5}),
+         ValueError, ("chunks {'time': 100.5}", "whole number (>= 1)")),
+    Case("archive_consolidated_chunks_time", lambda e: open_archive("arc1.nc", chunks={"time": np.array(100),
+                                                                                      "slow_time": 50.0}),
+         check=lambda ds, e: (ds.r.chunks == ((1,), (100,) * 4, (2,)) and ds.y.chunks[1] == (50,) * 4
+                              and ds.r.chunks[1:] == open_archive("arc", chunks={"time": 100}).r.chunks[1:])
+         or pytest.fail(str((ds.r.chunks, ds.y.chunks)))),
+    Case("archive_consolidated_chunks_tuple_not_adding_up",
+         lambda e: open_archive("arc1.nc", chunks={"time": (100, 100)}), ValueError,
+         ("chunks {'time': (100, 100)}", "do not fit", "'time': 400")),
+    Case("archive_directory_chunks_tuple_not_adding_up",
+         lambda e: open_archive("arc", chunks={"time": (100, 100)}), ValueError,
+         ("chunks {'time': (100, 100)}", "do not fit", "'time': 400")),
+    Case("archive_consolidated_chunks_other_dim_ignored", lambda e: open_archive("arc1.nc", chunks={"frequency": 4}),
+         check=lambda ds, e: ds.r.chunks == open_archive("arc1.nc").r.chunks or pytest.fail(str(ds.r.chunks))),
+    Case("archive_directory_chunks_other_dim_malformed", lambda e: open_archive("arc", chunks={"frequency": "x"}),
+         ValueError, ("chunks {'frequency': 'x'}", "whole number (>= 1)")),
     Case("archive_consolidated_chunks_zero_d_bool", lambda e: open_archive("arc1.nc", chunks={"experiment": np.array(True)}),
          ValueError, ("chunks['experiment'] = True", "positive number of experiments")),
     # chunks={'time': -2} was reported as "not a valid NetCDF-4 file (truncated, corrupt,
