@@ -717,6 +717,21 @@ API = [
          ("chunks", "100.5", "not rounded"), absent=("not a valid NetCDF",)),
     Case("open_chunks_zero_d_array_text", lambda e: open_dataset("exp.nc", chunks=np.array("x")), TypeError,
          ("chunks", "'x'"), absent=("not a valid NetCDF",)),
+    # a tuple of chunk lengths that does not add up to its dim (short.nc: 8 samples) was
+    # reported as "not a valid NetCDF-4 file (truncated, corrupt...)": the argument is named
+    Case("open_chunks_tuple_not_adding_up", lambda e: open_dataset("short.nc", chunks={"time": (3, 3)}),
+         ValueError, ("chunks {'time': (3, 3)}", "dim's length, 8 in short.nc", "adds up to 6",
+                      "e.g. {'time': (4, 4)}"), absent=("not a valid NetCDF", "corrupt")),
+    Case("open_experiment_chunks_tuple_too_long", lambda e: open_experiment("short.nc", chunks={"time": (8, 8)}),
+         ValueError, ("'time'", "8 in short.nc", "adds up to 16"), absent=("not a valid NetCDF", "corrupt")),
+    Case("open_chunks_tuple_with_whole_dim", lambda e: open_dataset("short.nc", chunks={"time": (3, -1)}),
+         ValueError, ("chunks {'time': (3, -1)}", "-1 (the whole dim)", "{'time': -1}"),
+         absent=("not a valid NetCDF", "corrupt")),
+    # a damaged file is still the file's fault, tuples or not
+    Case("open_chunks_tuple_truncated_file", lambda e: open_dataset("trunc.nc", chunks={"time": (3, 3)}),
+         ValueError, ("cannot read trunc.nc", "not a valid NetCDF-4 file"), absent=("adds up",)),
+    Case("open_chunks_tuple_adding_up", lambda e: open_dataset("short.nc", chunks={"time": (3, 5), "input": (1, 1)}),
+         check=lambda res, e: res.r.chunks == ((3, 5), (1, 1)) or pytest.fail(str(res.r.chunks))),
     Case("open_chunks_text", lambda e: open_dataset("frf.nc", chunks="x"), TypeError, ("chunks", "'x'"),
          absent=("not a valid NetCDF",)),
     Case("open_text_file", lambda e: open_dataset("notes.nc"), ValueError, ("notes.nc", "not a valid NetCDF")),
