@@ -43,7 +43,10 @@ estimate is scale-free:
        tau_ij = sum_r c_ij(r) (1 - lev(r) - nu_i(r) - nu_j(r))
                 + tr((U_j^H U_i)(U_i^H diag(c_ij) U_j)),   c_ij = d_i conj(d_j)
 
-   (``lev``, ``nu_i`` the squared row norms of ``Q_A``, ``U_i``).
+   (``lev``, ``nu_i`` the squared row norms of ``Q_A``, ``U_i``).  Least squares and
+   instrumental variables share the code over the window (:func:`_row_gains` for the
+   columns and gains, :func:`_iv_tau` for ``tau``: least squares is its oblique form with
+   ``Y = U``), one copy to compile.
 
 Instrumental variables (``iv`` not None; ``local_model(..., instruments=)``): the
 denominator columns ``B_i`` get the instruments ``W_i = -rho^s Zhat_i`` (``A`` is its
@@ -848,7 +851,8 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
     dwi = np.empty((nz, wc))
     vmr = np.empty((nz, max(rd, 1), wc))
     vmi = np.empty((nz, max(rd, 1), wc))
-    nuv = np.empty((nz, wc))
+    ncr = np.empty((nz, wc))  # x_i(r) of the residual projector (_iv_tau)
+    nci = np.empty((nz, wc))
     hgr = np.empty((nz * nr, wc))
     hgi = np.empty((nz * nr, wc))
     crow = np.empty(wc, dtype=np.complex128)
@@ -872,8 +876,6 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
     wmi = np.empty((rdv, wcv))
     ymr = np.empty((nz, rdv, wcv))
     ymi = np.empty((nz, rdv, wcv))
-    ncr = np.empty((nz, wcv))
-    nci = np.empty((nz, wcv))
 
     n_flat = slot_i.shape[0] * p1
     moms = np.empty((n_exp, n_flat), dtype=np.complex128)
@@ -1191,96 +1193,16 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
                     acc += delta[i, s] * rho_pow[r % wn, s]
                 dwr[i, r] = acc.real
                 dwi[i, r] = acc.imag
-            rk = rank[i]
-            c0 = i * rd1
-            if has_iv:
-                _iv_row_gains(rt, zt, b, k, i, nz, rk, perm[i], tsc[i], twc[i], siv[i],
-                              ipiv[i], m, q, nx, q_all, ds, dwr[i], dwi[i], qhr, qhi, rho_pow,
-                              tpow, wtx, pool is not None, crow, ybk, ybw, wmr, wmi, sinv,
-                              dsol, umr[i], umi[i], ymr[i], ymi[i], hgr, hgi, wa, wb)
-                continue
-            # U_i (rows j, over r): the kept scaled D columns projected off A, whitened
-            # by L_s^-H
-            for j in range(rk):
-                s = perm[i, j]
-                for a in range(q):
-                    ybk[a, j] = -tsc[i, s] * m[a, q + c0 + s + 1]
-            for j in range(rk):
-                s = perm[i, j]
-                f = -tsc[i, s]
-                if pool is not None:
-                    _pooled_d_column(zt, b, k, i, s + 1, q_all + c0 + s + 1, f, rho_pow,
-                                     tpow, wtx, crow)
-                    for r in range(width):
-                        umr[i, j, r] = crow[r].real
-                        umi[i, j, r] = crow[r].imag
-                else:
-                    for r in range(width):
-                        w = f * rho_pow[r, s + 1]
-                        umr[i, j, r] = w * zt[b, k + r, i].real
-                        umi[i, j, r] = w * zt[b, k + r, i].imag
-                for a in range(q):  # - Q_A Y~_B: Q_A(r, a) = conj(qh[a, r])
-                    yr = ybk[a, j].real
-                    yi = ybk[a, j].imag
-                    for r in range(width):
-                        umr[i, j, r] -= qhr[a, r] * yr + qhi[a, r] * yi
-                        umi[i, j, r] -= qhr[a, r] * yi - qhi[a, r] * yr
-                for c in range(j):  # um[j] -= um[c] conj(low[j, c])
-                    fr = low[i, j, c].real
-                    fi = -low[i, j, c].imag
-                    for r in range(width):
-                        umr[i, j, r] -= umr[i, c, r] * fr - umi[i, c, r] * fi
-                        umi[i, j, r] -= umr[i, c, r] * fi + umi[i, c, r] * fr
-                inv = 1.0 / low[i, j, j].real
-                for r in range(width):
-                    umr[i, j, r] *= inv
-                    umi[i, j, r] *= inv
-            # G rows of K_i^+: w_A = L^-1 e_g (non-zero on the trailing nr entries only),
-            # w_B = -L_s^-1 Y~_B^H w_A; gain g~(r) = conj(Q_A w_A + U_i w_B)(r)
-            for p in range(nr):
-                g = q - nr + p
-                x = i * nr + p
-                _gain_shared(m, q, g, qhr, qhi, wa, hgr, hgi, x)
-                for j in range(rk):
-                    acc = 0j
-                    for a in range(g, q):
-                        acc -= ybk[a, j].conjugate() * wa[a]
-                    for c in range(j):
-                        acc -= low[i, j, c] * wb[c]
-                    wb[j] = acc / low[i, j, j].real
-                for j in range(rk):  # += conj(um[j]) conj(wb[j])
-                    fr = wb[j].real
-                    fi = -wb[j].imag
-                    for r in range(width):
-                        hgr[x, r] += umr[i, j, r] * fr + umi[i, j, r] * fi
-                        hgi[x, r] += umr[i, j, r] * fi - umi[i, j, r] * fr
-                _gain_scale(hgr, hgi, x, ds[g], dwr[i], dwi[i])
-        if has_iv:  # the oblique residual projector's tau (_iv_tau)
-            _iv_tau(rank, lev, dwr, dwi, umr, umi, ymr, ymi, ncr, nci, vmr, vmi, ehe, tau,
-                    scov)
-        # tau_ij and s_ij = raw_ij / tau_ij (i <= j, Hermitian).  Per row first: the
-        # weights 1 - lev - nu_i, and V_i = U_i conj(d_i), so that the trace term's
-        # U_i^H diag(d_i conj(d_j)) U_j is V_i^H V_j
-        for i in range(0 if has_iv else nz):
-            for r in range(width):
-                nuv[i, r] = 0.0
-            for s in range(rank[i]):
-                for r in range(width):
-                    ur = umr[i, s, r]
-                    ui = umi[i, s, r]
-                    nuv[i, r] += ur * ur + ui * ui
-                    vmr[i, s, r] = ur * dwr[i, r] + ui * dwi[i, r]
-                    vmi[i, s, r] = ui * dwr[i, r] - ur * dwi[i, r]
-        for i in range(0 if has_iv else nz):
-            for j in range(i, nz):
-                accr = 0.0
-                acci = 0.0
-                for r in range(width):  # d_i conj(d_j) (1 - lev - nu_i - nu_j)
-                    wgt = 1.0 - lev[r] - nuv[i, r] - nuv[j, r]
-                    accr += (dwr[i, r] * dwr[j, r] + dwi[i, r] * dwi[j, r]) * wgt
-                    acci += (dwi[i, r] * dwr[j, r] - dwr[i, r] * dwi[j, r]) * wgt
-                _tau_trace(complex(accr, acci), i, j, rank, umr, umi, vmr, vmi, ehe, tau,
-                           scov)
+            # the row's projected D columns (least squares: whitened, U_i; IV: X~ and
+            # Y = W~ S^-H) and the gains of its G entries (_row_gains)
+            _row_gains(zt, b, k, i, nz, rd1, rank[i], perm[i], low[i], tsc[i], twc[i], siv[i],
+                       ipiv[i], m, nx, q_all, ds, dwr[i], dwi[i], qhr, qhi, rho_pow, tpow,
+                       wtx, pool, has_iv, crow, ybk, ybw, wmr, wmi, sinv, dsol, umr[i],
+                       umi[i], ymr[i], ymi[i], hgr, hgi, wa, wb)
+        # tau_ij and s_ij = raw_ij / tau_ij (least squares: the residual projector is
+        # orthogonal, Y = U; IV: oblique)
+        _iv_tau(rank, lev, dwr, dwi, umr, umi, ymr if has_iv else umr,
+                ymi if has_iv else umi, ncr, nci, vmr, vmi, ehe, tau, scov)
         for i in range(nz):
             for j in range(nz):
                 out_ncov[o, i, j] = scov[i, j]
@@ -1344,94 +1266,125 @@ def _gain_scale(hgr, hgi, x, sc, dwr, dwi):
 
 
 @numba.njit(**_INNER)
-def _iv_row_gains(rt, zt, b, k, i, nz, rk, perm, tsc, twc, siv, ipiv, m, q, nx, q_all, ds,
-                  dwr, dwi, qhr, qhi, rho_pow, tpow, wtx, pooled, crow, ybk, ybw, wmr, wmi,
-                  sinv, x, umr, umi, ymr, ymi, hgr, hgi, wa, wb):
-    """IV covariance pieces of row ``i`` over the window (the IV counterpart of the
-    least-squares ``U_i`` and gains in :func:`fit_bins`).
-
-    ``X~ = P B~`` (kept scaled columns projected off ``A``, not whitened) into ``umr``,
-    ``umi`` (rk, W); ``Y = W~ S^-H`` into ``ymr``, ``ymi`` (``W~ = P W'``, the scaled
-    instruments projected off ``A``; ``S = W~^H B~`` from the LU in ``siv``), so that
-    the residual projector is ``P - X~ Y^H``.  The gains of ``G_i`` (rows ``i nr + p`` of
-    ``hgr``, ``hgi``): ``delta G = ds_g wa^H (Q_A^H - Y_B Y^H) e`` with ``Y_B = Q_A^H B~``
-    and ``wa = L^-1 e_g``, times ``d_i(r)`` (the equation error is ``d_i V_i``).  ``P``
-    is ``I - Q_A Q_A^H`` (pooled: the columns also off each experiment's transient,
-    through ``wtx``).  ``x`` (>= rk) is scratch.
-    """
+def _project_kept(zt, b, k, col, mcol, pcol, scale, rk, perm, m, qhr, qhi, rho_pow, tpow, wtx,
+                  pool, crow, yb, ur, ui):
+    """The kept denominator columns ``-scale[s] rho^(s+1) zt[:, col]`` (``s = perm[j]``)
+    over the window, projected off ``A``: ``yb[a, j] = Y~ = L^-1 A~^H b~`` (the scaled
+    column ``mcol + s + 1`` of ``m``) and ``ur``, ``ui`` (rk, W) ``b~ - Q_A Y~`` (pooled:
+    each window also off its experiment's transient, column ``pcol + s + 1`` of ``wtx``).
+    Least squares calls it for the regressors ``Z_i``, IV also for the instruments."""
+    q = qhr.shape[0]
     width = qhr.shape[1]
-    nr = hgr.shape[0] // nz
-    rd1 = tsc.shape[0] + 1
-    c0 = i * rd1
     for j in range(rk):
         s = perm[j]
+        f = -scale[s]
         for a in range(q):
-            ybk[a, j] = -tsc[s] * m[a, q + c0 + s + 1]
-            ybw[a, j] = -twc[s] * m[a, q + nx + c0 + s + 1]
-    for j in range(rk):
-        s = perm[j]
-        f = -tsc[s]
-        fw = -twc[s]
-        if pooled:
-            _pooled_d_column(zt, b, k, i, s + 1, q_all + c0 + s + 1, f, rho_pow, tpow, wtx,
-                             crow)
+            yb[a, j] = f * m[a, mcol + s + 1]
+        if pool is not None:  # (pool None: numba leaves the pooled branch out)
+            _pooled_d_column(zt, b, k, col, s + 1, pcol + s + 1, f, rho_pow, tpow, wtx, crow)
             for r in range(width):
-                umr[j, r] = crow[r].real
-                umi[j, r] = crow[r].imag
-            _pooled_d_column(zt, b, k, nz + i, s + 1, q_all + nx + c0 + s + 1, fw, rho_pow,
-                             tpow, wtx, crow)
-            for r in range(width):
-                wmr[j, r] = crow[r].real
-                wmi[j, r] = crow[r].imag
+                ur[j, r] = crow[r].real
+                ui[j, r] = crow[r].imag
         else:
             for r in range(width):
                 w = f * rho_pow[r, s + 1]
-                umr[j, r] = w * zt[b, k + r, i].real
-                umi[j, r] = w * zt[b, k + r, i].imag
-                w = fw * rho_pow[r, s + 1]
-                wmr[j, r] = w * zt[b, k + r, nz + i].real
-                wmi[j, r] = w * zt[b, k + r, nz + i].imag
+                ur[j, r] = w * zt[b, k + r, col].real
+                ui[j, r] = w * zt[b, k + r, col].imag
         for a in range(q):  # - Q_A Y~: Q_A(r, a) = conj(qh[a, r])
-            yr = ybk[a, j].real
-            yi = ybk[a, j].imag
-            vr = ybw[a, j].real
-            vi = ybw[a, j].imag
+            yr = yb[a, j].real
+            yi = yb[a, j].imag
             for r in range(width):
-                umr[j, r] -= qhr[a, r] * yr + qhi[a, r] * yi
-                umi[j, r] -= qhr[a, r] * yi - qhi[a, r] * yr
-                wmr[j, r] -= qhr[a, r] * vr + qhi[a, r] * vi
-                wmi[j, r] -= qhr[a, r] * vi - qhi[a, r] * vr
-    for t in range(rk):  # S^-1, column by column
-        for u in range(rk):
-            x[u] = 1.0 if u == t else 0.0
-        _lu_solve(siv, rk, ipiv, x)
-        for u in range(rk):
-            sinv[u, t] = x[u]
-    for t in range(rk):  # Y(r, t) = sum_u W~(r, u) conj(S^-1[t, u])
-        for r in range(width):
-            ymr[t, r] = 0.0
-            ymi[t, r] = 0.0
-        for u in range(rk):
-            fr = sinv[t, u].real
-            fi = -sinv[t, u].imag
+                ur[j, r] -= qhr[a, r] * yr + qhi[a, r] * yi
+                ui[j, r] -= qhr[a, r] * yi - qhi[a, r] * yr
+
+
+@numba.njit(**_INNER)
+def _row_gains(zt, b, k, i, nz, rd1, rk, perm, low, tsc, twc, siv, ipiv, m, nx, q_all, ds,
+               dwr, dwi, qhr, qhi, rho_pow, tpow, wtx, pool, has_iv, crow, ybk, ybw, wmr,
+               wmi, sinv, x, umr, umi, ymr, ymi, hgr, hgi, wa, wb):
+    """Covariance pieces of row ``i`` over the window: its projected denominator columns
+    and the gains of its ``G`` entries (rows ``i nr + p`` of ``hgr``, ``hgi``), times
+    ``d_i(r)`` (the equation error is ``d_i V_i``).
+
+    Least squares: ``U_i`` (rk, W) into ``umr``, ``umi``, the kept scaled columns projected
+    off ``A`` (:func:`_project_kept`) and whitened by ``L_s^-H`` (``low``), and the gains
+    ``g~(r) = conj(Q_A w_A + U_i w_B)(r)`` with ``w_A = L^-1 e_g`` (non-zero on the trailing
+    ``nr`` entries only) and ``w_B = -L_s^-1 Y~_B^H w_A``.
+
+    Instrumental variables: ``X~ = P B~`` (not whitened) into ``umr``, ``umi``; ``Y = W~
+    S^-H`` into ``ymr``, ``ymi`` (``W~ = P W'``, the scaled instruments projected off
+    ``A``; ``S = W~^H B~`` from the LU in ``siv``), so that the residual projector is ``P
+    - X~ Y^H``; gains ``delta G = ds_g wa^H (Q_A^H - Y_B Y^H) e`` with ``Y_B = Q_A^H B~``.
+    ``P`` is ``I - Q_A Q_A^H`` (pooled: the columns also off each experiment's transient,
+    through ``wtx``).  ``x`` (>= rk) is scratch.
+    """
+    width = qhr.shape[1]
+    q = qhr.shape[0]
+    nr = hgr.shape[0] // nz
+    c0 = i * rd1
+    _project_kept(zt, b, k, i, q + c0, q_all + c0, tsc, rk, perm, m, qhr, qhi, rho_pow, tpow,
+                  wtx, pool, crow, ybk, umr, umi)
+    if has_iv:
+        _project_kept(zt, b, k, nz + i, q + nx + c0, q_all + nx + c0, twc, rk, perm, m, qhr,
+                      qhi, rho_pow, tpow, wtx, pool, crow, ybw, wmr, wmi)
+        for t in range(rk):  # S^-1, column by column
+            for u in range(rk):
+                x[u] = 1.0 if u == t else 0.0
+            _lu_solve(siv, rk, ipiv, x)
+            for u in range(rk):
+                sinv[u, t] = x[u]
+        for t in range(rk):  # Y(r, t) = sum_u W~(r, u) conj(S^-1[t, u])
             for r in range(width):
-                ymr[t, r] += wmr[u, r] * fr - wmi[u, r] * fi
-                ymi[t, r] += wmr[u, r] * fi + wmi[u, r] * fr
+                ymr[t, r] = 0.0
+                ymi[t, r] = 0.0
+            for u in range(rk):
+                fr = sinv[t, u].real
+                fi = -sinv[t, u].imag
+                for r in range(width):
+                    ymr[t, r] += wmr[u, r] * fr - wmi[u, r] * fi
+                    ymi[t, r] += wmr[u, r] * fi + wmi[u, r] * fr
+    else:
+        for j in range(rk):  # whitened: um[j] -= um[c] conj(low[j, c]), / low[j, j]
+            for c in range(j):
+                fr = low[j, c].real
+                fi = -low[j, c].imag
+                for r in range(width):
+                    umr[j, r] -= umr[c, r] * fr - umi[c, r] * fi
+                    umi[j, r] -= umr[c, r] * fi + umi[c, r] * fr
+            inv = 1.0 / low[j, j].real
+            for r in range(width):
+                umr[j, r] *= inv
+                umi[j, r] *= inv
     for p in range(nr):
         g = q - nr + p
         xg = i * nr + p
         _gain_shared(m, q, g, qhr, qhi, wa, hgr, hgi, xg)
-        for j in range(rk):  # wb = Y_B^H wa
-            acc = 0j
-            for a in range(g, q):
-                acc += ybk[a, j].conjugate() * wa[a]
-            wb[j] = acc
-        for j in range(rk):  # -= conj(Y(r, j)) conj(wb[j])
-            br = wb[j].real
-            bi = wb[j].imag
-            for r in range(width):
-                hgr[xg, r] -= ymr[j, r] * br - ymi[j, r] * bi
-                hgi[xg, r] += ymr[j, r] * bi + ymi[j, r] * br
+        if has_iv:
+            for j in range(rk):  # wb = Y_B^H wa
+                acc = 0j
+                for a in range(g, q):
+                    acc += ybk[a, j].conjugate() * wa[a]
+                wb[j] = acc
+            for j in range(rk):  # -= conj(Y(r, j)) conj(wb[j])
+                br = wb[j].real
+                bi = wb[j].imag
+                for r in range(width):
+                    hgr[xg, r] -= ymr[j, r] * br - ymi[j, r] * bi
+                    hgi[xg, r] += ymr[j, r] * bi + ymi[j, r] * br
+        else:
+            for j in range(rk):  # w_B = -L_s^-1 Y~_B^H w_A
+                acc = 0j
+                for a in range(g, q):
+                    acc -= ybk[a, j].conjugate() * wa[a]
+                for c in range(j):
+                    acc -= low[j, c] * wb[c]
+                wb[j] = acc / low[j, j].real
+            for j in range(rk):  # += conj(um[j]) conj(wb[j])
+                fr = wb[j].real
+                fi = -wb[j].imag
+                for r in range(width):
+                    hgr[xg, r] += umr[j, r] * fr + umi[j, r] * fi
+                    hgi[xg, r] += umr[j, r] * fi - umi[j, r] * fr
         _gain_scale(hgr, hgi, xg, ds[g], dwr, dwi)
 
 
@@ -1460,9 +1413,10 @@ def _tau_trace(acc, i, j, rank, umr, umi, vmr, vmi, ehe, tau, scov):
 
 @numba.njit(**_INNER)
 def _iv_tau(rank, lev, dwr, dwi, umr, umi, ymr, ymi, ncr, nci, vmr, vmi, ehe, tau, scov):
-    """``tau_ij = tr(D_j^H Pi_j^H Pi_i D_i)`` of the IV residual projector
-    ``Pi_i = P - X_i Y_i^H`` (oblique, ``Y_i^H X_i = I``; ``X``, ``Y`` in ``umr``/``ymr``
-    from :func:`_iv_row_gains`) and ``scov = conj(ehe) / tau``::
+    """``tau_ij = tr(D_j^H Pi_j^H Pi_i D_i)`` of the residual projector
+    ``Pi_i = P - X_i Y_i^H`` (IV: oblique, ``Y_i^H X_i = I``; ``X``, ``Y`` in ``umr``/``ymr``
+    from :func:`_row_gains`; least squares: ``X = Y = U_i``, orthonormal, ``x_i = nu_i``,
+    its imaginary part zero to rounding) and ``scov = conj(ehe) / tau``::
 
         tau_ij = sum_r c(r) (1 - lev(r) - x_i(r) - conj(x_j(r)))
                  + tr((X_j^H X_i)(Y_i^H diag(c) Y_j)),   c = d_i conj(d_j),
