@@ -692,7 +692,7 @@ def _failed_bin(o, mode, out_g, out_t, out_ncov, out_cond, out_ill, out_reduced,
 
 @numba.njit(**_JIT)
 def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
-             aug_index, zz_index, a_base, a_pow, mean_pow, dof, mode, drop_tol,
+             aug_index, zz_index, gather, a_base, a_pow, mean_pow, dof, mode, drop_tol,
              pivot_limit, sens_limit, out_g, out_t, out_ncov, out_cond, out_ill,
              out_reduced, out_gcov, out_gvar, pool, iv):
     """Fit the local model at the selected bins of one chunk (see the module notes).
@@ -703,7 +703,10 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
     aligns the moment restarts, see ``_advance``).  Windowed moments of the product pairs ``(slot_i,
     slot_j)``, ``p1`` powers each, power-major (entry ``a n_slots + s``), read through
     ``aug_index`` (q, q + nx) and ``zz_index`` (nz, nz, Rd+1, Rd+1) (entries from
-    ``n_slots p1`` on are conjugates).  ``mode`` is ``COV_*``.  Outputs: ``G`` (., nz,
+    ``n_slots p1`` on are conjugates); ``gather`` the same tables decoded for the one-record
+    gathers (``local_models._gather_tables``: positions of the real parts
+    in the moments' float view and the signs of the imaginary parts, ``aug_index``'s then
+    ``zz_index``'s).  ``mode`` is ``COV_*``.  Outputs: ``G`` (., nz,
     nr), ``T`` (., nz), noise covariance (., nz, nz), condition estimate, ill-posed flag,
     number of dropped denominator columns, ``G`` covariance (., nz nr, nz nr; mode full)
     or variances (., nz, nr; mode diag).
@@ -881,27 +884,9 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
     moms = np.empty((n_exp, n_flat), dtype=np.complex128)
     mom = moms[0]
     momf = mom.view(np.float64)
-    # the gather of [Gaa | A^H X] without a branch per entry: the real and imaginary
-    # parts' positions in momf and the sign of the imaginary part (conjugated half)
-    # (one record only: pooled moments are gathered per experiment)
-    gre = np.empty((q, q + nxw), dtype=np.int64)
-    gsg = np.empty((q, q + nxw))
-    if pool is None:
-        for a in range(q):
-            for c in range(q + nxw):
-                f = aug_index[a, c]
-                gre[a, c] = 2 * (f - n_flat if f >= n_flat else f)
-                gsg[a, c] = -1.0 if f >= n_flat else 1.0
-    zre = np.empty((nz, nz, rd1, rd1), dtype=np.int64)  # the same for X^H X
-    zsg = np.empty((nz, nz, rd1, rd1))
-    if pool is None:
-        for i in range(nz):
-            for j in range(nz):
-                for s in range(rd1):
-                    for t in range(rd1):
-                        f = zz_index[i, j, s, t]
-                        zre[i, j, s, t] = 2 * (f - n_flat if f >= n_flat else f)
-                        zsg[i, j, s, t] = -1.0 if f >= n_flat else 1.0
+    # the gather of [Gaa | A^H X] and X^H X without a branch per entry (one record only:
+    # pooled moments are gathered per experiment)
+    gre, gsg, zre, zsg = gather
     floors = np.empty((n_exp, nr))
     floor = np.empty(nr)
     scratch = np.empty((4, max(slot_i.shape[0], nr + 1 + zt.shape[2])), dtype=np.complex128)
