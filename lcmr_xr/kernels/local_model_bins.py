@@ -84,7 +84,8 @@ import numpy as np
 COV_NONE, COV_DIAG, COV_FULL = 0, 1, 2
 
 _JIT = {"cache": True, "nogil": True, "error_model": "numpy", "boundscheck": False,
-        "fastmath": {"reassoc", "contract"}}
+        "fastmath": {"reassoc", "contract"}, "no_cfunc_wrapper": True}
+#: (No C-callback wrapper for anything: Python calls through the CPython wrapper.)
 #: Helpers only called from compiled code: built without the CPython and C-callback
 #: wrappers that numba otherwise compiles for every function (measured: about a tenth of
 #: the first call's compile time).  Such a function must NOT be called from Python (numba
@@ -1215,42 +1216,6 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
 
 
 @numba.njit(**_INNER)
-def _gain_shared(m, q, g, qhr, qhi, wa, hgr, hgi, x):
-    """``wa = L^-1 e_g`` (non-zero from entry ``g`` on: ``G`` is last in ``A``) and the
-    shared columns' part of the gain row ``x``: ``conj(Q_A wa)(r) = sum_a qh[a, r]
-    conj(wa[a])`` (the rows' own columns are added by the caller)."""
-    for a in range(q):
-        wa[a] = 0j
-    for a in range(g, q):
-        acc = 1.0 + 0j if a == g else 0j
-        for c in range(g, a):
-            acc -= m[c, a].conjugate() * wa[c]
-        wa[a] = acc / m[a, a].real
-    width = qhr.shape[1]
-    for r in range(width):
-        hgr[x, r] = 0.0
-        hgi[x, r] = 0.0
-    for a in range(g, q):  # += qh[a] conj(wa[a])
-        fr = wa[a].real
-        fi = -wa[a].imag
-        for r in range(width):
-            hgr[x, r] += qhr[a, r] * fr - qhi[a, r] * fi
-            hgi[x, r] += qhr[a, r] * fi + qhi[a, r] * fr
-
-
-@numba.njit(**_INNER)
-def _gain_scale(hgr, hgi, x, sc, dwr, dwi):
-    """Gain row ``x`` times ``sc d(r)`` (the column scale of ``G``, and the equation error
-    ``d V``)."""
-    for r in range(hgr.shape[1]):
-        fr = sc * dwr[r]
-        fi = sc * dwi[r]
-        hr = hgr[x, r]
-        hgr[x, r] = hr * fr - hgi[x, r] * fi
-        hgi[x, r] = hr * fi + hgi[x, r] * fr
-
-
-@numba.njit(**_INNER)
 def _project_kept(zt, b, k, col, mcol, pcol, scale, rk, perm, m, qhr, qhi, rho_pow, tpow, wtx,
                   pool, crow, yb, ur, ui):
     """The kept denominator columns ``-scale[s] rho^(s+1) zt[:, col]`` (``s = perm[j]``)
@@ -1343,7 +1308,24 @@ def _row_gains(zt, b, k, i, nz, rd1, rk, perm, low, tsc, twc, siv, ipiv, m, nx, 
     for p in range(nr):
         g = q - nr + p
         xg = i * nr + p
-        _gain_shared(m, q, g, qhr, qhi, wa, hgr, hgi, xg)
+        # wa = L^-1 e_g (non-zero from entry g on: G is last in A) and the shared
+        # columns' part of the gain: conj(Q_A wa)(r) = sum_a qh[a, r] conj(wa[a])
+        for a in range(q):
+            wa[a] = 0j
+        for a in range(g, q):
+            acc = 1.0 + 0j if a == g else 0j
+            for c in range(g, a):
+                acc -= m[c, a].conjugate() * wa[c]
+            wa[a] = acc / m[a, a].real
+        for r in range(width):
+            hgr[xg, r] = 0.0
+            hgi[xg, r] = 0.0
+        for a in range(g, q):  # += qh[a] conj(wa[a])
+            fr = wa[a].real
+            fi = -wa[a].imag
+            for r in range(width):
+                hgr[xg, r] += qhr[a, r] * fr - qhi[a, r] * fi
+                hgi[xg, r] += qhr[a, r] * fi + qhi[a, r] * fr
         if has_iv:
             for j in range(rk):  # wb = Y_B^H wa
                 acc = 0j
@@ -1370,30 +1352,13 @@ def _row_gains(zt, b, k, i, nz, rd1, rk, perm, low, tsc, twc, siv, ipiv, m, nx, 
                 for r in range(width):
                     hgr[xg, r] += umr[j, r] * fr + umi[j, r] * fi
                     hgi[xg, r] += umr[j, r] * fi - umi[j, r] * fr
-        _gain_scale(hgr, hgi, xg, ds[g], dwr, dwi)
-
-
-@numba.njit(**_INNER)
-def _tau_trace(acc, i, j, rank, umr, umi, vmr, vmi, ehe, tau, scov):
-    """``tau_ij = acc + tr((U_j^H U_i)(V_i^H V_j))`` over the kept columns (least squares:
-    ``U`` orthonormal, ``V = U conj(d)``; IV: ``U`` the projected regressors ``X``, ``V =
-    Y conj(d)``), and ``scov_ij = conj(ehe_ij) / tau_ij`` (with its mirror)."""
-    width = umr.shape[2]
-    for s in range(rank[j]):
-        for t in range(rank[i]):
-            ujr = 0.0  # (U_j^H U_i)[s, t]
-            uji = 0.0
-            ucr = 0.0  # (V_i^H V_j)[t, s] = (U_i^H diag(c_ij) U_j)[t, s] (least squares)
-            uci = 0.0
-            for r in range(width):
-                ujr += umr[j, s, r] * umr[i, t, r] + umi[j, s, r] * umi[i, t, r]
-                uji += umr[j, s, r] * umi[i, t, r] - umi[j, s, r] * umr[i, t, r]
-                ucr += vmr[i, t, r] * vmr[j, s, r] + vmi[i, t, r] * vmi[j, s, r]
-                uci += vmr[i, t, r] * vmi[j, s, r] - vmi[i, t, r] * vmr[j, s, r]
-            acc += complex(ujr, uji) * complex(ucr, uci)
-    tau[i, j] = acc
-    scov[i, j] = ehe[i, j].conjugate() / acc
-    scov[j, i] = scov[i, j].conjugate()
+        sc = ds[g]  # times ds_g d(r) (the column scale of G, the equation error d V)
+        for r in range(width):
+            fr = sc * dwr[r]
+            fi = sc * dwi[r]
+            hr = hgr[xg, r]
+            hgr[xg, r] = hr * fr - hgi[xg, r] * fi
+            hgi[xg, r] = hr * fi + hgi[xg, r] * fr
 
 
 @numba.njit(**_INNER)
@@ -1436,7 +1401,23 @@ def _iv_tau(rank, lev, dwr, dwi, umr, umi, ymr, ymi, ncr, nci, vmr, vmi, ehe, ta
                 wi = nci[j, r] - nci[i, r]
                 accr += cr * wr - ci * wi
                 acci += cr * wi + ci * wr
-            _tau_trace(complex(accr, acci), i, j, rank, umr, umi, vmr, vmi, ehe, tau, scov)
+            # + tr((X_j^H X_i)(V_i^H V_j)) over the kept columns, V = Y conj(d)
+            acc = complex(accr, acci)
+            for s in range(rank[j]):
+                for t in range(rank[i]):
+                    ujr = 0.0  # (X_j^H X_i)[s, t]
+                    uji = 0.0
+                    ucr = 0.0  # (V_i^H V_j)[t, s]
+                    uci = 0.0
+                    for r in range(width):
+                        ujr += umr[j, s, r] * umr[i, t, r] + umi[j, s, r] * umi[i, t, r]
+                        uji += umr[j, s, r] * umi[i, t, r] - umi[j, s, r] * umr[i, t, r]
+                        ucr += vmr[i, t, r] * vmr[j, s, r] + vmi[i, t, r] * vmi[j, s, r]
+                        uci += vmr[i, t, r] * vmi[j, s, r] - vmi[i, t, r] * vmr[j, s, r]
+                    acc += complex(ujr, uji) * complex(ucr, uci)
+            tau[i, j] = acc
+            scov[i, j] = ehe[i, j].conjugate() / acc
+            scov[j, i] = scov[i, j].conjugate()
 
 
 @numba.njit(**_INNER)
