@@ -272,37 +272,9 @@ def _chol_solve(low, rank, b, x):
 
 
 @numba.njit(**_INNER)
-def _lu_factor(a, k, ipiv):
-    """LU with partial (row) pivoting of the leading ``k x k`` block of the small,
-    general ``a``, in place (``L`` unit lower below the diagonal, ``U`` on and above);
-    ``ipiv[j]`` the row swapped with row ``j``.  Returns ``sum_j log|u_jj|`` (``-inf``
-    at the first zero pivot, which stops the factorisation)."""
-    logdet = 0.0
-    for j in range(k):
-        best = j
-        for t in range(j + 1, k):
-            if abs(a[t, j]) > abs(a[best, j]):
-                best = t
-        ipiv[j] = best
-        if best != j:
-            for c in range(k):
-                a[j, c], a[best, c] = a[best, c], a[j, c]
-        p = a[j, j]
-        if not abs(p) > 0.0:
-            return -np.inf
-        logdet += math.log(abs(p))
-        for t in range(j + 1, k):
-            f = a[t, j] / p
-            a[t, j] = f
-            for c in range(j + 1, k):
-                a[t, c] -= f * a[j, c]
-    return logdet
-
-
-@numba.njit(**_INNER)
 def _lu_solve(a, k, ipiv, x):
-    """``x = A^-1 x`` in place from :func:`_lu_factor`'s factors of ``A`` (leading
-    ``k`` entries)."""
+    """``x = A^-1 x`` in place from the LU factors of ``A`` that :func:`_iv_row` makes
+    (leading ``k`` entries; ``ipiv[j]`` the row swapped with row ``j``)."""
     for j in range(k):
         t = ipiv[j]
         if t != j:
@@ -317,27 +289,6 @@ def _lu_solve(a, k, ipiv, x):
         for c in range(j + 1, k):
             acc -= a[j, c] * x[c]
         x[j] = acc / a[j, j]
-
-
-@numba.njit(**_INNER)
-def _chol_logdet(s, k, floor, scratch):
-    """``log det`` of the leading ``k x k`` block of the small Hermitian ``s`` by an
-    unpivoted Cholesky (``-inf`` when a pivot is not above ``floor``); ``s`` is kept,
-    ``scratch`` overwritten."""
-    for a in range(k):
-        for c in range(k):
-            scratch[a, c] = s[a, c]
-    logdet = 0.0
-    for j in range(k):
-        p = scratch[j, j].real
-        if not p > floor:
-            return -np.inf
-        logdet += math.log(p)
-        for a in range(j + 1, k):
-            f = scratch[a, j] / p
-            for c in range(j + 1, a + 1):
-                scratch[a, c] -= f * scratch[c, j].conjugate()
-    return logdet
 
 
 @numba.njit(**_INNER)
@@ -386,11 +337,48 @@ def _iv_row(m, q, nx, i, rk, perm, low, tsc, wx, ww, twc, siv, ipiv, gw, scratch
         for a in range(q):
             acc -= m[a, cw + s1].conjugate() * m[a, cx]
         dsol[j1] = -acc * twc[s1 - 1]
-    log_w = _chol_logdet(gw, rk, drop_tol, scratch)
+    # log det W~^H W~ by an unpivoted Cholesky in scratch (-inf when a pivot is not
+    # above drop_tol)
+    for a in range(rk):
+        for c in range(rk):
+            scratch[a, c] = gw[a, c]
+    log_w = 0.0
+    for j in range(rk):
+        p = scratch[j, j].real
+        if not p > drop_tol:
+            log_w = -np.inf
+            break
+        log_w += math.log(p)
+        for a in range(j + 1, rk):
+            f = scratch[a, j] / p
+            for c in range(j + 1, a + 1):
+                scratch[a, c] -= f * scratch[c, j].conjugate()
     log_x = 0.0
     for j in range(rk):
         log_x += 2.0 * math.log(low[j, j].real)
-    log_iv = _lu_factor(siv, rk, ipiv)
+    # LU with partial (row) pivoting of S in place (L unit lower below the diagonal, U on
+    # and above; ipiv[j] the row swapped with row j); log_iv = sum_j log|u_jj|, -inf at
+    # the first zero pivot, which stops the factorisation
+    log_iv = 0.0
+    for j in range(rk):
+        best = j
+        for t in range(j + 1, rk):
+            if abs(siv[t, j]) > abs(siv[best, j]):
+                best = t
+        ipiv[j] = best
+        if best != j:
+            for c in range(rk):
+                siv[j, c], siv[best, c] = siv[best, c], siv[j, c]
+        pv = siv[j, j]
+        if not abs(pv) > 0.0:
+            log_iv = -np.inf
+            break
+        log_iv += math.log(abs(pv))
+        for t in range(j + 1, rk):
+            f = siv[t, j] / pv
+            siv[t, j] = f
+            for c in range(j + 1, rk):
+                siv[t, c] -= f * siv[j, c]
     if not (log_iv > -np.inf and log_w > -np.inf):
         return -np.inf
     _lu_solve(siv, rk, ipiv, dsol)
@@ -479,94 +467,6 @@ def _products(rt, zt, b, j, slot_i, slot_j, base, x):
 
 
 @numba.njit(**_INNER)
-def direct_moments(rt, zt, b, k, n, slot_i, slot_j, rho_pow, mom, base, x, y):
-    """``mom[a n_slots + s] = sum_r rho^a conj(base_i) base_j`` over the window of output
-    bin ``k`` (padded samples ``k .. k + 2n``) by direct sums, ``(i, j) = (slot_i[s],
-    slot_j[s])``.  Power-major, so that the inner loops run over the slots.  The samples
-    at ``rho = +-u/n`` are summed in pairs: ``rho^a (x(+u) + (-1)^a x(-u))``, half the
-    multiply-adds of a sum sample by sample (``x``, ``y`` are scratch)."""
-    ns = slot_i.shape[0]
-    p1 = rho_pow.shape[1]
-    n2 = 2 * ns
-    # every weight is real: the sums run over the real and imaginary parts alike (in
-    # compiled code a real times a complex128 is a full complex product)
-    mf = mom.view(np.float64)
-    xf = x.view(np.float64)
-    yf = y.view(np.float64)
-    for f in range(mf.shape[0]):
-        mf[f] = 0.0
-    _products(rt, zt, b, k + n, slot_i, slot_j, base, x)  # rho = 0: the power 0 only
-    for s in range(n2):
-        mf[s] = xf[s]
-    for u in range(1, n + 1):
-        _products(rt, zt, b, k + n + u, slot_i, slot_j, base, x)
-        _products(rt, zt, b, k + n - u, slot_i, slot_j, base, y)
-        for s in range(n2):  # x <- x(+u) + x(-u), y <- x(+u) - x(-u)
-            xp = xf[s]
-            xm = yf[s]
-            xf[s] = xp + xm
-            yf[s] = xp - xm
-        for a in range(p1):
-            w = rho_pow[n + u, a]
-            row = mf[a * n2: (a + 1) * n2]  # a view: indices from 0 vectorise
-            src = xf if a % 2 == 0 else yf
-            for s in range(n2):
-                row[s] += w * src[s]
-
-
-@numba.njit(**_INNER)
-def step_moments(rt, zt, b, k, n, slot_i, slot_j, shift, lead, mom, base, x_out, x_in):
-    """Moments of output bin ``k + 1`` from those of bin ``k``, in place.
-
-    With ``x`` a product series and the window moved by one bin: first the window's
-    samples change in bin ``k``'s coordinates, ``S_c += ((n+1)/n)^c x(k+n+1) - (-1)^c
-    x(k-n)`` (``shift[0, c]``, ``shift[1, c]``), then the coordinates move by
-    ``h = 1/n``: ``S_a <- sum_c C(a, c) (-h)^(a-c) S_c``, a Taylor shift, applied as
-    ``p (p - 1) / 2`` bidiagonal steps ``S_(j+1) += -h S_j`` (``lead[0] = -h``; sweeps
-    ``i = 0..p-2``, each over ``j = p-2..i`` descending so that it reads the sweep's old
-    ``S_j``), two sweeps per pass over the moments.  ``O(p^2)`` per product whatever the
-    width, and fewer than half the passes over the moments of forming each new power as
-    a sum over the old ones (19 instead of 49 for ``p = 7``).
-    """
-    ns = slot_i.shape[0]
-    _products(rt, zt, b, k, slot_i, slot_j, base, x_out)
-    _products(rt, zt, b, k + 2 * n + 1, slot_i, slot_j, base, x_in)
-    # real weights: real views, as in direct_moments
-    mf = mom.view(np.float64)
-    xo = x_out.view(np.float64)
-    xi = x_in.view(np.float64)
-    n2 = 2 * ns
-    p1 = shift.shape[1]
-    for c in range(p1):
-        w_in = shift[0, c]
-        w_out = shift[1, c]
-        row = mf[c * n2: (c + 1) * n2]  # a view: indices from 0 vectorise (an offset
-        for s in range(n2):  # index might be negative to the compiler: wraparound)
-            row[s] += w_in * xi[s] - w_out * xo[s]
-    # the sweeps two at a time: sweeps i, i + 1 make S_r += 2 h S_(r-1) + h^2 S_(r-2)
-    # (r = p-1..i+2, descending: old values) and S_(i+1) += h S_i; a last single sweep
-    # S_(p-1) += h S_(p-2)
-    h = lead[0]
-    h2 = lead[1]
-    hh = lead[2]
-    i = 0
-    while i < p1 - 1:
-        pair = i + 2 < p1
-        if pair:
-            for r in range(p1 - 1, i + 1, -1):
-                row = mf[r * n2: (r + 1) * n2]
-                r1 = mf[(r - 1) * n2: r * n2]
-                r2 = mf[(r - 2) * n2: (r - 1) * n2]
-                for s in range(n2):
-                    row[s] += h2 * r1[s] + hh * r2[s]
-        row = mf[(i + 1) * n2: (i + 2) * n2]
-        r1 = mf[i * n2: (i + 1) * n2]
-        for s in range(n2):
-            row[s] += h * r1[s]
-        i += 2 if pair else 1
-
-
-@numba.njit(**_INNER)
 def _moment(mom, n_flat, f):
     """Table entry ``f``: the moments, then (``f >= n_flat``) their conjugates."""
     if f >= n_flat:
@@ -603,7 +503,7 @@ def moments_and_floor(rt, zt, n, sel, restart, k_base, slot_i, slot_j, p1, mom_o
 
 @numba.njit(**_INNER)
 def _recurrence(n, p1):
-    """``rho^a`` over the window, and the coefficients of :func:`step_moments`:
+    """``rho^a`` over the window, and the coefficients of the step in :func:`_advance`:
     ``shift`` (2, p1) the weights ``((n+1)/n)^c`` of the sample entering the window and
     ``(-1)^c`` of the one leaving it, ``lead`` (3,) the coordinate step ``h = -1/n``,
     ``2 h`` and ``h^2``."""
@@ -637,13 +537,74 @@ def _advance(rt, zt, b, k, valid, sel_b, restart, k_base, n, slot_i, slot_j, rho
     ``2 eps (W + 2 restart)`` times the R energy of the samples the segment's windows
     cover, a bound of the absolute rounding of the windowed ``sum |R_p|^2``.
     ``scratch`` (>= 3, >= max(n_slots, n_bases)) complex.
+
+    Moments are power-major (``mom[a n_slots + s]``), so that the inner loops run over
+    the slots; every weight is real, so the sums run over the real and imaginary parts
+    alike (float views: in compiled code a real times a complex128 is a full complex
+    product), and over views whose indices start at 0 (an offset index might be negative
+    to the compiler: wraparound), which vectorise.
+
+    One step (``k - 1`` to ``k``): with ``x`` a product series and the window moved by
+    one bin, first the window's samples change in bin ``k - 1``'s coordinates, ``S_c +=
+    ((n+1)/n)^c x(k+n) - (-1)^c x(k-1-n)`` (``shift[0, c]``, ``shift[1, c]``), then the
+    coordinates move by ``h = 1/n``: ``S_a <- sum_c C(a, c) (-h)^(a-c) S_c``, a Taylor
+    shift, applied as ``p (p - 1) / 2`` bidiagonal steps ``S_(j+1) += -h S_j``
+    (``lead[0] = -h``; sweeps ``i = 0..p-2``, each over ``j = p-2..i`` descending so that
+    it reads the sweep's old ``S_j``), two sweeps per pass over the moments.  ``O(p^2)``
+    per product whatever the width, and fewer than half the passes over the moments of
+    forming each new power as a sum over the old ones (19 instead of 49 for ``p = 7``).
+
+    Direct sums: ``mom[a n_slots + s] = sum_r rho^a conj(base_i) base_j`` over the window
+    of bin ``k`` (padded samples ``k .. k + 2n``), ``(i, j) = (slot_i[s], slot_j[s])``;
+    the samples at ``rho = +-u/n`` summed in pairs, ``rho^a (x(+u) + (-1)^a x(-u))``,
+    half the multiply-adds of a sum sample by sample.
+
+    (The step and the direct sums are written here, not as functions of their own: a
+    compiled function is optimised and made machine code alone and again in every
+    caller's linked module.)
     """
     nr = rt.shape[2]
+    ns = slot_i.shape[0]
+    n2 = 2 * ns
+    mf = mom.view(np.float64)
+    base = scratch[0]
     phase = (k_base + k) % restart
     if phase != 0 and (valid or k > 0):
-        if valid:
-            step_moments(rt, zt, b, k - 1, n, slot_i, slot_j, shift, lead, mom, scratch[0],
-                         scratch[1], scratch[2])
+        if valid:  # one step of the recurrence
+            x_out = scratch[1]
+            x_in = scratch[2]
+            _products(rt, zt, b, k - 1, slot_i, slot_j, base, x_out)
+            _products(rt, zt, b, k + 2 * n, slot_i, slot_j, base, x_in)
+            xo = x_out.view(np.float64)
+            xi = x_in.view(np.float64)
+            p1 = shift.shape[1]
+            for c in range(p1):
+                w_in = shift[0, c]
+                w_out = shift[1, c]
+                row = mf[c * n2: (c + 1) * n2]
+                for s in range(n2):
+                    row[s] += w_in * xi[s] - w_out * xo[s]
+            # the sweeps two at a time: sweeps i, i + 1 make S_r += 2 h S_(r-1) + h^2
+            # S_(r-2) (r = p-1..i+2, descending: old values) and S_(i+1) += h S_i; a last
+            # single sweep S_(p-1) += h S_(p-2)
+            h = lead[0]
+            h2 = lead[1]
+            hh = lead[2]
+            i = 0
+            while i < p1 - 1:
+                pair = i + 2 < p1
+                if pair:
+                    for r in range(p1 - 1, i + 1, -1):
+                        row = mf[r * n2: (r + 1) * n2]
+                        r1 = mf[(r - 1) * n2: r * n2]
+                        r2 = mf[(r - 2) * n2: (r - 1) * n2]
+                        for s in range(n2):
+                            row[s] += h2 * r1[s] + hh * r2[s]
+                row = mf[(i + 1) * n2: (i + 2) * n2]
+                r1 = mf[i * n2: (i + 1) * n2]
+                for s in range(n2):
+                    row[s] += h * r1[s]
+                i += 2 if pair else 1
         return valid
     end = min(k + restart - phase, sel_b.shape[0])
     want = False
@@ -651,8 +612,31 @@ def _advance(rt, zt, b, k, valid, sel_b, restart, k_base, n, slot_i, slot_j, rho
         want = want or sel_b[kk]
     if not want:
         return False
-    direct_moments(rt, zt, b, k, n, slot_i, slot_j, rho_pow, mom, scratch[0], scratch[1],
-                   scratch[2])
+    # direct sums over the window
+    x = scratch[1]
+    y = scratch[2]
+    p1 = rho_pow.shape[1]
+    xf = x.view(np.float64)
+    yf = y.view(np.float64)
+    for f in range(mf.shape[0]):
+        mf[f] = 0.0
+    _products(rt, zt, b, k + n, slot_i, slot_j, base, x)  # rho = 0: the power 0 only
+    for s in range(n2):
+        mf[s] = xf[s]
+    for u in range(1, n + 1):
+        _products(rt, zt, b, k + n + u, slot_i, slot_j, base, x)
+        _products(rt, zt, b, k + n - u, slot_i, slot_j, base, y)
+        for s in range(n2):  # x <- x(+u) + x(-u), y <- x(+u) - x(-u)
+            xp = xf[s]
+            xm = yf[s]
+            xf[s] = xp + xm
+            yf[s] = xp - xm
+        for a in range(p1):
+            w = rho_pow[n + u, a]
+            row = mf[a * n2: (a + 1) * n2]
+            src = xf if a % 2 == 0 else yf
+            for s in range(n2):
+                row[s] += w * src[s]
     width = rho_pow.shape[0]
     hi = min(end + width - 1, rt.shape[1])
     for p in range(nr):
