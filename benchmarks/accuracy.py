@@ -710,6 +710,8 @@ def main(argv=None):
                     help="only the cost of window='auto' against one fixed-window fit (CPU and "
                          "wall, alternating in this process)")
     ap.add_argument("--repeats", type=int, default=5, help="timings per setting of --cost")
+    ap.add_argument("--cost-seeds", type=int, nargs="+", default=[0],
+                    help="seeds of hdd.simulate for --cost, one measurement each (default: 0)")
     ap.add_argument("--per-window", action="store_true",
                     help="only window='auto' with the disturbances: the band table, then per "
                          "band and chosen window the number of bins, flagged and unflagged, and "
@@ -719,8 +721,10 @@ def main(argv=None):
                          "(half-widths or auto; default: 30 and auto, --per-window: auto)")
     args = ap.parse_args(argv)
     if args.cost:
-        print_cost(cost(n_samples=args.n_samples, repeats=args.repeats,
-                        denominators=tuple(args.denominator)), args.repeats)
+        for seed in args.cost_seeds:
+            print(f"seed {seed}:")
+            print_cost(cost(n_samples=args.n_samples, seed=seed, repeats=args.repeats,
+                            denominators=tuple(args.denominator)), args.repeats)
         return
     lo, _, hi = args.cases.partition("-")
     cases = list(range(int(lo), int(hi or lo) + 1))

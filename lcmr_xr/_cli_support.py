@@ -18,10 +18,8 @@ import sys
 import threading
 import time
 
-from lcmr_xr.io._guards import check_outputs  # noqa: F401  (re-exported for the CLIs)
-
-#: File name endings the command line writes NetCDF results to.
-NETCDF_SUFFIXES = (".nc", ".nc4", ".netcdf")
+# re-exported for the CLIs; the NetCDF endings are lcmr_xr.save's, one list
+from lcmr_xr.io._guards import MAT_SUFFIX, NETCDF_SUFFIXES, check_outputs  # noqa: F401
 #: File name endings of figures (``lcmr_xr.plot.save_figure`` writes PNG).
 FIGURE_SUFFIXES = (".png",)
 

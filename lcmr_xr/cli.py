@@ -26,12 +26,10 @@ import argparse
 import sys
 from pathlib import Path
 
-from lcmr_xr._cli_support import (DENOMINATOR_HELP, FIGURE_SUFFIXES, NETCDF_SUFFIXES, HelpFormatter,
-                                  add_overwrite, check_outputs, error_line, heartbeat,
-                                  integer_argument)
+from lcmr_xr._cli_support import (DENOMINATOR_HELP, FIGURE_SUFFIXES, MAT_SUFFIX, NETCDF_SUFFIXES,
+                                  HelpFormatter, add_overwrite, check_outputs, error_line,
+                                  heartbeat, integer_argument)
 from lcmr_xr.settings import CLOSED_LOOP, DEFAULT_WINDOW, DENOMINATOR, METHODS, window_argument
-
-MAT_SUFFIX = ".mat"  # lcmr_xr.io.matfile's (not imported here: it would import xarray)
 
 #: Help text of every ``--degrees`` option: one syntax on every command line.
 DEGREES_HELP = ("local model degrees RN-RM-RD: numerator, transient, denominator (default "

@@ -7,6 +7,8 @@ anything.  Extend, never rename: files written by earlier versions use these nam
 
 from __future__ import annotations
 
+import re
+
 CONVENTIONS = "lcmr-xr-1"
 
 # Dimensions and coordinates of the contract.
@@ -153,6 +155,40 @@ def frequency_attrs(long_name: str = "frequency") -> dict:
 def label_attrs(long_name: str) -> dict:
     """Attributes of a string (channel label) coordinate."""
     return {"units": "1", "long_name": long_name}
+
+
+def squared_units(units: str) -> str:
+    """UDUNITS string of the square of ``units`` (the units of a variance).
+
+    A plain symbol takes the exponent 2 as UDUNITS writes it (``m`` -> ``m2``, ``V`` ->
+    ``V2``), a symbol with an integer exponent doubles it (``m2`` -> ``m4``, ``s-1`` ->
+    ``s-2``; appending 2 would read ``m22``), ``1`` (and an empty string) stays ``1``, and
+    anything else is parenthesised (``m/s`` -> ``(m/s)2``, ``m s-1`` -> ``(m s-1)2``).
+    Until session 16 every unit was parenthesised (``(m)2``, the same UDUNITS unit).
+
+    Parameters
+    ----------
+    units : str
+        The ``units`` attribute of the signal.
+
+    Returns
+    -------
+    str
+        The units of its square.
+
+    Examples
+    --------
+    >>> [squared_units(u) for u in ("m", "m2", "s-1", "m/s", "1")]
+    ['m2', 'm4', 's-2', '(m/s)2', '1']
+    """
+    units = str(units).strip()
+    if units in ("", "1"):
+        return "1"
+    match = re.fullmatch(r"([^\W\d_]+)(?:\^|\*\*)?([+-]?\d+)?", units)
+    if match:
+        symbol, power = match.group(1), int(match.group(2) or 1)
+        return "1" if power == 0 else f"{symbol}{2 * power}"
+    return f"({units})2"
 
 
 def frequency_dim_for(time_dim: str) -> str:

@@ -34,6 +34,7 @@ import numpy as np
 __all__ = [
     "METHODS", "CLOSED_LOOP", "ERRORS", "EstimatorSettings", "estimator_settings",
     "parse_degrees", "degrees_label", "degrees_arguments", "as_integer", "as_bool", "as_choice",
+    "recorded_factor",
     "check_window_fits", "AUTO_WINDOW", "DEFAULT_WINDOW", "as_window", "window_argument",
     "auto_window_range", "DENOMINATOR", "DEFAULT_DENOMINATOR", "POOLED_DEFAULT_DENOMINATOR",
     "NO_DENOMINATOR",
@@ -72,7 +73,8 @@ DENOMINATOR = {
 #: ``denominator=None`` means this for a model with a denominator (``Rd > 0``) fitted to
 #: one record.  Measured on the HDD benchmark (docs/uncertainty.md, "Instrumental
 #: variables"): on one record IV changes the error and the coverage by a few per cent and
-#: costs 1.8-2.4x the time, so least squares stays the default there.
+#: costs 1.33-1.41x the CPU time at window 30 (1.11-1.18x with ``window="auto"``;
+#: ``benchmarks/accuracy.py --cost``), so least squares stays the default there.
 DEFAULT_DENOMINATOR = "ls"
 #: ... and this for experiments pooled in one local model (``combine="experiment"`` with
 #: different excitations and a local window), where least squares' noise-induced bias,
@@ -180,6 +182,44 @@ def as_integer(value, name: str, *, minimum: int | None = None, example=None) ->
     if minimum is not None and out < minimum:
         raise ValueError(f"{name} must be >= {minimum}, got {out}{remedy}.")
     return out
+
+
+def recorded_factor(value) -> int | None:
+    """A recorded multirate factor as an int, or None if ``value`` is not one.
+
+    The one reader of a factor stored with the data (an experiment's attribute
+    ``factor``, a ``lift_phase`` coordinate's ``lift_factor``): one whole number >= 1,
+    also as a whole float (``2.0``) or a one-element array (``array([2])``, ``[[2.0]]``),
+    as a NetCDF or MATLAB file may give an attribute back.  Text, a bool, several
+    numbers, a fraction, NaN or inf and numbers below 1 are not read (None), for the
+    caller to refuse in its own words: a stored value is data, not an argument, so it is
+    never guessed.
+
+    Parameters
+    ----------
+    value : object
+        The stored attribute.
+
+    Returns
+    -------
+    int or None
+        The factor, or None if ``value`` is not one whole number >= 1.
+
+    Examples
+    --------
+    >>> recorded_factor(np.array([[2.0]])), recorded_factor("2"), recorded_factor(2.5)
+    (2, None, None)
+    """
+    try:
+        array = np.asarray(value)
+    except (ValueError, TypeError):  # ragged ([1, [2]]): numpy's own error, not the caller's words
+        return None
+    if array.size != 1 or array.dtype.kind not in "iuf":
+        return None
+    number = array.item()
+    if not np.isfinite(number) or number < 1 or number != int(number):
+        return None
+    return int(number)
 
 
 def parse_degrees(value, method: str | None = None, *,

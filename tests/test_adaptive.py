@@ -266,19 +266,26 @@ def test_noise_share_is_the_variance_ratio_f_test():
 @pytest.mark.parametrize("n", [3600, pytest.param(36000, marks=pytest.mark.slow),
                                pytest.param(180000, marks=pytest.mark.slow)])
 def test_noiseless_auto_flags_only_the_slow_dc_bin(n):
-    """Noiseless data determine ``P`` wherever ``S`` is invertible: ``auto`` flags at most
+    """Noiseless data determine ``P`` wherever ``S`` is invertible: ``auto`` flags only
     the fast bins 0 and N/2 of slow DC, where the VCM's double integrator makes ``P(0)``
-    infinite and the lifted ``S`` singular (at N = 180 000 not even those).  At N = 3600
-    the widest window's model error had flagged 28-84 Hz (its residual variance 1e3-4e4
-    times the chosen window 12's); at N = 180 000 a covariance at rounding level had
-    flagged 4 slow bins (:func:`whitened_weak_direction`)."""
+    infinite and the lifted ``S`` singular.  At N = 3600 the widest window's model error
+    had flagged 28-84 Hz (its residual variance 1e3-4e4 times the chosen window 12's); at
+    N = 180 000 a covariance at rounding level had flagged 4 slow bins
+    (:func:`whitened_weak_direction`), and had released slow DC with a band of zero width
+    (the PZT at 0 Hz off by 5.3x, at N/2 by 4.3x; the rounding floor of the weak
+    direction, ``lcmr_xr.kernels.identification._rounding_floor``, flags it)."""
     exp = hdd.simulate(n, case=2, noise=False, seed=0)
     f = np.arange(n // 2 + 1) * (100800.0 / n)
     truth = np.full((n // 2 + 1, 1, 2), np.nan, complex)
     truth[1:] = hdd.true_frf(f[1:], case=2).values
     auto = identify(exp)
     flagged = np.flatnonzero(auto.P_undetermined.values)
-    assert flagged.tolist() == ([] if n == 180000 else [0, n // 2])
+    assert flagged.tolist() == [0, n // 2]
+    assert np.isinf(auto.P_std.values[[0, n // 2]]).all()
+    # what the flag withholds: P(N/2) is finite, but its estimate from slow DC is not it
+    # (measured: PZT off by 2.9x at N = 3600, 4.3x at N = 180 000)
+    pzt = auto.P.values[n // 2, 0, 1]
+    assert abs(pzt - truth[n // 2, 0, 1]) > abs(truth[n // 2, 0, 1])
     ok = np.arange(n // 2 + 1)[1:-1]
     rel = np.abs(auto.P.values[ok] - truth[ok]) / np.abs(truth[ok])
     # measured: median 5.4e-5 (N = 3600), 6.1e-8 (36 000), 7.1e-10 (180 000); window 30:
@@ -292,6 +299,76 @@ def test_noiseless_auto_flags_only_the_slow_dc_bin(n):
         # ... whose chosen window-12 estimate (off by 6-140 % there: model error) its band covers
         err = np.abs(auto.P.values[low] - truth[low])
         assert (err <= K95 * auto.P_std.values[low]).all()
+
+
+def _near_singular_exact(sigma, m=64, seed=0):
+    """Spectra fitted exactly by a constant local model (degrees (0, -1, 0)): ``Z = G R``
+    with ``G = [S; P_1 S]``, ``S`` of singular values 1 and ``sigma``; returns ``R``,
+    ``Z`` and the true fast ``P`` on bins 0..M (F = 2, one input, one output)."""
+    from lcmr_xr.kernels.lifting import frf_from_first_block_row
+    rng = np.random.default_rng(seed)
+    q, _ = np.linalg.qr(rng.standard_normal((2, 2)) + 1j * rng.standard_normal((2, 2)))
+    S = q @ np.diag([1.0, sigma]) @ q.conj().T
+    P1 = np.array([[1.0 + 0.5j, -2.0 + 0.25j]])
+    R = np.exp(2j * np.pi * rng.random((m, 2)))
+    Z = R @ np.concatenate([S, P1 @ S]).T
+    truth = frf_from_first_block_row(np.broadcast_to(P1, (m, 1, 2)), 2)[: m + 1]
+    return R, Z, truth
+
+
+def test_an_exact_fit_does_not_release_a_weak_direction_below_its_rounding():
+    """Noiseless data fitted exactly leave residuals below what the local model's moments
+    resolve (``eps sum |Z|^2 / dof``): the residual covariance is rounding, and the weak
+    direction of ``S`` is known to ``sqrt(eps (2 n + 1) / dof) cond(S)`` relative at best.
+    With ``cond(S)`` 1e9 every bin is undetermined; before, 20 of 65 fast bins were
+    released with a band of zero width around an estimate off by up to 5.5e-7 (the HDD's
+    slow DC at N = 180 000, ``cond(S)`` 2.3e7-2.8e7: P off by 4-7x, band 0).  Where the floor
+    passes, nothing changes (``cond(S)`` 1e3: every band finite, rho as measured)."""
+    from lcmr_xr.kernels.identification import identify_spectra
+    kw = dict(n_fast=128, factor=2, nu=1, half_width=6, degrees=(0, -1, 0))
+    R, Z, truth = _near_singular_exact(1e-9)
+    out = identify_spectra(R, Z, **kw)
+    band = K95 * np.sqrt(out["P_var"])
+    released = np.isfinite(band).all(axis=(-2, -1))
+    assert (np.abs(out["P"] - truth)[released] <= band[released]).all()
+    assert out["P_undetermined"].all()
+    floor = np.sqrt(np.finfo(float).eps * 13 / 11) * out["s_condition"]
+    np.testing.assert_array_equal(out["s_weak_rel_std"], np.maximum(floor, 0.0))
+    R, Z, truth = _near_singular_exact(1e-3)
+    out = identify_spectra(R, Z, **kw)
+    assert not out["P_undetermined"].any()
+    assert np.abs(out["P"] - truth).max() < 1e-11
+    assert (out["s_weak_rel_std"] < 1e-4).all()
+
+
+def test_rounding_floor_touches_only_unresolved_bins_it_flags():
+    """``_rounding_floor`` returns ``rho`` unchanged (the same object) where every row's
+    noise variance is resolved or the floor passes the test; a block of the circle gets
+    the whole circle's values."""
+    from lcmr_xr.kernels.identification import _rounding_floor
+    rng = np.random.default_rng(1)
+    m, n, dof = 40, 5, 7
+    Z = rng.standard_normal((m, 3)) + 1j * rng.standard_normal((m, 3))
+    rho = rng.random(m) * 0.1
+    cond = np.full(m, 1e10)
+    resolved = np.full((m, 3), 1e-3)
+    assert _rounding_floor(rho, cond, resolved, Z, half_width=n, dof=dof,
+                           circular=True) is rho
+    tiny = resolved.copy()
+    tiny[7, 1] = 0.0  # one row of bin 7 below the moments' resolution
+    out = _rounding_floor(rho, cond, tiny, Z, half_width=n, dof=dof, circular=True)
+    floor = np.sqrt(np.finfo(float).eps * (2 * n + 1) / dof) * 1e10
+    assert out[7] == floor and K95 * floor > UNDETERMINED_LIMIT
+    np.testing.assert_array_equal(np.delete(out, 7), np.delete(rho, 7))
+    small = np.full(m, 1e3)  # the floor passes: unchanged
+    assert _rounding_floor(rho, small, tiny, Z, half_width=n, dof=dof,
+                           circular=True) is rho
+    block = _rounding_floor(rho[4:20], cond[4:20], tiny[4:20], Z, half_width=n, dof=dof,
+                            circular=True, bins=(4, 20))
+    np.testing.assert_array_equal(block, out[4:20])
+    wrap = _rounding_floor(rho[:8], cond[:8], tiny[:8], Z, half_width=n, dof=dof,
+                           circular=True, bins=(0, 8))  # the window wraps at bin 0
+    np.testing.assert_array_equal(wrap, out[:8])
 
 
 def test_whitened_ratio_of_a_covariance_at_rounding_level_is_zero():

@@ -426,8 +426,8 @@ def test_an_append_whose_file_another_writer_replaced_writes_no_entry_for_it(tmp
 
     def raced(ds, path, ref, label, **kwargs):
         out = real(ds, path, ref, label, **kwargs)
-        save(_labelled(2).assign_attrs(seed=99), d / "other.tmp")
-        os.replace(d / "other.tmp", path)
+        save(_labelled(2).assign_attrs(seed=99), tmp_path / "other.nc")  # (save takes .nc names)
+        os.replace(tmp_path / "other.nc", path)
         return out
 
     monkeypatch.setattr(arc, "_write_checked", raced)

@@ -238,6 +238,18 @@ def _spectrum(e):
     return lcmr_xr.dft(e.small.r)
 
 
+def _lifted_slow_output(res, exp, factor):
+    """``res`` is ``exp`` lifted by ``factor`` along ``slow_time``: ``y[l F + j]`` at
+    ``[l, j]``, ``r`` and ``u`` passed through, the experiment's ``factor`` kept."""
+    m = exp.sizes["slow_time"] // factor
+    want = exp.y.values.reshape(m, factor, exp.sizes["output"])
+    assert res.y.dims == ("slow_slow_time", "lift_phase", "output"), res.y.dims
+    np.testing.assert_array_equal(res.y.values, want)
+    xr.testing.assert_identical(res.r, exp.r)
+    assert res.attrs["factor"] == exp.attrs["factor"]
+    assert res.lift_phase.attrs["lift_factor"] == factor
+
+
 def _lifted_spectrum(e):
     return lcmr_xr.dft(lcmr_xr.lift(e.small.r, 2), dim="slow_time")
 
@@ -375,6 +387,12 @@ API = [
          ValueError, ("not a multiple", "factor=3", "= 2")),
     Case("factor_attr_text", lambda e: validate_experiment(_set_attr(e.small, factor="two")), ValueError,
          ("positive integer",)),
+    # the attribute is read by the one reader of a stored factor (settings.recorded_factor):
+    # inf failed inside int() with an OverflowError, [True] was read as the factor 1
+    Case("factor_attr_inf", lambda e: validate_experiment(_set_attr(e.small, factor=np.inf)), ValueError,
+         ("'factor' must be a positive integer", "inf", "set ds.attrs['factor'] = F")),
+    Case("factor_attr_bool_array", lambda e: validate_experiment(_set_attr(e.small, factor=np.array([True]))),
+         ValueError, ("'factor' must be a positive integer", "True")),
     Case("variable_y_missing", lambda e: validate_experiment(e.small.drop_vars("y")), ValueError,
          ("'y' is missing",)),
     Case("units_missing", lambda e: validate_experiment(e.changed(r=e.small.r.drop_attrs())), ValueError,
@@ -422,6 +440,22 @@ API = [
          ("factor", "2.5", "not rounded")),
     Case("lift_factor_whole_float", lambda e: lcmr_xr.lift(e.small.r, 2.0),
          check=lambda res, e: xr.testing.assert_identical(res, lcmr_xr.lift(e.small.r, 2))),
+    # an explicit factor other than the one the signal records lifted by it, and the result
+    # carried the recorded one on; the same factor (also as 2.0 or a file's [2]) is accepted
+    Case("lift_factor_disagrees_with_attribute", lambda e: lcmr_xr.lift(e.small, 4), ValueError,
+         ("factor=4", "F = 2", "attrs['factor']", "factor=2", "assign_attrs(factor=4)")),
+    Case("lift_factor_disagrees_with_dataarray_attribute",
+         lambda e: lcmr_xr.lift(e.small.r.assign_attrs(factor=np.array([2])), 4), ValueError,
+         ("factor=4", "F = 2")),
+    Case("lift_factor_agrees_with_attribute", lambda e: lcmr_xr.lift(e.small.assign_attrs(factor=np.array([2])), 2.0),
+         check=lambda res, e: xr.testing.assert_identical(res, lcmr_xr.lift(e.small.assign_attrs(factor=np.array([2]))))),
+    Case("lift_factor_attribute_text", lambda e: lcmr_xr.lift(e.small.r.assign_attrs(factor="two")), ValueError,
+         ("x.attrs['factor']", "'two'", "not a lifting factor", "factor=F")),
+    # the recorded factor is time's ratio to slow_time: lifting along another dim (the slow
+    # output by 4) was refused since the check came in (session 16), and told to set the
+    # experiment's factor to 4; a lifting along slow_time is not held to it
+    Case("lift_other_dim_not_held_to_recorded_factor", lambda e: lcmr_xr.lift(e.small, 4, dim="slow_time"),
+         check=lambda res, e: _lifted_slow_output(res, e.small, 4)),
     Case("unlift_reordered_phases", lambda e: lcmr_xr.unlift(lcmr_xr.lift(e.small.r, 2).sortby("lift_phase", ascending=False)),
          ValueError, ("lift_phase", "[1, 0]", "sortby")),
     Case("unlift_selected_phase", lambda e: lcmr_xr.unlift(lcmr_xr.lift(e.small.r.drop_vars("time"), 2).isel(lift_phase=[1])),
@@ -429,9 +463,25 @@ API = [
     Case("dft_numpy", lambda e: lcmr_xr.dft(e.r), TypeError, ("dft", "xr.DataArray"), absent=("attribute",)),
     Case("idft_numpy", lambda e: lcmr_xr.idft(np.fft.fft(e.r, axis=0)), TypeError, ("idft", "xr.DataArray"),
          absent=("attribute",)),
+    # factor follows the settings' integer rule: "2" and True were told "factor=2 does not
+    # match the 2 lifting phases" (a ValueError), 2.5 "does not match" instead of "not rounded"
     Case("fast_spectrum_factor_fractional", lambda e: lcmr_xr.fast_spectrum_from_lifted(
-        lcmr_xr.dft(lcmr_xr.lift(e.small.r, 2), dim="slow_time"), factor=2.5), ValueError,
-        ("factor=2.5", "2 lifting phases")),
+        _lifted_spectrum(e), factor=2.5), ValueError,
+        ("factor must be an integer", "2.5", "not rounded", "factor=2"), absent=("does not match",)),
+    Case("fast_spectrum_factor_text", lambda e: lcmr_xr.fast_spectrum_from_lifted(_lifted_spectrum(e), factor="2"),
+         TypeError, ("factor must be an integer", "'2'", "(str)", "pass e.g. factor=2"), absent=("does not match",)),
+    Case("fast_spectrum_factor_bool", lambda e: lcmr_xr.fast_spectrum_from_lifted(_lifted_spectrum(e), factor=True),
+         TypeError, ("factor must be an integer", "True", "(bool)"), absent=("does not match",)),
+    Case("fast_spectrum_factor_numpy_bool", lambda e: lcmr_xr.fast_spectrum_from_lifted(
+        _lifted_spectrum(e), factor=np.True_), TypeError, ("factor must be an integer", "True")),
+    Case("fast_spectrum_factor_zero", lambda e: lcmr_xr.fast_spectrum_from_lifted(_lifted_spectrum(e), factor=0),
+         ValueError, ("factor must be >= 1", "got 0")),
+    Case("fast_spectrum_factor_other", lambda e: lcmr_xr.fast_spectrum_from_lifted(_lifted_spectrum(e), factor=3),
+         ValueError, ("factor=3 does not match the 2 lifting phases", "omit factor")),
+    Case("fast_spectrum_factor_whole", lambda e: [lcmr_xr.fast_spectrum_from_lifted(_lifted_spectrum(e), factor=f)
+                                                  for f in (2.0, np.array(2), np.int64(2))],
+         check=lambda res, e: [xr.testing.assert_identical(r, lcmr_xr.fast_spectrum_from_lifted(_lifted_spectrum(e)))
+                               for r in res]),
     Case("dft_one_sided_text", lambda e: lcmr_xr.dft(e.small.r, one_sided="no"), TypeError,
          ("one_sided", "True or False")),
     # NaN made every bin of the spectrum NaN, silently
@@ -616,6 +666,14 @@ API = [
     Case("save_dataarray", lambda e: save(e.small.r, "x.nc"), TypeError, ("to_dataset",)),
     Case("save_into_missing_directory", lambda e: save(e.small, "nodir/x.nc"), FileNotFoundError,
          ("nodir", "does not exist")),
+    # save wrote NetCDF-4 under any name (x.txt, or none); sweep_to_disk found out only at the
+    # end, after every task (save), or never; the accepted endings are named, in any case
+    Case("save_text_suffix", lambda e: save(e.small, "x.txt"), ValueError,
+         ("x.txt", "'.txt'", ".nc, .nc4, .netcdf or .mat", "e.g. x.nc")),
+    Case("save_no_suffix", lambda e: save(e.small, "result"), ValueError,
+         ("result", "(no suffix)", ".nc", ".mat", "e.g. result.nc")),
+    Case("sweep_to_disk_text_suffix", lambda e: sweep_to_disk(open_archive("arc"), "r.txt", window=[12]), ValueError,
+         ("r.txt", "'.txt'", ".nc, .nc4 or .netcdf"), absent=(".mat",)),
     Case("save_onto_a_directory", lambda e: save(e.small, "arc"), IsADirectoryError, ("cannot write arc", "is a directory"),
          absent=(".tmp",)),
     Case("save_where_not_writable", _fake_readonly, PermissionError, ("cannot write out.nc",), absent=(".x.tmp",)),
@@ -646,6 +704,19 @@ API = [
              str(res.r.chunks))),
     Case("open_chunks_fractional_scalar", lambda e: open_dataset("exp.nc", chunks=100.5), ValueError,
          ("chunks", "100.5", "not rounded"), absent=("not a valid NetCDF",)),
+    # a 0-d integer array (a value taken from an array, e.g. ds.sizes-derived .values) was a
+    # TypeError; the settings' integer rule reads it as the number it holds
+    Case("open_chunks_zero_d_array", lambda e: open_dataset("exp.nc", chunks=np.array(100)),
+         check=lambda res, e: res.r.chunks == open_dataset("exp.nc", chunks=100).r.chunks or pytest.fail(
+             str(res.r.chunks))),
+    Case("open_chunks_zero_d_arrays_in_dict", lambda e: open_dataset("exp.nc", chunks={"time": np.array(100.0),
+                                                                                       "input": (np.int64(1), 1)}),
+         check=lambda res, e: res.r.chunks == open_dataset("exp.nc", chunks={"time": 100, "input": (1, 1)}).r.chunks
+         or pytest.fail(str(res.r.chunks))),
+    Case("open_chunks_zero_d_array_fractional", lambda e: open_dataset("exp.nc", chunks=np.array(100.5)), ValueError,
+         ("chunks", "100.5", "not rounded"), absent=("not a valid NetCDF",)),
+    Case("open_chunks_zero_d_array_text", lambda e: open_dataset("exp.nc", chunks=np.array("x")), TypeError,
+         ("chunks", "'x'"), absent=("not a valid NetCDF",)),
     Case("open_chunks_text", lambda e: open_dataset("frf.nc", chunks="x"), TypeError, ("chunks", "'x'"),
          absent=("not a valid NetCDF",)),
     Case("open_text_file", lambda e: open_dataset("notes.nc"), ValueError, ("notes.nc", "not a valid NetCDF")),
@@ -774,6 +845,26 @@ API = [
          ValueError, ("chunks['experiment'] = 1.5", "positive number of experiments")),
     Case("archive_consolidated_chunks_whole", lambda e: open_archive("arc1.nc", chunks={"experiment": -1}),
          check=lambda ds, e: ds.r.chunks[0] == (1,) or pytest.fail(str(ds.r.chunks))),
+    # sizes by the library's integer rule, as open_dataset's chunks: a 0-d array and a whole
+    # float were "no positive number of experiments per chunk" (open_dataset takes them), a
+    # directory's {'time': np.array(100)} failed inside dask ("chunks can only contain
+    # integers") and {'time': 100.5} likewise
+    Case("archive_consolidated_chunks_zero_d_array", lambda e: open_archive("arc1.nc", chunks={"experiment": np.array(1)}),
+         check=lambda ds, e: ds.r.chunks == open_archive("arc1.nc", chunks={"experiment": 1}).r.chunks
+         or pytest.fail(str(ds.r.chunks))),
+    Case("archive_directory_chunks_zero_d_array", lambda e: open_archive("arc", chunks={"experiment": np.array(1)}),
+         check=lambda ds, e: ds.r.chunks[0] == (1, 1) or pytest.fail(str(ds.r.chunks))),
+    Case("archive_directory_chunks_whole_float", lambda e: open_archive("arc", chunks={"experiment": 1.0}),
+         check=lambda ds, e: ds.r.chunks[0] == (1, 1) or pytest.fail(str(ds.r.chunks))),
+    Case("archive_directory_chunks_time_zero_d_array", lambda e: open_archive("arc", chunks={"time": np.array(100)}),
+         check=lambda ds, e: ds.r.chunks == open_archive("arc", chunks={"time": 100}).r.chunks
+         and ds.r.chunks[1] == (100,) * 4 or pytest.fail(str(ds.r.chunks))),
+    Case("archive_directory_chunks_time_fractional", lambda e: open_archive("arc", chunks={"time": 100.5}),
+         ValueError, ("chunks {'time': 100.5}", "whole number (>= 1)"), absent=("can only contain",)),
+    Case("archive_directory_chunks_zero_d_fractional", lambda e: open_archive("arc", chunks={"experiment": np.array(1.5)}),
+         ValueError, ("chunks['experiment'] = 1.5", "positive number of experiments")),
+    Case("archive_consolidated_chunks_zero_d_bool", lambda e: open_archive("arc1.nc", chunks={"experiment": np.array(True)}),
+         ValueError, ("chunks['experiment'] = True", "positive number of experiments")),
     # chunks={'time': -2} was reported as "not a valid NetCDF-4 file (truncated, corrupt,
     # ...)" (xarray's refusal of the argument); 0 silently meant the whole dim
     Case("open_chunks_negative", lambda e: open_dataset("exp.nc", chunks={"time": -2}), ValueError,
@@ -1024,6 +1115,21 @@ def test_cli_sweep_checks_connect_timeout_before_it_starts(timeout, scheduler, w
     assert status == 2
     assert err.splitlines() == [err.strip()] and err.startswith("lcmr-xr sweep: error: --connect-timeout"), err
     assert "positive number of seconds" in err and "--connect-timeout 10" in err, err
+    assert snapshot(workdir) == before
+
+
+@pytest.mark.parametrize("server", ["unused", "junk"])
+def test_cli_sweep_says_sweeping_only_once_connected(server, workdir, servers, capsys):
+    """lcmr-xr sweep printed "sweeping {...} on scheduler tcp://..." before it connected, so
+    a scheduler that is not there looked like a sweep that started and failed.  Now the
+    failed connection is the only line; with a local scheduler the line still comes first."""
+    before = snapshot(workdir)
+    status = cli.main(["sweep", "arc", "-o", "r.nc", "--window", "12", "--scheduler",
+                       f"tcp://127.0.0.1:{servers[server]}", "--connect-timeout", "3"])
+    err = capsys.readouterr().err
+    assert status == 2
+    assert err.splitlines() == [err.strip()] and err.startswith("lcmr-xr sweep: error: "), err
+    assert "sweeping" not in err, err
     assert snapshot(workdir) == before
 
 

@@ -110,3 +110,53 @@ def test_readme_links_the_docs_and_no_code_cites_an_outside_design_doc():
     stale = [str(p.relative_to(ROOT)) for p in (ROOT / "lcmr_xr").rglob("*.py")
              if "shared/conventions.md" in p.read_text()]
     assert stale == [], f"{stale} cite shared/conventions.md; cite docs/conventions.md"
+
+
+@pytest.mark.parametrize("units,squared", [
+    ("m", "m2"), ("V", "V2"), ("um", "um2"), ("rad", "rad2"),  # a symbol: exponent 2, as UDUNITS
+    ("m2", "m4"), ("s-1", "s-2"), ("m^3", "m6"),             # an exponent doubles (not m22)
+    ("m/s", "(m/s)2"), ("m s-1", "(m s-1)2"), ("1e-3 m", "(1e-3 m)2"),  # else parenthesised
+    ("1", "1"), ("", "1"),
+])
+def test_squared_units(units, squared):
+    assert cv.squared_units(units) == squared
+
+
+def test_noise_variance_units_are_the_signals_units_squared():
+    """The noise variances' units read (m)2 for an output in m (every unit was
+    parenthesised); now UDUNITS' own spelling: m2, and (m/s)2 where parentheses are needed.
+    Residual (identify) and period-spread (pooled) variances, outputs and lifted inputs."""
+    exp = hdd.simulate(n_samples=1200, periods=3, seed=0, noise=False)
+    exp["u"].attrs["units"] = "m/s"
+    frf = lcmr_xr.identify(exp, window=12, degrees=(2, 2, 2))
+    assert frf[cv.NOISE_VARIANCE_Y].attrs["units"] == "m2"
+    assert frf[cv.PERIOD_NOISE_VARIANCE_Y].attrs["units"] == "m2"
+    assert frf[cv.NOISE_VARIANCE_U].attrs["units"] == "(m/s)2"
+    assert frf[cv.PERIOD_NOISE_VARIANCE_U].attrs["units"] == "(m/s)2"
+    exp["u"].attrs["units"] = "1"
+    frf = lcmr_xr.identify(exp.isel(period=0), window=12, degrees=(2, 2, 2))
+    assert frf[cv.NOISE_VARIANCE_U].attrs["units"] == "1" and frf[cv.NOISE_VARIANCE_Y].attrs["units"] == "m2"
+    stacked = lcmr_xr.identify(exp.isel(period=0), window=12, degrees=(2, 2, 2), stacked=True)
+    assert stacked["noise_variance"].attrs["units"] == "1 (u rows), m2 (y rows)"
+
+
+def test_one_figure_for_the_cost_of_iv_on_one_record():
+    """The README (1.2-1.9x), lcmr_xr.settings (1.8-2.4x), identify's docstring (about
+    twice) and docs/uncertainty.md (1.88x) each gave their own cost of IV on one record;
+    they give the one measured in docs/uncertainty.md (benchmarks/accuracy.py --cost)."""
+    import lcmr_xr.settings
+
+    def one(pattern, text, where):
+        found = re.findall(pattern, " ".join(text.split()))
+        assert len(found) == 1, (where, found)
+        return found[0]
+
+    figure = r"(\d\.\d+-\d\.\d+x)"
+    measured = one(r"Cost of IV against least squares, one record .*?: window 30 " + figure,
+                   (DOCS / "uncertainty.md").read_text(), "uncertainty.md")
+    assert one(r"IV changes the result by a few per cent at " + figure + " the CPU time, window 30",
+               README.read_text(), "README") == measured
+    assert one(r"costs " + figure + " the CPU time at window 30",
+               Path(lcmr_xr.settings.__file__).read_text().replace("#:", ""), "settings") == measured
+    assert one(r"at " + figure + " the CPU time at window 30",
+               lcmr_xr.identify.__doc__, "identify") == measured

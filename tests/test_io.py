@@ -308,3 +308,24 @@ def test_atomic_write_without_overwrite_never_replaces_an_existing_file(tmp_path
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.txt"]
     _atomic.atomic_write(target, lambda tmp: Path(tmp).write_text("third"))  # the default replaces
     assert target.read_text() == "third"
+
+
+@pytest.mark.parametrize("name", ["x.nc", "x.NC", "x.nc4", "x.netcdf", "x.mat", "x.txt", "x.h5", "x"])
+def test_save_writes_the_format_its_name_says(tmp_path, name):
+    """save wrote NetCDF-4 under any name (x.txt, x.h5, no suffix).  Now a NetCDF ending
+    (any case) writes NetCDF-4, .mat a MATLAB file, and any other name is refused before
+    anything is written, naming the accepted endings."""
+    exp = _experiment(seed=3)
+    target = tmp_path / name
+    if name.lower().endswith((".nc", ".nc4", ".netcdf")):
+        xr.testing.assert_identical(open_dataset(save(exp, target)), exp)
+        assert target.read_bytes()[:4] == b"\x89HDF"
+    elif name.endswith(".mat"):
+        import scipy.io
+
+        assert set(scipy.io.loadmat(save(exp, target))) >= {"r", "u", "y", "Ts", "F"}
+    else:
+        with pytest.raises(ValueError, match=r"unsupported file type .*must end in \.nc, \.nc4, "
+                                             r"\.netcdf or \.mat, e\.g\. .*x\.nc"):
+            save(exp, target)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ([name] if target.exists() else [])

@@ -402,6 +402,10 @@ def test_cli_sweep_writes_the_same_result(tmp_path, capsys, cluster_client, sche
     assert choice.best_window.dims == ("experiment",)
     captured = capsys.readouterr()
     assert "100% Completed" in captured.out + captured.err  # a progress bar was shown
+    # what is swept and where, said once (after the connection to a cluster) before the progress
+    first = captured.err.splitlines()[0]
+    assert first.startswith("sweeping {'method': 2, 'degrees': 2, 'window': 2, 'experiment': 2}"), first
+    assert first.endswith(f"on scheduler {address}") and captured.err.count("sweeping") == 1
 
 
 def test_cli_errors_exit_2_and_write_nothing(tmp_path, capsys):

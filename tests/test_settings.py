@@ -277,3 +277,31 @@ def test_eager_identify_computes_each_lifted_spectrum_once(exp, monkeypatch, fre
     frf = identify(exp, window=12, degrees=(2, 2, 2), frequency_chunks=frequency_chunks)
     frf.compute()
     assert len(calls) == 2  # lifted r and lifted u, once each (the rank check reuses r's)
+
+
+def test_one_reader_of_a_stored_factor():
+    """validate_experiment, experiment_factor and lift's lift_factor each read a stored
+    factor their own way (validate took np.array([True]) as 1 and failed inside int() on
+    inf with an OverflowError); they share settings.recorded_factor now, and agree."""
+    from lcmr_xr.experiment.dataset import experiment_factor
+    from lcmr_xr.settings import recorded_factor
+    from lcmr_xr.transforms.lifting import _recorded_factor
+
+    small = hdd.simulate(n_samples=400, noise=False, seed=1)
+    good = [2, 2.0, np.int32(2), np.array([2]), np.array([[2.0]]), np.uint8(2), [2]]
+    bad = ["2", "two", 2.5, 0, -2, np.nan, np.inf, True, np.array([True]), np.array([2, 2]),
+           np.array([]), None, [2, 2], 2 + 0j, [1, [2]]]  # ragged: numpy's ValueError escaped
+    for value in good:
+        assert recorded_factor(value) == 2 and type(recorded_factor(value)) is int
+        assert experiment_factor(small.assign_attrs(factor=value)) == 2
+        lcmr_xr.validate_experiment(small.assign_attrs(factor=value))
+        assert _recorded_factor(value, "unlift", 2) == 2
+    for value in bad:
+        assert recorded_factor(value) is None, value
+        with pytest.raises(ValueError, match="'factor' must be a positive integer"):
+            experiment_factor(small.assign_attrs(factor=value))
+        with pytest.raises(ValueError, match="'factor' must be a positive integer"):
+            lcmr_xr.validate_experiment(small.assign_attrs(factor=value))
+        if value is not None:  # (lift_phase without the attribute: a lifting made by hand)
+            with pytest.raises(ValueError, match="not a lifting factor"):
+                _recorded_factor(value, "unlift", 2)

@@ -25,7 +25,7 @@ from lcmr_xr.conventions import (
     label_attrs,
     time_attrs,
 )
-from lcmr_xr.settings import as_bool
+from lcmr_xr.settings import as_bool, recorded_factor
 from lcmr_xr.transforms._coords import even_spacing
 from lcmr_xr.transforms._finite import channel_labels, describe_lazy_non_finite, describe_non_finite
 
@@ -498,12 +498,8 @@ def validate_experiment(ds: xr.Dataset, *, check_values: bool = True) -> xr.Data
     if FACTOR not in ds.attrs:
         _fail("attribute 'factor' is missing", "set ds.attrs['factor'] = F (the multirate factor Tl/Th).")
     f_raw = ds.attrs[FACTOR]
-    try:
-        factor = int(np.asarray(f_raw).item())
-        ok = factor == np.asarray(f_raw).item() and factor >= 1 and not isinstance(f_raw, (bool, np.bool_))
-    except (TypeError, ValueError):
-        ok = False
-    if not ok:
+    factor = recorded_factor(f_raw)  # the one reader of a stored factor (lift's lift_factor too)
+    if factor is None:
         _fail(f"attribute 'factor' must be a positive integer, got {f_raw!r}", "set ds.attrs['factor'] = F.")
 
     required = {"r": (TIME, INPUT), "u": (TIME, INPUT), "y": (SLOW_TIME, OUTPUT)}
@@ -591,7 +587,8 @@ def experiment_factor(ds) -> int:
     :func:`validate_experiment` accepts the attribute as any whole positive number, also a
     one-element array (as an attribute may come back from a file or be set in memory);
     ``int()`` of such an array is an error in numpy 2, so every reader of the attribute
-    goes through here.
+    goes through here, and this, :func:`validate_experiment` and :func:`lcmr_xr.lift` read
+    it (as ``lift`` reads its ``lift_factor``) with :func:`lcmr_xr.settings.recorded_factor`.
 
     Parameters
     ----------
@@ -603,13 +600,23 @@ def experiment_factor(ds) -> int:
     int
         The attribute ``factor``.
 
+    Raises
+    ------
+    ValueError
+        If the attribute is missing or not one whole number >= 1.
+
     Examples
     --------
     >>> import numpy as np, xarray as xr
     >>> experiment_factor(xr.Dataset(attrs={"factor": np.array([2])}))
     2
     """
-    return int(np.asarray(ds.attrs[FACTOR]).item())
+    factor = recorded_factor(ds.attrs.get(FACTOR))
+    if factor is None:
+        raise ValueError(f"attribute 'factor' must be a positive integer, got "
+                         f"{ds.attrs.get(FACTOR)!r}; set ds.attrs['factor'] = F (the multirate "
+                         "factor Tl/Th) and check the dataset with lcmr_xr.validate_experiment.")
+    return factor
 
 
 def _bad_samples(var: xr.DataArray) -> str:

@@ -180,7 +180,7 @@ def identify(experiment: xr.Dataset, *, method: str = "lrm", window=DEFAULT_WIND
         window).  Default (None): ``"iv"`` where experiments are pooled in one local model
         (``combine="experiment"`` with different excitations: least squares' bias does not
         pool away), ``"ls"`` otherwise (one record: IV changes the error by a few per cent
-        at about twice the cost); :data:`lcmr_xr.settings.DEFAULT_DENOMINATOR`,
+        at 1.33-1.41x the CPU time at window 30, docs/uncertainty.md); :data:`lcmr_xr.settings.DEFAULT_DENOMINATOR`,
         :data:`lcmr_xr.settings.POOLED_DEFAULT_DENOMINATOR`.  A model without a
         denominator (``Rd = 0``: the LPM, window 0) is least squares, and ``"iv"`` is
         refused there.  Recorded as the attribute ``denominator``
@@ -845,8 +845,8 @@ def _label(out, ds, *, factor, th):
         "S_std": ("standard deviation of S", _ratio_units(u_units, ru)),
         "transient_y": ("local transient of the output spectrum", y_units),
         "transient_u": ("local transient of the lifted input spectrum", u_units),
-        "noise_variance_y": ("residual noise variance of the output spectrum", f"({y_units})2" if y_units != "1" else "1"),
-        "noise_variance_u": ("residual noise variance of the lifted input spectrum", f"({u_units})2" if u_units != "1" else "1"),
+        "noise_variance_y": ("residual noise variance of the output spectrum", cv.squared_units(y_units)),
+        "noise_variance_u": ("residual noise variance of the lifted input spectrum", cv.squared_units(u_units)),
         "condition": ("condition number of the local least-squares problem", "1"),
         "ill_posed": ("local model ill-posed", "1"),
         "s_condition": ("condition number of the estimated lifted sensitivity", "1"),
@@ -864,7 +864,7 @@ def _label(out, ds, *, factor, th):
         "G_std": ("standard deviation of G",
                   f"{_ratio_units(u_units, ru)} (u rows), {_ratio_units(y_units, ru)} (y rows)"),
         "noise_variance": ("residual noise variance of the response spectra",
-                           f"({u_units})2 (u rows), ({y_units})2 (y rows)"),
+                           f"{cv.squared_units(u_units)} (u rows), {cv.squared_units(y_units)} (y rows)"),
     }
     for name, (long_name, units) in meta.items():
         if name in out:

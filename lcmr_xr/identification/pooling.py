@@ -365,11 +365,10 @@ def finish(out: xr.Dataset, the_plan: Plan, *, closed_loop: str, factor: int, y_
                                       output_core_dims=[[_Z]], kwargs={"axis1": -2, "axis2": -1},
                                       dask="parallelized", output_dtypes=[complex]))
         fnu = factor * nu if closed_loop == "indirect" else 0
-        sq = lambda units: f"({units})2" if units != "1" else "1"  # noqa: E731
         out[cv.PERIOD_NOISE_VARIANCE_Y] = diag.isel({_Z: slice(fnu, None)}).rename({_Z: cv.OUTPUT}) \
             .assign_coords({cv.OUTPUT: out[cv.OUTPUT]}).assign_attrs(
                 long_name="noise variance of the averaged output spectrum, from the spread over "
-                          "the records", units=sq(y_units))
+                          "the records", units=cv.squared_units(y_units))
         if closed_loop == "indirect":
             lifted = diag.isel({_Z: slice(0, fnu)}).data
             lifted = lifted.reshape(lifted.shape[:-1] + (factor, nu))
@@ -377,7 +376,7 @@ def finish(out: xr.Dataset, the_plan: Plan, *, closed_loop: str, factor: int, y_
                 lifted, dims=diag.dims[:-1] + (cv.LIFT_PHASE, cv.INPUT),
                 coords={k: v for k, v in diag.coords.items()},
                 attrs={"long_name": "noise variance of the averaged lifted input spectrum, from "
-                                    "the spread over the records", "units": sq(u_units)},
+                                    "the spread over the records", "units": cv.squared_units(u_units)},
             ).assign_coords({cv.LIFT_PHASE: out[cv.LIFT_PHASE], cv.INPUT: out[cv.INPUT]})
         for name in cv.POOLED_VARIABLES:
             if name in out:

@@ -14,6 +14,43 @@ from lcmr_xr.io._atomic import check_writable_target
 from lcmr_xr.settings import as_bool
 
 
+#: File name endings of NetCDF files: what :func:`lcmr_xr.io.save` writes NetCDF-4 to, and
+#: what the command line's NetCDF outputs (``-o``, ``--select``) and ``sweep_to_disk`` take.
+NETCDF_SUFFIXES = (".nc", ".nc4", ".netcdf")
+#: The ending of MATLAB files (:mod:`lcmr_xr.io.matfile`; ``save`` writes one for it).
+MAT_SUFFIX = ".mat"
+
+
+def check_suffix(path, suffixes, what: str = "cannot write") -> Path:
+    """Refuse, naming ``path`` and every accepted ending, a file name whose suffix (any
+    case) is not one of ``suffixes``: a ``.txt`` or a name without a suffix would
+    otherwise be written in another format than its name says.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        File about to be written.
+    suffixes : sequence of str
+        The accepted endings, with their dot (``(".nc", ".mat")``).
+    what : str
+        How the message begins, before the path.
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``.
+    """
+    path = Path(path)
+    if path.suffix.lower() not in suffixes:
+        accepted = (", ".join(suffixes[:-1]) + " or " if len(suffixes) > 1 else "") + suffixes[-1]
+        example = path.with_name((path.stem or "result") + suffixes[0])
+        raise ValueError(
+            f"{what} {path}: unsupported file type {path.suffix or '(no suffix)'!r}; the file "
+            f"name must end in {accepted}, e.g. {example}."
+        )
+    return path
+
+
 def _resolved(path: Path) -> Path:
     return Path(os.path.abspath(os.path.realpath(path)))
 
@@ -67,11 +104,8 @@ def check_outputs(outputs: dict, *, inputs=(), overwrite: bool = False,
         if path is None:
             continue
         path = Path(path)
-        if suffixes and path.suffix.lower() not in suffixes:
-            raise ValueError(
-                f"{what} {path}: unsupported file type {path.suffix or '(no suffix)'!r}; the file "
-                f"name must end in {' or '.join(suffixes)}."
-            )
+        if suffixes:
+            check_suffix(path, suffixes, what)
         for inp in inputs:
             if inp is not None and same_or_inside(path, inp):
                 where = "inside the input directory" if Path(inp).is_dir() else "the input file"

@@ -26,10 +26,10 @@ import xarray as xr
 
 from lcmr_xr.conventions import FACTOR, FREQUENCY, INPUT, OUTPUT, SAMPLING_PERIOD, SLOW_TIME, TIME
 from lcmr_xr.io._atomic import atomic_write
+from lcmr_xr.io._guards import MAT_SUFFIX
 
 __all__ = ["open_mat_experiment", "save_mat"]
 
-MAT_SUFFIX = ".mat"
 # Names of the variables save_mat writes (MATLAB's own property names where there is one).
 SAMPLE_TIME = "Ts"
 FACTOR_NAME = "F"

@@ -9,6 +9,7 @@ types recorded in a JSON attribute ``lcmr_attr_types`` on the same object, so th
 from __future__ import annotations
 
 import json
+import numbers
 import warnings
 from numbers import Number
 from pathlib import Path
@@ -19,8 +20,10 @@ import xarray as xr
 from lcmr_xr.conventions import CONVENTIONS, FREQUENCY, INPUT, OUTPUT
 from lcmr_xr.io._atomic import atomic_write
 from lcmr_xr.io.matfile import is_mat_path, open_mat_experiment, save_mat
-from lcmr_xr.io._guards import check_not_own_source
+from lcmr_xr.io._atomic import check_writable_target
+from lcmr_xr.io._guards import MAT_SUFFIX, NETCDF_SUFFIXES, check_not_own_source, check_suffix
 from lcmr_xr.experiment.dataset import validate_experiment
+from lcmr_xr.settings import as_integer
 
 __all__ = ["open_dataset", "open_experiment", "open_frf", "save"]
 
@@ -147,7 +150,8 @@ def save(ds: xr.Dataset, path) -> Path:
         (bool, tuple, list, None) are converted and restored by :func:`open_dataset`;
         complex attribute values are refused (TypeError: NetCDF has no complex attributes).
     path : str or os.PathLike
-        Target file; its directory must exist.  An existing file is replaced.  A path
+        Target file; its directory must exist.  An existing file is replaced.  Its name
+        ends in ``.nc``, ``.nc4`` or ``.netcdf`` (NetCDF-4; any case), or ``.mat``: a path
         ending in ``.mat`` writes an FRF or experiment dataset for MATLAB instead
         (:func:`lcmr_xr.io.matfile.save_mat`: ``P`` as ``ny x nu x nf``, frequency in Hz,
         ``Ts``, channel names, so that ``frd`` takes it in one line).  The file a lazy
@@ -157,6 +161,16 @@ def save(ds: xr.Dataset, path) -> Path:
     -------
     pathlib.Path
         The path written.
+
+    Raises
+    ------
+    ValueError
+        If ``path`` ends in another suffix (``x.txt``, or none): the accepted ones are
+        named; or it is the file a lazy ``ds`` still reads.
+    IsADirectoryError, PermissionError
+        If ``path`` is a directory or lies in one that cannot be written.
+    TypeError
+        If ``ds`` is not a Dataset.
 
     Notes
     -----
@@ -186,6 +200,9 @@ def save(ds: xr.Dataset, path) -> Path:
             "x.to_dataset(name='...')."
         )
     check_not_own_source(ds, path)
+    check_writable_target(path)  # (a directory is named as one, not as a wrong file type)
+    # the name says the format: x.txt or x (no suffix) held NetCDF-4 and nothing said so
+    check_suffix(path, NETCDF_SUFFIXES + (MAT_SUFFIX,))
     if is_mat_path(path):
         return save_mat(ds, path)
     flat = _checksummed(_map_attrs(ds, _flatten_attrs))
@@ -217,7 +234,8 @@ def open_dataset(path, chunks=None) -> xr.Dataset:
     chunks : dict or "auto", optional
         Dask chunks.  Default ``None``: the data are loaded into memory and the file is
         closed (experiment and FRF files are small); with chunks the data stay lazy.
-        Sizes follow the library's integer rule: ``100.0`` is 100, ``100.5`` is refused.
+        Sizes follow the library's integer rule (:func:`lcmr_xr.settings.as_integer`):
+        ``100.0`` and a 0-d array ``np.array(100)`` are 100, ``100.5`` is refused.
 
     Returns
     -------
@@ -363,10 +381,17 @@ def _is_chunk_size(value) -> bool:
 
 
 def _whole(value):
-    """A whole float (``100.0``) as the int dask needs, by the settings' integer rule;
-    anything else unchanged (for :func:`_check_chunks` to judge)."""
-    if isinstance(value, (float, np.floating)) and np.isfinite(value) and value == int(value):
-        return int(value)
+    """A whole number as the int dask needs, by the settings' integer rule
+    (:func:`lcmr_xr.settings.as_integer`: ``100.0``, ``np.int64(100)`` and a 0-d array
+    ``np.array(100)`` are 100); a 0-d array of anything else is read as what it holds, and
+    anything else is returned unchanged (for :func:`_check_chunks` to judge and word)."""
+    if (isinstance(value, np.ndarray) or type(value).__name__ == "DataArray") and value.ndim == 0:
+        value = value.item()
+    if isinstance(value, numbers.Real) and not isinstance(value, (bool, np.bool_)):
+        try:
+            return as_integer(value, "chunks")
+        except ValueError:  # a fraction, NaN or inf: _check_chunks's message names the remedy
+            return value
     return value
 
 

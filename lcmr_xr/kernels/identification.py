@@ -519,6 +519,10 @@ def _fit_terms(R, Z, *, half_width, degrees, circular, covariance, known_covaria
     if covariance and n_exp is None and known_covariance is None:
         # one record: the same mend where cov(P_1) is not a covariance (below)
         out.update(_mend_indefinite(out, fit.G, G_cov, fit.noise_covariance, terms))
+        if closed_loop == "indirect" and not first_row_only:
+            out["rho"] = _rounding_floor(out["rho"], out["s_condition"], fit.noise_variance,
+                                         Z, half_width=half_width, dof=fit.dof,
+                                         circular=circular, bins=bins)
     if buffers is not None:  # (G_var is a view of G_cov's diagonal: the next fit reuses it)
         out = {k: v.copy() if isinstance(v, np.ndarray) and np.may_share_memory(v, fit.G_cov)
                else v for k, v in out.items()}
@@ -529,6 +533,51 @@ def _fit_terms(R, Z, *, half_width, degrees, circular, covariance, known_covaria
                                  denominator=denominator, instruments=halves_instruments,
                                  closed_loop=closed_loop))
     return out
+
+
+def _rounding_floor(rho, s_condition, noise_variance, Z, *, half_width, dof, circular,
+                    bins=None):
+    """``rho`` (..., B) of one record's fit raised to the rounding floor of its weakest
+    direction at the bins where that floor alone leaves the weak direction undetermined
+    (``K95 * floor > UNDETERMINED_LIMIT``) and the residuals are below the resolution of
+    the local model's moments; every other bin's ``rho`` is returned bit for bit.
+
+    The local model forms its residual energy from moments (a difference of sums of
+    ``|Z|^2``), so a row's noise variance is resolved only above
+    ``eps * sum_window |Z_i|^2 / dof``; below it (noiseless data fitted to that level:
+    the HDD at N = 180 000, at 99 % of the bins) the residual covariance is rounding, and
+    the weak-direction test reads it (``rho`` 0, or a covariance that happens to pass as
+    one).  The data are then known to a relative ``delta = sqrt(eps (2 n + 1) / dof)`` at
+    best, so ``S`` to about ``delta |S|`` and its weakest direction to ``delta cond(S)``
+    relative: a lower bound (the HDD's ``P`` at such bins was off by about
+    ``2e-7 cond(S)``, ten times ``delta cond(S)``).  Where even that exceeds the limit, the
+    arithmetic does not determine the weakest direction (the HDD's slow DC at
+    N = 180 000, ``cond(S)`` 2.3e7-2.8e7, where the VCM's double integrator makes the true
+    ``S`` singular: released before with a zero-width band and ``P`` off by 4-7x at the
+    fast bins 0 and N/2).  ``bins``: the block ``(start, stop)`` of the circle
+    that ``rho`` holds (``Z`` is the whole circle); ``circular=False``: ``Z`` is padded as
+    the fit's (bins without a full window are NaN and left alone)."""
+    n = int(half_width)
+    Z = np.asarray(Z)
+    if bins is not None:  # the block and its halo only
+        a, b = bins
+        Z = np.take(Z, np.arange(a - n, b + n) % Z.shape[-2], axis=-2)
+        circular = False
+    z2 = np.abs(Z) ** 2
+    mean = window_mean(z2, n, axis=-2, circular=circular)
+    if bins is not None:
+        mean = mean[..., n:mean.shape[-2] - n, :]
+    dof = np.asarray(dof, dtype=float)
+    eps = np.finfo(float).eps
+    with np.errstate(invalid="ignore", divide="ignore"):
+        resolved = eps * (2 * n + 1) * mean / dof[..., None] if dof.ndim else \
+            eps * (2 * n + 1) * mean / dof
+        unresolved = np.any(noise_variance < resolved, axis=-1)
+        floor = np.sqrt(eps * (2 * n + 1) / dof) * s_condition
+    raise_ = unresolved & (K95 * floor > UNDETERMINED_LIMIT)
+    if not np.any(raise_):
+        return rho
+    return np.where(raise_, np.maximum(rho, floor), rho)
 
 
 def _positive_semidefinite(G_cov, noise_covariance):

@@ -1220,6 +1220,8 @@ def open_archive(path, chunks=None) -> xr.Dataset:
         :func:`lcmr_xr.identify` needs.  For a consolidated archive only the
         ``experiment`` entry is used (``{"experiment": 64}``; also -1 or None, one chunk,
         and ``"auto"``, the default, as for a directory); anything else is refused.
+        Sizes follow the library's integer rule, as :func:`lcmr_xr.io.open_dataset`'s
+        (``64.0`` and a 0-d array ``np.array(64)`` are 64, ``1.5`` is refused).
 
     Returns
     -------
@@ -1451,7 +1453,10 @@ def _open_directory(directory: Path, chunks) -> xr.Dataset:
     combined = xr.Dataset(data_vars, coords, attrs)
     combined.encoding["source"] = str(directory)
     rest = {d: c for d, c in (chunks or {}).items() if d != cv.EXPERIMENT and d in combined.dims}
-    if rest:
+    if rest:  # checked and read as open_dataset reads chunks ({'time': np.array(100)} is 100)
+        from lcmr_xr.io.netcdf import _check_chunks
+
+        rest = _check_chunks(rest)
         combined = combined.chunk(rest)
     try:
         return validate_experiment(combined, check_values=False)
@@ -1471,8 +1476,12 @@ def _metadata_kinds(metas: list) -> dict:
 
 def _files_per_chunk(chunks, n_files: int) -> int:
     """Files per dask chunk (task) of a directory archive from ``chunks["experiment"]``, as
-    dask reads it: -1 or None one chunk, "auto" the default."""
-    value = (chunks or {}).get(cv.EXPERIMENT, EXPERIMENTS_PER_CHUNK)
+    dask reads it: -1 or None one chunk, "auto" the default; a number by the library's
+    integer rule, as :func:`lcmr_xr.io.open_dataset` reads chunks (``16.0``, ``np.array(16)``
+    are 16; ``1.5`` is refused, never rounded)."""
+    from lcmr_xr.io.netcdf import _whole
+
+    value = _whole((chunks or {}).get(cv.EXPERIMENT, EXPERIMENTS_PER_CHUNK))
     if value is None or (isinstance(value, (int, np.integer)) and value == -1):
         return max(1, n_files) if n_files >= 0 else -1  # -1: dask's "one chunk" (consolidated)
     if isinstance(value, str) and value == "auto":

@@ -239,29 +239,41 @@ def connect(address: str, timeout: float = CONNECT_TIMEOUT):
         quiet.setLevel(level)
 
 
-def _compute(ds, scheduler: str, timeout: float = CONNECT_TIMEOUT):
-    """Compute with progress on stderr: dask's for local schedulers, distributed's for a cluster."""
+def _announce(message: str | None) -> None:
+    if message:
+        print(message, file=sys.stderr)
+
+
+def _compute(ds, scheduler: str, timeout: float = CONNECT_TIMEOUT, announce: str | None = None):
+    """Compute with progress on stderr: dask's for local schedulers, distributed's for a
+    cluster; ``announce`` is printed once the scheduler is there (after the connection to a
+    remote one: a failed connection is not a failed sweep)."""
     if scheduler in LOCAL_SCHEDULERS:
+        _announce(announce)
         with progress(sys.stderr):
             return ds.compute(scheduler=scheduler)
     from distributed import futures_of
 
     with connect(scheduler, timeout) as client:
+        _announce(announce)
         persisted = client.persist(ds)
         futures_progress(futures_of(persisted), out=sys.stderr)
         return persisted.compute()
 
 
-def _stream(experiments, output, settings, args, variables=None) -> None:
-    """``sweep_to_disk`` on the scheduler named on the command line (outputs checked already)."""
+def _stream(experiments, output, settings, args, variables=None, announce: str | None = None) -> None:
+    """``sweep_to_disk`` on the scheduler named on the command line (outputs checked
+    already); ``announce`` is printed as in :func:`_compute`, after a remote connection."""
     from lcmr_xr.scaleout.stream import sweep_to_disk
 
     overwrite = getattr(args, "overwrite", False)
     if args.scheduler in LOCAL_SCHEDULERS:
+        _announce(announce)
         sweep_to_disk(experiments, output, **settings, scheduler=args.scheduler, overwrite=overwrite,
                       variables=variables)
         return
     with connect(args.scheduler, getattr(args, "connect_timeout", CONNECT_TIMEOUT)) as client:
+        _announce(announce)
         sweep_to_disk(experiments, output, **settings, client=client, overwrite=overwrite,
                       variables=variables)
 
@@ -337,15 +349,18 @@ def run_sweep(args) -> int:
         keep = _variables(lazy, getattr(args, "variables", None), args.select)
         sizes = {d: lazy.sizes[d] for d in ("method", "degrees", "window", "experiment", "pool",
                                             "pool_group") if d in lazy.dims}
-        print(f"sweeping {sizes} on scheduler {args.scheduler}", file=sys.stderr)
+        # said once the scheduler answers (after connecting to a remote one): a connection
+        # that fails is then one error line, not a sweep that started and failed
+        announce = f"sweeping {sizes} on scheduler {args.scheduler}"
         if "experiment" in lazy.dims:
             # results stream to disk as tasks finish (parts next to the output, never in the
             # archive: the output was checked to lie outside it); a rerun after a crash resumes
-            _stream(experiments, args.output, settings, args, variables=keep)
+            _stream(experiments, args.output, settings, args, variables=keep, announce=announce)
             result = open_dataset(args.output)
         else:
             lazy = lazy if keep is None else lazy[list(keep)]
-            result = _compute(lazy, args.scheduler, getattr(args, "connect_timeout", CONNECT_TIMEOUT))
+            result = _compute(lazy, args.scheduler, getattr(args, "connect_timeout", CONNECT_TIMEOUT),
+                              announce=announce)
             save(result, args.output)
         failed = [str(e) for e in np.unique(result[cv.EXPERIMENT_ERROR].values) if str(e)] \
             if cv.EXPERIMENT_ERROR in result else []  # (pooled: no per-experiment results)

@@ -489,7 +489,8 @@ def sweep_to_disk(experiments: xr.Dataset, output, *, window=(30,), degrees=None
         Experiments with an ``experiment`` dim, e.g. from
         :func:`lcmr_xr.scaleout.open_archive`.
     output : str or os.PathLike
-        The result NetCDF file: the dataset :func:`lcmr_xr.scaleout.sweep` returns,
+        The result NetCDF file (name ending in ``.nc``, ``.nc4`` or ``.netcdf``, checked
+        before any work): the dataset :func:`lcmr_xr.scaleout.sweep` returns,
         computed.  Parts are kept in ``.OUTPUT.parts/`` next to it until it is written.
     window, degrees, method, closed_loop, covariance, experiments_per_task, denominator
         As for :func:`lcmr_xr.scaleout.sweep` (one task per setting and chunk).
@@ -557,7 +558,7 @@ def sweep_to_disk(experiments: xr.Dataset, output, *, window=(30,), degrees=None
     import dask
 
     from lcmr_xr.io import save
-    from lcmr_xr.io._guards import check_outputs, same_or_inside
+    from lcmr_xr.io._guards import NETCDF_SUFFIXES, check_outputs, same_or_inside
     from lcmr_xr.scaleout import sweep as sweep_lazily
     from lcmr_xr.settings import as_integer, degrees_label
     from lcmr_xr.scaleout.sweep import _chunked, _sources, sweep_settings
@@ -586,7 +587,7 @@ def sweep_to_disk(experiments: xr.Dataset, output, *, window=(30,), degrees=None
     # never write over the archive or inside it: the result, and the parts next to it; the
     # directories the lazy data read count too (astype, isel and the like drop the source)
     archives = list(dict.fromkeys(([source] if source else []) + list(_sources(experiments))))
-    check_outputs({"output": (output, None)}, inputs=archives,
+    check_outputs({"output": (output, NETCDF_SUFFIXES)}, inputs=archives,
                   overwrite=overwrite, overwrite_hint="pass overwrite=True (--overwrite) to replace it")
     for archive in archives:
         if same_or_inside(parts_directory(output), archive):

@@ -18,8 +18,7 @@ import numpy as np
 import xarray as xr
 
 from lcmr_xr.conventions import FACTOR, LIFT_PHASE, TIME
-from lcmr_xr.kernels.lifting import whole_factor
-from lcmr_xr.settings import as_integer
+from lcmr_xr.settings import as_integer, recorded_factor
 from lcmr_xr.transforms._coords import slow_dim_for
 
 __all__ = ["lift", "unlift"]
@@ -52,15 +51,36 @@ def _back(ds: xr.Dataset, was_dataarray: bool, name: Hashable | None):
     return out
 
 
-def _resolve_factor(x, factor) -> int:
+def _resolve_factor(x, factor, dim: str = TIME) -> int:
+    """The lifting factor: ``factor`` if given, else ``x.attrs["factor"]``; both given and
+    lifting along ``time``, they must agree (a signal lifted by another F than it records
+    would carry a wrong ``factor`` on).  The recorded factor is the ratio of ``time`` to
+    ``slow_time``: a lifting along another dim (``dim="slow_time"``) is not held to it."""
+    attrs = getattr(x, "attrs", {})
+    stored = attrs.get(FACTOR)
+    recorded = None if stored is None else recorded_factor(stored)
     if factor is not None:  # the settings' integer rule: 2.0 yes, 2.5 no (ValueError), "2" no (TypeError)
-        return as_integer(factor, "factor", minimum=1, example=2)
-    if FACTOR not in x.attrs:
+        factor = as_integer(factor, "factor", minimum=1, example=2)
+        if recorded is not None and recorded != factor and dim == TIME:
+            raise ValueError(
+                f"cannot lift by factor={factor}: the signal records the factor F = {recorded} "
+                f"(x.attrs[{FACTOR!r}]). Pass factor={recorded} (or omit factor to use it); to "
+                f"lift by {factor} on purpose, set x.attrs[{FACTOR!r}] = {factor} first (e.g. "
+                f"x.assign_attrs({FACTOR}={factor}))."
+            )
+        return factor
+    if stored is None:
         raise ValueError(
             "lift needs the lifting factor F: pass factor=F, or set the attribute "
             f"x.attrs[{FACTOR!r}] = F."
         )
-    return whole_factor(x.attrs[FACTOR])
+    if recorded is None:
+        raise ValueError(
+            f"cannot lift: the attribute x.attrs[{FACTOR!r}] is {stored!r}, not a lifting factor "
+            f"(one whole number >= 1); set it to F (e.g. x.assign_attrs({FACTOR}=2)) or pass "
+            "factor=F."
+        )
+    return recorded
 
 
 def lift(x, factor: int | None = None, *, dim: str = TIME):
@@ -72,7 +92,9 @@ def lift(x, factor: int | None = None, *, dim: str = TIME):
         Signal(s) with dimension ``dim``; any other dims (in any order) are kept.  In a
         Dataset, variables without ``dim`` (e.g. ``y`` on ``slow_time``) pass through.
     factor : int, optional
-        Lifting factor F.  Default: ``x.attrs["factor"]``.
+        Lifting factor F.  Default: ``x.attrs["factor"]``; if both are given and ``dim``
+        is ``"time"`` (the dim whose ratio to ``slow_time`` the attribute records) they
+        must be equal.
     dim : str, default "time"
         The fast dimension.  The slow dimension is named ``"slow_" + dim``.
 
@@ -90,7 +112,8 @@ def lift(x, factor: int | None = None, *, dim: str = TIME):
     ------
     ValueError
         If N is not a multiple of F, no factor is known, ``factor`` is fractional or
-        below 1 (never rounded), or ``dim`` is missing.
+        below 1 (never rounded), differs from the factor ``x.attrs["factor"]`` records
+        (lifting along ``time``), or ``dim`` is missing.
     TypeError
         If ``factor`` is not a number (``"2"``, a bool).
 
@@ -102,8 +125,8 @@ def lift(x, factor: int | None = None, *, dim: str = TIME):
     [[0.0, 1.0], [2.0, 3.0], [4.0, 5.0]]
     >>> xr.testing.assert_identical(unlift(lift(x, 2)), x)
     """
-    factor = _resolve_factor(x, factor)
     ds, name = _as_dataset(x)
+    factor = _resolve_factor(x, factor, dim)
     slow = slow_dim_for(dim)
     if dim not in ds.dims:
         raise ValueError(
@@ -211,9 +234,8 @@ def _recorded_factor(value, what: str, n_phases: int) -> int | None:
     give it back as a one-element array); anything else is refused, not guessed."""
     if value is None:
         return None
-    array = np.asarray(value)
-    number = array.item() if array.size == 1 and array.dtype.kind in "iuf" else None
-    if number is None or not np.isfinite(number) or number != int(number) or number < 1:
+    number = recorded_factor(value)
+    if number is None:
         raise ValueError(
             f"cannot {what}: the {LIFT_PHASE!r} coordinate's attribute {LIFT_FACTOR!r} is "
             f"{value!r}, not a lifting factor (one whole number >= 1, as lcmr_xr.lift records "
@@ -221,7 +243,7 @@ def _recorded_factor(value, what: str, n_phases: int) -> int | None:
             f"x.{LIFT_PHASE}.assign_attrs({LIFT_FACTOR}={n_phases})) if the dim holds every "
             f"phase, or drop the attribute."
         )
-    return int(number)
+    return number
 
 
 def unlift(x, *, dim: str = "slow_time"):

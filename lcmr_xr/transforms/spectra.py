@@ -22,7 +22,7 @@ from lcmr_xr.conventions import (
     frequency_dim_for,
 )
 from lcmr_xr.kernels import lifting as lifting_kernels
-from lcmr_xr.settings import as_bool
+from lcmr_xr.settings import as_bool, as_integer
 from lcmr_xr.transforms._coords import even_spacing, rebuild_time, time_inverse_attrs
 from lcmr_xr.transforms._finite import checked_blocks, refuse_non_finite
 from lcmr_xr.transforms.lifting import check_all_phases
@@ -343,6 +343,8 @@ def fast_spectrum_from_lifted(X, dim: str = SLOW_FREQUENCY, factor: int | None =
         or on ``dim`` with a leading ``slow_`` removed.
     factor : int, optional
         Lifting factor F; default the length of ``lift_phase`` (must match if given).
+        Read by the library's integer rule (:func:`lcmr_xr.settings.as_integer`): ``2.0``
+        and a 0-d array are 2, ``2.5`` is refused (never rounded).
 
     Returns
     -------
@@ -353,9 +355,9 @@ def fast_spectrum_from_lifted(X, dim: str = SLOW_FREQUENCY, factor: int | None =
     Raises
     ------
     TypeError
-        ``X`` not a DataArray.
+        ``X`` not a DataArray; ``factor`` not a number (``"2"``, a bool).
     ValueError
-        Missing dims, a ``factor`` other than the number of phases, phases that are not
+        Missing dims, a fractional ``factor`` or one other than the number of phases, phases that are not
         the lifting's ``0..F-1`` in order (reordered, or fewer than its ``lift_factor``,
         as :func:`lcmr_xr.unlift` refuses them), a one-sided slow
         spectrum, a core dim split into dask chunks; NaN or inf in ``X`` (each would make
@@ -381,9 +383,11 @@ def fast_spectrum_from_lifted(X, dim: str = SLOW_FREQUENCY, factor: int | None =
             "dft(lift(x), dim='slow_time')."
         )
     f_ = X.sizes[LIFT_PHASE]
+    if factor is not None:  # the settings' integer rule: 2.0 yes, 2.5 no (ValueError), "2", True no (TypeError)
+        factor = as_integer(factor, "factor", minimum=1, example=f_)
     check_all_phases(X, "form the fast spectrum", "transform every phase and select bins "
                      "afterwards")
-    if factor is not None and (isinstance(factor, (bool, np.bool_)) or factor != f_):  # 2.5 != 2
+    if factor is not None and factor != f_:
         raise ValueError(
             f"factor={factor} does not match the {f_} lifting phases of the input; omit factor."
         )
