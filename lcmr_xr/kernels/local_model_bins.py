@@ -45,8 +45,8 @@ estimate is scale-free:
 
    (``lev``, ``nu_i`` the squared row norms of ``Q_A``, ``U_i``).  Least squares and
    instrumental variables share the code over the window (:func:`_row_gains` for the
-   columns and gains, :func:`_iv_tau` for ``tau``: least squares is its oblique form with
-   ``Y = U``), one copy to compile.
+   columns and gains, :func:`_iv_tau` for ``tau``: least squares is its form with ``Y =
+   U``, whose weights are real), one copy to compile.
 
 Instrumental variables (``iv`` not None; ``local_model(..., instruments=)``): the
 denominator columns ``B_i`` get the instruments ``W_i = -rho^s Zhat_i`` (``A`` is its
@@ -1172,7 +1172,7 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
         # tau_ij and s_ij = raw_ij / tau_ij (least squares: the residual projector is
         # orthogonal, Y = U; IV: oblique)
         _iv_tau(rank, lev, dwr, dwi, umr, umi, ymr if has_iv else umr,
-                ymi if has_iv else umi, ncr, nci, vmr, vmi, ehe, tau, scov)
+                ymi if has_iv else umi, ncr, nci, vmr, vmi, ehe, tau, scov, has_iv)
         for i in range(nz):
             for j in range(nz):
                 out_ncov[o, i, j] = scov[i, j]
@@ -1346,11 +1346,12 @@ def _row_gains(zt, b, k, i, nz, rd1, rk, perm, low, tsc, twc, siv, ipiv, m, nx, 
 
 
 @numba.njit(**_INNER)
-def _iv_tau(rank, lev, dwr, dwi, umr, umi, ymr, ymi, ncr, nci, vmr, vmi, ehe, tau, scov):
+def _iv_tau(rank, lev, dwr, dwi, umr, umi, ymr, ymi, ncr, nci, vmr, vmi, ehe, tau, scov,
+            oblique):
     """``tau_ij = tr(D_j^H Pi_j^H Pi_i D_i)`` of the residual projector
     ``Pi_i = P - X_i Y_i^H`` (IV: oblique, ``Y_i^H X_i = I``; ``X``, ``Y`` in ``umr``/``ymr``
-    from :func:`_row_gains`; least squares: ``X = Y = U_i``, orthonormal, ``x_i = nu_i``,
-    its imaginary part zero to rounding) and ``scov = conj(ehe) / tau``::
+    from :func:`_row_gains`; least squares, ``oblique`` false: ``X = Y = U_i``,
+    orthonormal, ``x_i = nu_i`` real, the weight's imaginary part left out) and ``scov = conj(ehe) / tau``::
 
         tau_ij = sum_r c(r) (1 - lev(r) - x_i(r) - conj(x_j(r)))
                  + tr((X_j^H X_i)(Y_i^H diag(c) Y_j)),   c = d_i conj(d_j),
@@ -1378,13 +1379,19 @@ def _iv_tau(rank, lev, dwr, dwi, umr, umi, ymr, ymi, ncr, nci, vmr, vmi, ehe, ta
         for j in range(i, nz):
             accr = 0.0
             acci = 0.0
-            for r in range(width):
-                cr = dwr[i, r] * dwr[j, r] + dwi[i, r] * dwi[j, r]
-                ci = dwi[i, r] * dwr[j, r] - dwr[i, r] * dwi[j, r]
-                wr = 1.0 - lev[r] - ncr[i, r] - ncr[j, r]
-                wi = nci[j, r] - nci[i, r]
-                accr += cr * wr - ci * wi
-                acci += cr * wi + ci * wr
+            if oblique:
+                for r in range(width):
+                    cr = dwr[i, r] * dwr[j, r] + dwi[i, r] * dwi[j, r]
+                    ci = dwi[i, r] * dwr[j, r] - dwr[i, r] * dwi[j, r]
+                    wr = 1.0 - lev[r] - ncr[i, r] - ncr[j, r]
+                    wi = nci[j, r] - nci[i, r]
+                    accr += cr * wr - ci * wi
+                    acci += cr * wi + ci * wr
+            else:  # least squares: x_i = nu_i is real, d_i conj(d_j) (1 - lev - nu_i - nu_j)
+                for r in range(width):
+                    wgt = 1.0 - lev[r] - ncr[i, r] - ncr[j, r]
+                    accr += (dwr[i, r] * dwr[j, r] + dwi[i, r] * dwi[j, r]) * wgt
+                    acci += (dwi[i, r] * dwr[j, r] - dwr[i, r] * dwi[j, r]) * wgt
             # + tr((X_j^H X_i)(V_i^H V_j)) over the kept columns, V = Y conj(d)
             acc = complex(accr, acci)
             for s in range(rank[j]):
