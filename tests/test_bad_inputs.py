@@ -774,7 +774,21 @@ API = [
         xr.concat([e.small, e.small], "experiment").assign_coords(experiment=["a b", "a_b"]), "newarc",
         layout="files"),
         ValueError, ("same file names",)),
-    Case("save_archive_empty", lambda e: save_archive([], "newarc"), ValueError, ("empty",)),
+    Case("save_archive_empty", lambda e: save_archive([], "newarc.nc"), ValueError, ("empty",)),
+    # a new consolidated archive took any name (campaign.h5, runs) while save refused it: NetCDF-4
+    # under a name that says otherwise; the endings are named, and the directory layout
+    Case("save_archive_h5_name", lambda e: save_archive(e.small, "campaign.h5"), ValueError,
+         ("consolidated archive campaign.h5", "'.h5'", ".nc, .nc4 or .netcdf", "e.g. campaign.nc",
+          "layout='files'"), absent=(".mat",)),
+    Case("save_archive_no_suffix", lambda e: save_archive(e.small, "runs"), ValueError,
+         ("consolidated archive runs", "(no suffix)", "e.g. runs.nc", "layout='files'")),
+    Case("append_to_archive_new_h5", lambda e: append_to_archive(e.small, "new.h5"), ValueError,
+         ("consolidated archive new.h5", "'.h5'", "e.g. new.nc", "create the directory first")),
+    Case("consolidate_archive_h5_name", lambda e: consolidate_archive("arc", "all.h5"), ValueError,
+         ("consolidated archive all.h5", "'.h5'", ".nc, .nc4 or .netcdf", "e.g. all.nc"),
+         absent=("layout=",)),
+    Case("consolidate_archive_h5_overwrite", lambda e: consolidate_archive("arc", "all.h5", overwrite=True),
+         ValueError, ("'.h5'", "e.g. all.nc")),
     # overwrite="no" is truthy: it replaced the archive / the file (data lost); the snapshot
     # check of every case proves nothing changed
     Case("save_archive_overwrite_text", lambda e: save_archive(e.small, "arc1.nc", overwrite="no"), TypeError,
@@ -863,6 +877,28 @@ API = [
          ValueError, ("chunks {'time': 100.5}", "whole number (>= 1)"), absent=("can only contain",)),
     Case("archive_directory_chunks_zero_d_fractional", lambda e: open_archive("arc", chunks={"experiment": np.array(1.5)}),
          ValueError, ("chunks['experiment'] = 1.5", "positive number of experiments")),
+    # a consolidated archive ignored every entry but 'experiment', malformed ones too, where a
+    # directory applied them ({'time': 'x'} refused, {'time': 4} applied); a directory ignored a
+    # malformed entry of a dim it lacks, which open_dataset refuses
+    Case("archive_consolidated_chunks_time_text", lambda e: open_archive("arc1.nc", chunks={"time": "x"}),
+         ValueError, ("chunks {'time': 'x'}", "whole number (>= 1)")),
+    Case("archive_consolidated_chunks_time_fractional", lambda e: open_archive("arc1.nc", chunks={"time": 100.5}),
+         ValueError, ("chunks {'time': 100.5}", "whole number (>= 1)")),
+    Case("archive_consolidated_chunks_time", lambda e: open_archive("arc1.nc", chunks={"time": np.array(100),
+                                                                                      "slow_time": 50.0}),
+         check=lambda ds, e: (ds.r.chunks == ((1,), (100,) * 4, (2,)) and ds.y.chunks[1] == (50,) * 4
+                              and ds.r.chunks[1:] == open_archive("arc", chunks={"time": 100}).r.chunks[1:])
+         or pytest.fail(str((ds.r.chunks, ds.y.chunks)))),
+    Case("archive_consolidated_chunks_tuple_not_adding_up",
+         lambda e: open_archive("arc1.nc", chunks={"time": (100, 100)}), ValueError,
+         ("chunks {'time': (100, 100)}", "do not fit", "'time': 400")),
+    Case("archive_directory_chunks_tuple_not_adding_up",
+         lambda e: open_archive("arc", chunks={"time": (100, 100)}), ValueError,
+         ("chunks {'time': (100, 100)}", "do not fit", "'time': 400")),
+    Case("archive_consolidated_chunks_other_dim_ignored", lambda e: open_archive("arc1.nc", chunks={"frequency": 4}),
+         check=lambda ds, e: ds.r.chunks == open_archive("arc1.nc").r.chunks or pytest.fail(str(ds.r.chunks))),
+    Case("archive_directory_chunks_other_dim_malformed", lambda e: open_archive("arc", chunks={"frequency": "x"}),
+         ValueError, ("chunks {'frequency': 'x'}", "whole number (>= 1)")),
     Case("archive_consolidated_chunks_zero_d_bool", lambda e: open_archive("arc1.nc", chunks={"experiment": np.array(True)}),
          ValueError, ("chunks['experiment'] = True", "positive number of experiments")),
     # chunks={'time': -2} was reported as "not a valid NetCDF-4 file (truncated, corrupt,
@@ -895,7 +931,7 @@ API = [
     Case("consolidate_archive_into_another_directory_archive",
          lambda e: consolidate_archive("arc", "damagedarc/all.nc"),
          ValueError, ("refusing to write the consolidated archive damagedarc/all.nc", "directory archive")),
-    Case("save_archive_not_datasets", lambda e: save_archive([e.small.r], "newarc"), TypeError, ("not an experiment Dataset",)),
+    Case("save_archive_not_datasets", lambda e: save_archive([e.small.r], "newarc.nc"), TypeError, ("not an experiment Dataset",)),
     # --- sweep / select ------------------------------------------------------------------------
     Case("sweep_window_too_small", lambda e: sweep(e.small, window=[3]), ValueError, ("Use window >=",)),
     # one number is one setting, judged by the settings' check (not "not a sequence")

@@ -517,12 +517,19 @@ def _fit_terms(R, Z, *, half_width, degrees, circular, covariance, known_covaria
             if name in fitted:
                 out[name][_bins_at(ax, on)] = fitted[name]
     if covariance and n_exp is None and known_covariance is None:
-        # one record: the same mend where cov(P_1) is not a covariance (below)
-        out.update(_mend_indefinite(out, fit.G, G_cov, fit.noise_covariance, terms))
+        # one record: residuals below the moments' resolution give G_cov no width there
+        level = _resolution_level(Z, half_width=half_width, dof=fit.dof, circular=circular,
+                                  bins=bins)
+        floored, G_cov, s = _resolution_floor(out, fit, G_cov, R, Z, terms, level=level,
+                                              half_width=half_width, degrees=degrees,
+                                              circular=circular, bins=bins, select=select)
+        out.update(floored)
+        # the same mend where cov(P_1) is not a covariance (below)
+        out.update(_mend_indefinite(out, fit.G, G_cov, s, terms))
         if closed_loop == "indirect" and not first_row_only:
             out["rho"] = _rounding_floor(out["rho"], out["s_condition"], fit.noise_variance,
                                          Z, half_width=half_width, dof=fit.dof,
-                                         circular=circular, bins=bins)
+                                         circular=circular, bins=bins, level=level)
     if buffers is not None:  # (G_var is a view of G_cov's diagonal: the next fit reuses it)
         out = {k: v.copy() if isinstance(v, np.ndarray) and np.may_share_memory(v, fit.G_cov)
                else v for k, v in out.items()}
@@ -535,8 +542,110 @@ def _fit_terms(R, Z, *, half_width, degrees, circular, covariance, known_covaria
     return out
 
 
+def _resolution_level(Z, *, half_width, dof, circular, bins=None):
+    """``eps (2 n + 1) mean_window |Z_i|^2 / dof`` (..., B, nz): the smallest residual
+    noise variance of row ``i`` that the local model's moments resolve (its residual
+    energy is a difference of sums of ``|Z|^2``).  ``bins``: the block ``(start, stop)``
+    of the circle ``Z``; ``circular=False``: ``Z`` padded as the fit's."""
+    n = int(half_width)
+    Z = np.asarray(Z)
+    if bins is not None:  # the block and its halo only
+        a, b = bins
+        Z = np.take(Z, np.arange(a - n, b + n) % Z.shape[-2], axis=-2)
+        circular = False
+    mean = window_mean(np.abs(Z) ** 2, n, axis=-2, circular=circular)
+    if bins is not None:
+        mean = mean[..., n:mean.shape[-2] - n, :]
+    dof = np.asarray(dof, dtype=float)
+    eps = np.finfo(float).eps
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return eps * (2 * n + 1) * mean / (dof[..., None] if dof.ndim else dof)
+
+
+#: Relative amplitude of the probe added to ``Z`` by :func:`_resolution_floor` to read
+#: the local model's regression factor where a row's residual is unresolved.
+PROBE_AMPLITUDE = 1e-6
+
+
+def _resolution_floor(out, fit, G_cov, R, Z, terms, *, half_width, degrees, circular,
+                      bins=None, select=None, level=None):
+    """One record's :func:`slow_bin_terms` ``out`` recomputed at the bins where a row's
+    residual noise variance is below the floor of what the local model's moments resolve,
+    with ``G_cov`` rebuilt from a diagonal noise covariance raised to that floor.
+
+    The residual energy is a difference of sums of ``|Z|^2``, so a row's residual of energy
+    below ``eps sum_window |Z_i|^2`` is rounding (:func:`_resolution_level` is that over
+    ``dof``: the variance resolved).  The fit's error from such an unresolved equation
+    error ``e`` (rounding of the moments, or a model error the residual does not resolve)
+    is not white: ``|dtheta_p| = |k_p^H e| <= |k_p| |e|`` (Cauchy-Schwarz, ``k_p^H`` the row
+    of the regression's inverse), so the noise variance is floored at
+    ``eps sum_window |Z_i|^2`` (the resolution level times ``dof``), not the white-noise
+    share of it.  An unresolved row's correlations are rounding and are dropped; the
+    resolved rows keep theirs (made a covariance by :func:`nearest_correlation`).  Noiseless HDD records: P_std exactly
+    0 at 1750 released fast-bin entries (N = 36 000, window 30) before; docs/uncertainty.md,
+    "Slow DC and fast N/2".
+
+    The local model's ``G_cov`` is ``s_ij X_ij`` (:func:`rescale_covariance`); where
+    ``s_ii`` is rounding (often exactly 0 or negative) ``X_ii`` cannot be read back
+    from ``G_cov``, so it is read from a second fit of those bins only, on ``Z`` plus a
+    deterministic probe of relative amplitude :data:`PROBE_AMPLITUDE` (its residuals are
+    resolved; ``X`` moves by that relative amount times the fit's condition).  Every other
+    bin's terms are left bit for bit (the HDD's noisy records: no bin is below the floor).
+    Returns the recomputed entries (copies), and ``G_cov`` and the noise covariance with
+    those bins replaced (the arguments themselves where nothing is).  ``level``: the
+    :func:`_resolution_level`, when the caller has it."""
+    s = fit.noise_covariance
+    if not circular or G_cov is None:
+        return {}, G_cov, s
+    if level is None:
+        level = _resolution_level(Z, half_width=half_width, dof=fit.dof, circular=circular,
+                                  bins=bins)
+    floor = level * (np.asarray(fit.dof, dtype=float)[..., None] if np.ndim(fit.dof)
+                     else float(fit.dof))
+    var = np.real(np.diagonal(s, axis1=-2, axis2=-1))
+    bad = np.any(var < floor, axis=-1) & np.isfinite(fit.G).all(axis=(-2, -1))
+    if not np.any(bad):
+        return {}, G_cov, s
+    Z = np.asarray(Z)
+    m, nz = Z.shape[-2:]
+    start = 0 if bins is None else bins[0]
+    on = np.zeros(m, dtype=bool)
+    on[start:start + bad.shape[-1]] = np.any(bad.reshape(-1, bad.shape[-1]), axis=0)
+    if select is not None:
+        on &= np.asarray(select, dtype=bool)
+    # a deterministic probe of unit modulus (golden-ratio phases) times the local rms
+    k = np.arange(m)[:, None] * nz + np.arange(nz)
+    phase = np.exp(2j * np.pi * ((k * 0.6180339887498949) % 1.0))
+    rms = np.sqrt(window_mean(np.abs(Z) ** 2, int(half_width), axis=-2, circular=True))
+    probed = local_model(R, Z + PROBE_AMPLITUDE * rms * phase, half_width=half_width,
+                         degrees=tuple(degrees), circular=True, covariance="full",
+                         bins=bins, select=on)
+    # every row's variance at least the floor; an unresolved row's correlations
+    # (rounding) dropped, the resolved rows' kept, made a covariance
+    eye = np.eye(nz, dtype=bool)
+    low = var < level
+    s_new = np.where((low[..., :, None] | low[..., None, :]) & ~eye, 0, s)
+    s_new = nearest_correlation(np.where(eye, np.maximum(var, floor)[..., :, None], s_new))
+    sp = probed.noise_covariance
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = np.where(sp != 0, s_new / sp, 0)
+    nr = np.shape(R)[-1]
+    C = probed.G_cov.reshape(probed.G_cov.shape[:-2] + (nz, nr, nz, nr))
+    floored = (C * ratio[..., :, None, :, None]).reshape(probed.G_cov.shape)
+    G_cov = np.where(bad[..., None, None], floored, G_cov)
+    s = np.where(bad[..., None, None], s_new, s)
+    fixed = slow_bin_terms(fit.G[bad], G_cov[bad], **terms)
+    mended = {}
+    for name, value in fixed.items():
+        if value is None or out.get(name) is None:
+            continue
+        mended[name] = np.array(out[name], copy=True)
+        mended[name][bad] = value
+    return mended, G_cov, s
+
+
 def _rounding_floor(rho, s_condition, noise_variance, Z, *, half_width, dof, circular,
-                    bins=None):
+                    bins=None, level=None):
     """``rho`` (..., B) of one record's fit raised to the rounding floor of its weakest
     direction at the bins where that floor alone leaves the weak direction undetermined
     (``K95 * floor > UNDETERMINED_LIMIT``) and the residuals are below the resolution of
@@ -556,23 +665,15 @@ def _rounding_floor(rho, s_condition, noise_variance, Z, *, half_width, dof, cir
     ``S`` singular: released before with a zero-width band and ``P`` off by 4-7x at the
     fast bins 0 and N/2).  ``bins``: the block ``(start, stop)`` of the circle
     that ``rho`` holds (``Z`` is the whole circle); ``circular=False``: ``Z`` is padded as
-    the fit's (bins without a full window are NaN and left alone)."""
+    the fit's (bins without a full window are NaN and left alone).  ``level``: its
+    :func:`_resolution_level`, when the caller has it."""
     n = int(half_width)
-    Z = np.asarray(Z)
-    if bins is not None:  # the block and its halo only
-        a, b = bins
-        Z = np.take(Z, np.arange(a - n, b + n) % Z.shape[-2], axis=-2)
-        circular = False
-    z2 = np.abs(Z) ** 2
-    mean = window_mean(z2, n, axis=-2, circular=circular)
-    if bins is not None:
-        mean = mean[..., n:mean.shape[-2] - n, :]
+    if level is None:
+        level = _resolution_level(Z, half_width=n, dof=dof, circular=circular, bins=bins)
     dof = np.asarray(dof, dtype=float)
     eps = np.finfo(float).eps
     with np.errstate(invalid="ignore", divide="ignore"):
-        resolved = eps * (2 * n + 1) * mean / dof[..., None] if dof.ndim else \
-            eps * (2 * n + 1) * mean / dof
-        unresolved = np.any(noise_variance < resolved, axis=-1)
+        unresolved = np.any(noise_variance < level, axis=-1)
         floor = np.sqrt(eps * (2 * n + 1) / dof) * s_condition
     raise_ = unresolved & (K95 * floor > UNDETERMINED_LIMIT)
     if not np.any(raise_):

@@ -327,6 +327,7 @@ def run_sweep(args) -> int:
     from lcmr_xr.io import open_dataset, save
     from lcmr_xr.scaleout.archive import open_archive
     from lcmr_xr.scaleout.select import select_settings
+    from lcmr_xr.scaleout.stream import check_output_name
     from lcmr_xr.scaleout.sweep import sweep, sweep_settings
     from lcmr_xr.settings import degrees_arguments
 
@@ -342,6 +343,7 @@ def run_sweep(args) -> int:
                              "estimates are per group of experiments: drop one of them.")
         _check_scheduler(args.scheduler)
         _check_timeout(getattr(args, "connect_timeout", CONNECT_TIMEOUT))  # before any output
+        check_output_name(args.output, "-o")  # names the parts a sweep left under a refused name
         check_outputs({"-o": (args.output, NETCDF_SUFFIXES), "--select": (args.select, NETCDF_SUFFIXES)},
                       inputs=[args.archive], overwrite=getattr(args, "overwrite", False))
         experiments = open_archive(args.archive)
