@@ -279,10 +279,13 @@ def open_dataset(path, chunks=None) -> xr.Dataset:
         )
     tuples = _chunk_tuples(chunks)
     if tuples:  # their sums against the file's dims, before dask sees them (its error was
-        # reported as a corrupt file): the header alone, read as the lazy open reads it
+        # reported as a corrupt file): the dims alone, read by the lazy open's library
+        # (2 ms; through xarray, decode_cf=False, 26 ms: the whole open's time again)
         try:
-            with xr.open_dataset(path, engine=_LAZY_ENGINE, decode_cf=False) as head:
-                sizes = dict(head.sizes)
+            import h5netcdf
+
+            with h5netcdf.File(path, "r") as head:
+                sizes = {name: dim.size for name, dim in head.dimensions.items()}
         except (OSError, ValueError, RuntimeError, KeyError, IndexError) as err:
             raise _unreadable(path, err) from err
         _check_chunk_sums(tuples, sizes, path)
