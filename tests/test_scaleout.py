@@ -125,7 +125,7 @@ def test_archive_overwrite_rules(tmp_path):
 def test_archive_errors(tmp_path):
     with pytest.raises(FileNotFoundError, match="does not exist"):
         open_archive(tmp_path / "missing")
-    with pytest.raises(FileNotFoundError, match="holds no .nc files"):
+    with pytest.raises(FileNotFoundError, match="holds no .nc, .nc4 or .netcdf files"):
         open_archive(tmp_path)
     save(xr.Dataset({"a": ("x", [1.0])}, attrs={"conventions": "other"}), tmp_path / "foreign.nc")
     with pytest.raises(ValueError, match="not an lcmr-xr-1 experiment file"):

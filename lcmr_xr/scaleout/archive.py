@@ -53,6 +53,9 @@ from lcmr_xr.transforms._coords import even_spacing
 __all__ = ["save_archive", "open_archive", "append_to_archive", "consolidate_archive", "index_archive",
            "archive_files"]
 
+#: The ending the writers give a new experiment file of a directory archive (``LABEL.nc``);
+#: the directory holds every visible name ending in any of
+#: :data:`lcmr_xr.io._guards.NETCDF_SUFFIXES`, any case (:func:`dirindex.plain_name`).
 SUFFIX = ".nc"
 #: Dataset attribute that keeps the order of the experiments across save/open; dropped on open.
 ORDER_ATTR = cv.ARCHIVE_ORDER_ATTR
@@ -162,7 +165,8 @@ def archive_files(directory) -> list[Path]:
     Parameters
     ----------
     directory : str or os.PathLike
-        Archive directory written by :func:`save_archive` (any ``*.nc`` files count).
+        Archive directory written by :func:`save_archive` (every visible file whose name
+        ends in ``.nc``, ``.nc4`` or ``.netcdf``, any case, counts).
 
     Returns
     -------
@@ -198,8 +202,10 @@ def archive_files(directory) -> list[Path]:
 
 
 def _nc_files(directory) -> list[Path]:
-    """The ``*.nc`` files of an archive directory in name order, without the hidden
-    temporaries of interrupted atomic writes; refuse a path that is no directory."""
+    """The NetCDF files of an archive directory in name order: every visible name ending in
+    ``.nc``, ``.nc4`` or ``.netcdf``, any case (:func:`lcmr_xr.scaleout.dirindex.plain_name`),
+    so never the hidden index, its journal or the temporaries of interrupted atomic writes;
+    refuse a path that is no directory."""
     directory = Path(directory)
     return [directory / name for name in _nc_names(directory)]
 
@@ -215,9 +221,9 @@ def _nc_names(directory: Path) -> list[str]:
     if not directory.is_dir():
         raise FileNotFoundError(f"archive directory {directory} does not exist; check the path "
                                 "or write one with lcmr_xr.scaleout.save_archive.")
-    # names sorted as strings (as sorted paths of one directory), without pathlib's glob
-    return sorted(name for name in os.listdir(directory)
-                  if name.endswith(SUFFIX) and not name.startswith("."))
+    # names sorted as strings (as sorted paths of one directory), without pathlib's glob;
+    # the index's rule (dirindex.plain_name): visible names ending in a NetCDF suffix, any case
+    return sorted(name for name in os.listdir(directory) if dirindex.plain_name(name))
 
 
 def _entry(known, path: Path) -> tuple:
@@ -345,7 +351,8 @@ LAYOUTS = ("consolidated", "files")
 def _refuse_inside_directory_archive(path: Path) -> None:
     """Refuse a consolidated archive file directly inside a directory archive.
 
-    :func:`open_archive` of the directory reads every ``*.nc`` file in it as one
+    :func:`open_archive` of the directory reads every NetCDF file in it (``.nc``,
+    ``.nc4``, ``.netcdf``, any case) as one
     experiment: a file of another structure makes it refuse the whole directory.  A
     directory archive is recognised by its header index (written by every write of this
     library into it); a directory of plain experiment files without one is not.
@@ -660,7 +667,7 @@ def consolidate_archive(directory, path, *, overwrite: bool = False, progress=No
     Parameters
     ----------
     directory : str or os.PathLike
-        Archive directory (``*.nc`` experiment files).
+        Archive directory (experiment files named ``*.nc``, ``*.nc4`` or ``*.netcdf``, any case).
     path : str or os.PathLike
         The consolidated archive to write (atomically: temporary file, then rename), its
         name ending in ``.nc``, ``.nc4`` or ``.netcdf`` (any case; other names refused, as
@@ -1178,7 +1185,7 @@ def index_archive(directory) -> Path:
     Parameters
     ----------
     directory : str or os.PathLike
-        Archive directory (``*.nc`` experiment files).
+        Archive directory (experiment files named ``*.nc``, ``*.nc4`` or ``*.netcdf``, any case).
 
     Returns
     -------
@@ -1243,7 +1250,8 @@ def open_archive(path, chunks=None) -> xr.Dataset:
     Parameters
     ----------
     path : str or os.PathLike
-        A consolidated archive file or an archive directory (``*.nc`` experiment files),
+        A consolidated archive file or an archive directory (experiment files named
+        ``*.nc``, ``*.nc4`` or ``*.netcdf``, any case; hidden names are never read),
         as written by :func:`save_archive`.
     chunks : dict, optional
         Dask chunks, the same for both layouts.  Default ``None``:
@@ -1271,7 +1279,7 @@ def open_archive(path, chunks=None) -> xr.Dataset:
     Raises
     ------
     FileNotFoundError
-        The path does not exist, or the directory holds no ``*.nc`` file.
+        The path does not exist, or the directory holds no such file.
     ValueError
         ``path`` is a file but not a consolidated archive (not NetCDF-4, or without the
         file attribute ``lcmr_archive = "consolidated-1"``), a file of the directory is not
@@ -1377,7 +1385,7 @@ def _chunk_other_dims(ds: xr.Dataset, other: dict) -> xr.Dataset:
 
 #: What an archive is, for the messages that refuse something else.
 ARCHIVE_KINDS = ("an archive is one NetCDF file written by lcmr_xr.scaleout.save_archive (file "
-                 f"attribute {con.KIND_ATTR}={con.KIND!r}) or a directory of experiment .nc files")
+                 f"attribute {con.KIND_ATTR}={con.KIND!r}) or a directory of experiment .nc (.nc4, .netcdf) files")
 
 
 def _check_consolidated(path: Path) -> None:
@@ -1412,8 +1420,9 @@ def _open_directory(directory: Path, chunks, other: dict) -> xr.Dataset:
     paths = _nc_files(directory)
     if not paths:
         raise FileNotFoundError(
-            f"archive directory {directory} holds no {SUFFIX} files; write experiments into it "
-            "with lcmr_xr.scaleout.save_archive."
+            f"archive directory {directory} holds no .nc, .nc4 or .netcdf files (any case; "
+            "hidden names are not read); write experiments into it with "
+            "lcmr_xr.scaleout.save_archive."
         )
     # one pass in name order; only small summaries are kept per file (not the headers)
     files, foreign = [], []

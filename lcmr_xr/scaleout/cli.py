@@ -86,7 +86,7 @@ def add_sweep_parser(subparsers) -> argparse.ArgumentParser:
                     "identified is flagged (experiment_error), not fatal. With --select, also "
                     f"write the best settings per experiment by a validation criterion. {criteria}")
     sw.add_argument("archive", type=Path,
-                    help="consolidated archive file, or archive directory (one experiment .nc per file)")
+                    help="consolidated archive file, or archive directory (one experiment per .nc, .nc4 or .netcdf file)")
     sw.add_argument("-o", "--output", type=Path, required=True,
                     help="result NetCDF file to write (.nc; not inside the archive; its parts "
                          "are kept in .OUTPUT.parts/ next to it while the sweep runs)")
