@@ -52,6 +52,27 @@ def test_consolidated_round_trip_is_lazy_and_selectable(tmp_path):
     arc.close()
 
 
+def test_new_consolidated_archives_are_named_as_netcdf_files_existing_ones_still_grow(tmp_path):
+    """A new consolidated archive's name ends in .nc, .nc4 or .netcdf (any case), as save
+    requires (campaign.h5 was written as NetCDF-4); an archive file written under another
+    name before the rule is still opened and appended to (refusing it would strand it),
+    but not replaced under that name; a directory archive's name is free."""
+    a, b = _labelled(0), _labelled(1)
+    for name in ("a.NC", "b.nc4", "c.NetCDF"):
+        save_archive(a, tmp_path / name)
+        assert open_archive(tmp_path / name).experiment.values.tolist() == ["run0"]
+    save_archive(a, tmp_path / "old.nc")
+    (tmp_path / "old.nc").rename(tmp_path / "old.h5")  # as an earlier version wrote it
+    append_to_archive(b, tmp_path / "old.h5")
+    save_archive(_labelled(2), tmp_path / "old.h5")
+    assert open_archive(tmp_path / "old.h5").experiment.values.tolist() == ["run0", "run1", "run2"]
+    with pytest.raises(ValueError, match=r"consolidated archive .*old\.h5: unsupported file type '\.h5'"):
+        save_archive(a, tmp_path / "old.h5", overwrite=True)
+    assert open_archive(tmp_path / "old.h5").sizes["experiment"] == 3
+    assert save_archive([a, b], tmp_path / "runs.h5", layout="files")[0] == tmp_path / "runs.h5" / "run0.nc"
+    assert sorted(os.listdir(tmp_path)) == sorted(["a.NC", "b.nc4", "c.NetCDF", "old.h5", "runs.h5"])
+
+
 def test_append_adds_one_experiment_and_an_interrupted_append_is_ignored(tmp_path):
     path = tmp_path / "a.nc"
     append_to_archive(_labelled(0), path)  # creates the archive
@@ -282,6 +303,47 @@ def test_sweep_to_disk_resumes_parts_of_a_manifest_without_run_id(tmp_path):
     assert seen[0] == kept + 1 and seen[-1] == 3
     xr.testing.assert_identical(open_dataset(out), sweep(exps, window=[12], experiments_per_task=1)
                                 .compute(scheduler="synchronous"))
+
+
+def test_sweep_interrupted_under_a_name_now_refused_can_be_resumed(tmp_path, capsys):
+    """A sweep started under a name ``save`` now refuses (``r.h5``, before the rule) left
+    its parts in ``.r.h5.parts/``; the refusal of ``r.h5`` only named the endings, and the
+    parts were stranded.  It now names the parts directory and the rename that resumes the
+    sweep (API and command line), and doing what it says runs only the missing tasks and
+    gives the full sweep's result."""
+    exps = _stack(["a", "b", "c"])
+    settings = dict(window=[12], experiments_per_task=1)
+
+    def crash(done, total, rate):
+        raise _Crash
+
+    old = tmp_path / "r.h5"  # the parts as the earlier version left them under that name
+    with pytest.raises(_Crash):
+        sweep_to_disk(exps, tmp_path / "r.nc", **settings, workers=1, progress=crash)
+    parts_directory(tmp_path / "r.nc").rename(parts_directory(old))
+    kept = len(list(parts_directory(old).glob("*.nc")))
+    assert kept >= 1
+    words = ("'.h5'", f"{parts_directory(old)} holds the finished parts of a sweep to r.h5",
+             f"rename that directory to {parts_directory(tmp_path / 'r.nc')}",
+             f"with the output {tmp_path / 'r.nc'}")
+    with pytest.raises(ValueError) as info:
+        sweep_to_disk(exps, old, **settings, progress=False)
+    assert all(w in str(info.value) for w in words), str(info.value)
+    save_archive(exps, tmp_path / "arc.nc")
+    assert cli_main(["sweep", str(tmp_path / "arc.nc"), "-o", str(old), "--window", "12"]) == 2
+    err = capsys.readouterr().err
+    assert all(w in err for w in words[1:]) and "-o " in err, err
+    assert parts_directory(old).is_dir() and not old.exists()  # nothing touched
+    # without a parts directory the refusal is the plain one
+    with pytest.raises(ValueError) as info:
+        sweep_to_disk(exps, tmp_path / "other.h5", **settings, progress=False)
+    assert "parts" not in str(info.value)
+    parts_directory(old).rename(parts_directory(tmp_path / "r.nc"))  # what the message says
+    seen = []
+    sweep_to_disk(exps, tmp_path / "r.nc", **settings, progress=lambda d, t, r: seen.append(d))
+    assert seen[0] == kept + 1 and seen[-1] == 3  # resumed: only the missing tasks ran
+    xr.testing.assert_identical(open_dataset(tmp_path / "r.nc"),
+                                sweep(exps, **settings).compute(scheduler="synchronous"))
 
 
 def test_part_reader_decodes_like_xarray(tmp_path):

@@ -269,3 +269,52 @@ def test_index_command(tmp_path, capsys):
     with pytest.raises(SystemExit):
         cli_main(["archive", "index", "--help"])
     assert "header index" in capsys.readouterr().out
+
+
+def test_a_directory_archive_holds_every_netcdf_name_that_save_writes(tmp_path, monkeypatch):
+    # save writes NetCDF-4 to x.nc, x.NC, x.nc4, x.netcdf (any case); the directory's listing
+    # took only names ending exactly in ".nc", so x.NC and x.nc4 put there were silently
+    # not part of the archive (its open, index, consolidation and sweep)
+    from lcmr_xr.io._atomic import temporary_prefix
+    from lcmr_xr.scaleout import consolidate_archive, sweep
+
+    d = tmp_path / "d"
+    items = [_labelled(i) for i in range(6)]
+    save_archive(items[:2], d, layout="files")  # run0.nc, run1.nc (orders 0, 1)
+    for i, name in ((2, "run2.NC"), (3, "run3.nc4"), (4, "run4.NetCDF")):
+        save(items[i], d / name)  # by save, as another tool would: no archive order
+    # never experiment files: other endings, hidden names (temporaries of atomic writes)
+    for name in ("notes.txt", "run9.nc.tmp", "run7.h5", ".hidden.NC",
+                 temporary_prefix(d / "run8.nc") + "abcdefgh.tmp"):
+        (d / name).write_bytes(b"\x89HDF\r\n\x1a\n not an experiment")
+    want = ["run0.nc", "run1.nc", "run2.NC", "run3.nc4", "run4.NetCDF"]
+    assert [p.name for p in archive_files(d)] == want  # ordered ones first, then by name
+    got = _open_both_ways(d, monkeypatch)
+    assert got.experiment.values.tolist() == ["run0", "run1", "run2", "run3", "run4"]
+    for i in range(5):
+        np.testing.assert_array_equal(got.y.values[i], items[i].y.values)
+    # the index lists them, and the open then reads no header
+    _fresh_index(d)
+    assert sorted(dirindex.read_index(d)) == sorted(want)
+    read = _headers_read(monkeypatch)
+    xr.testing.assert_identical(open_archive(d).compute(), got.compute())
+    assert read == []
+    monkeypatch.undo()
+    # an append takes the next order after the indexed ones and keeps naming LABEL.nc
+    append_to_archive(items[5], d)
+    assert [p.name for p in archive_files(d)] == ["run0.nc", "run1.nc", "run5.nc", *want[2:]]
+    assert sorted(dirindex.read_index(d)) == sorted(want + ["run5.nc"])
+    full = _open_both_ways(d, monkeypatch)
+    labels = ["run0", "run1", "run5", "run2", "run3", "run4"]
+    assert full.experiment.values.tolist() == labels
+    # consolidated: the same six experiments, in the same order
+    one = open_archive(consolidate_archive(d, tmp_path / "all.nc")).compute()
+    assert one.experiment.values.tolist() == labels
+    for name in ("r", "u", "y"):
+        np.testing.assert_array_equal(one[name].values, full[name].values)
+    # the sweep over the directory: every experiment, none flagged
+    res = sweep(open_archive(d), window=[12], degrees=["2-2-2"]).compute()
+    assert res.experiment.values.tolist() == labels
+    assert res.experiment_error.values.ravel().tolist() == [""] * 6
+    want_p = sweep(one, window=[12], degrees=["2-2-2"]).compute().P
+    np.testing.assert_array_equal(res.P.values, want_p.values)

@@ -83,6 +83,13 @@ def template(tmp_path_factory, small, small_frf):
     (root / "damagedarc" / "e0.nc").write_bytes(_damaged(root / "arc" / "e0.nc", "r"))
     shutil.copytree(root / "arc", root / "damagedarc2")  # its second file's values damaged
     (root / "damagedarc2" / "e1.nc").write_bytes(_damaged(root / "arc" / "e1.nc", "r"))
+    # its second file renamed e1.NC and damaged: a NetCDF name in another case (was left
+    # out of the directory, silently) is read, and a sweep names it
+    shutil.copytree(root / "arc", root / "casearc")
+    (root / "casearc" / "e1.nc").unlink()
+    (root / "casearc" / "e1.NC").write_bytes(_damaged(root / "arc" / "e1.nc", "r"))
+    (root / "h5only").mkdir()  # no NetCDF name: no archive
+    shutil.copy2(root / "exp.nc", root / "h5only" / "exp.h5")
     (root / "junkarc").mkdir()
     shutil.copy2(root / "exp.nc", root / "junkarc" / "good.nc")
     (root / "junkarc" / "junk.nc").write_bytes(b"\x89HDF\r\n\x1a\n not really")
@@ -717,6 +724,21 @@ API = [
          ("chunks", "100.5", "not rounded"), absent=("not a valid NetCDF",)),
     Case("open_chunks_zero_d_array_text", lambda e: open_dataset("exp.nc", chunks=np.array("x")), TypeError,
          ("chunks", "'x'"), absent=("not a valid NetCDF",)),
+    # a tuple of chunk lengths that does not add up to its dim (short.nc: 8 samples) was
+    # reported as "not a valid NetCDF-4 file (truncated, corrupt...)": the argument is named
+    Case("open_chunks_tuple_not_adding_up", lambda e: open_dataset("short.nc", chunks={"time": (3, 3)}),
+         ValueError, ("chunks {'time': (3, 3)}", "dim's length, 8 in short.nc", "adds up to 6",
+                      "e.g. {'time': (4, 4)}"), absent=("not a valid NetCDF", "corrupt")),
+    Case("open_experiment_chunks_tuple_too_long", lambda e: open_experiment("short.nc", chunks={"time": (8, 8)}),
+         ValueError, ("'time'", "8 in short.nc", "adds up to 16"), absent=("not a valid NetCDF", "corrupt")),
+    Case("open_chunks_tuple_with_whole_dim", lambda e: open_dataset("short.nc", chunks={"time": (3, -1)}),
+         ValueError, ("chunks {'time': (3, -1)}", "-1 (the whole dim)", "{'time': -1}"),
+         absent=("not a valid NetCDF", "corrupt")),
+    # a damaged file is still the file's fault, tuples or not
+    Case("open_chunks_tuple_truncated_file", lambda e: open_dataset("trunc.nc", chunks={"time": (3, 3)}),
+         ValueError, ("cannot read trunc.nc", "not a valid NetCDF-4 file"), absent=("adds up",)),
+    Case("open_chunks_tuple_adding_up", lambda e: open_dataset("short.nc", chunks={"time": (3, 5), "input": (1, 1)}),
+         check=lambda res, e: res.r.chunks == ((3, 5), (1, 1)) or pytest.fail(str(res.r.chunks))),
     Case("open_chunks_text", lambda e: open_dataset("frf.nc", chunks="x"), TypeError, ("chunks", "'x'"),
          absent=("not a valid NetCDF",)),
     Case("open_text_file", lambda e: open_dataset("notes.nc"), ValueError, ("notes.nc", "not a valid NetCDF")),
@@ -744,6 +766,18 @@ API = [
     Case("archive_consolidated_into_directory_layout", lambda e: save_archive(e.small, "arc1.nc", layout="files"),
          ValueError, ("arc1.nc", "is a file", "layout='files' is a directory")),
     Case("archive_empty", lambda e: open_archive("empty"), FileNotFoundError, ("holds no .nc",)),
+    Case("archive_only_other_suffixes", lambda e: open_archive("h5only"), FileNotFoundError,
+         ("h5only holds no .nc, .nc4 or .netcdf files", "save_archive")),
+    # a directory archive holds every NetCDF name save writes (x.NC, x.nc4), as save does:
+    # e1.NC was left out of the open, the consolidation and the sweep without a word
+    Case("archive_file_in_other_case_damaged_compute", lambda e: open_archive("casearc").compute(), ValueError,
+         ("casearc/e1.NC is damaged", "Restore it from a copy")),
+    Case("archive_file_in_other_case_damaged_consolidate", lambda e: consolidate_archive("casearc", "all.nc"),
+         ValueError, ("casearc/e1.NC is damaged",)),
+    Case("archive_file_in_other_case_damaged_sweep", lambda e: sweep(open_archive("casearc"), window=[12],
+                                                                     degrees=["2-2-2"]).compute(),
+         check=_flagged_experiment(1, ("experiment 'e1' (file casearc/e1.NC)", "is damaged",
+                                       "Restore it from a copy"))),
     Case("archive_first_file_damaged", lambda e: open_archive("damagedarc"), ValueError,
          ("damagedarc/e0.nc", "damaged", "move it out")),
     # a later file's damaged values failed at compute time with h5py's message (no file
@@ -774,7 +808,21 @@ API = [
         xr.concat([e.small, e.small], "experiment").assign_coords(experiment=["a b", "a_b"]), "newarc",
         layout="files"),
         ValueError, ("same file names",)),
-    Case("save_archive_empty", lambda e: save_archive([], "newarc"), ValueError, ("empty",)),
+    Case("save_archive_empty", lambda e: save_archive([], "newarc.nc"), ValueError, ("empty",)),
+    # a new consolidated archive took any name (campaign.h5, runs) while save refused it: NetCDF-4
+    # under a name that says otherwise; the endings are named, and the directory layout
+    Case("save_archive_h5_name", lambda e: save_archive(e.small, "campaign.h5"), ValueError,
+         ("consolidated archive campaign.h5", "'.h5'", ".nc, .nc4 or .netcdf", "e.g. campaign.nc",
+          "layout='files'"), absent=(".mat",)),
+    Case("save_archive_no_suffix", lambda e: save_archive(e.small, "runs"), ValueError,
+         ("consolidated archive runs", "(no suffix)", "e.g. runs.nc", "layout='files'")),
+    Case("append_to_archive_new_h5", lambda e: append_to_archive(e.small, "new.h5"), ValueError,
+         ("consolidated archive new.h5", "'.h5'", "e.g. new.nc", "create the directory first")),
+    Case("consolidate_archive_h5_name", lambda e: consolidate_archive("arc", "all.h5"), ValueError,
+         ("consolidated archive all.h5", "'.h5'", ".nc, .nc4 or .netcdf", "e.g. all.nc"),
+         absent=("layout=",)),
+    Case("consolidate_archive_h5_overwrite", lambda e: consolidate_archive("arc", "all.h5", overwrite=True),
+         ValueError, ("'.h5'", "e.g. all.nc")),
     # overwrite="no" is truthy: it replaced the archive / the file (data lost); the snapshot
     # check of every case proves nothing changed
     Case("save_archive_overwrite_text", lambda e: save_archive(e.small, "arc1.nc", overwrite="no"), TypeError,
@@ -863,6 +911,28 @@ API = [
          ValueError, ("chunks {'time': 100.5}", "whole number (>= 1)"), absent=("can only contain",)),
     Case("archive_directory_chunks_zero_d_fractional", lambda e: open_archive("arc", chunks={"experiment": np.array(1.5)}),
          ValueError, ("chunks['experiment'] = 1.5", "positive number of experiments")),
+    # a consolidated archive ignored every entry but 'experiment', malformed ones too, where a
+    # directory applied them ({'time': 'x'} refused, {'time': 4} applied); a directory ignored a
+    # malformed entry of a dim it lacks, which open_dataset refuses
+    Case("archive_consolidated_chunks_time_text", lambda e: open_archive("arc1.nc", chunks={"time": "x"}),
+         ValueError, ("chunks {'time': 'x'}", "whole number (>= 1)")),
+    Case("archive_consolidated_chunks_time_fractional", lambda e: open_archive("arc1.nc", chunks={"time": 100.5}),
+         ValueError, ("chunks {'time': 100.5}", "whole number (>= 1)")),
+    Case("archive_consolidated_chunks_time", lambda e: open_archive("arc1.nc", chunks={"time": np.array(100),
+                                                                                      "slow_time": 50.0}),
+         check=lambda ds, e: (ds.r.chunks == ((1,), (100,) * 4, (2,)) and ds.y.chunks[1] == (50,) * 4
+                              and ds.r.chunks[1:] == open_archive("arc", chunks={"time": 100}).r.chunks[1:])
+         or pytest.fail(str((ds.r.chunks, ds.y.chunks)))),
+    Case("archive_consolidated_chunks_tuple_not_adding_up",
+         lambda e: open_archive("arc1.nc", chunks={"time": (100, 100)}), ValueError,
+         ("chunks {'time': (100, 100)}", "do not fit", "'time': 400")),
+    Case("archive_directory_chunks_tuple_not_adding_up",
+         lambda e: open_archive("arc", chunks={"time": (100, 100)}), ValueError,
+         ("chunks {'time': (100, 100)}", "do not fit", "'time': 400")),
+    Case("archive_consolidated_chunks_other_dim_ignored", lambda e: open_archive("arc1.nc", chunks={"frequency": 4}),
+         check=lambda ds, e: ds.r.chunks == open_archive("arc1.nc").r.chunks or pytest.fail(str(ds.r.chunks))),
+    Case("archive_directory_chunks_other_dim_malformed", lambda e: open_archive("arc", chunks={"frequency": "x"}),
+         ValueError, ("chunks {'frequency': 'x'}", "whole number (>= 1)")),
     Case("archive_consolidated_chunks_zero_d_bool", lambda e: open_archive("arc1.nc", chunks={"experiment": np.array(True)}),
          ValueError, ("chunks['experiment'] = True", "positive number of experiments")),
     # chunks={'time': -2} was reported as "not a valid NetCDF-4 file (truncated, corrupt,
@@ -895,7 +965,7 @@ API = [
     Case("consolidate_archive_into_another_directory_archive",
          lambda e: consolidate_archive("arc", "damagedarc/all.nc"),
          ValueError, ("refusing to write the consolidated archive damagedarc/all.nc", "directory archive")),
-    Case("save_archive_not_datasets", lambda e: save_archive([e.small.r], "newarc"), TypeError, ("not an experiment Dataset",)),
+    Case("save_archive_not_datasets", lambda e: save_archive([e.small.r], "newarc.nc"), TypeError, ("not an experiment Dataset",)),
     # --- sweep / select ------------------------------------------------------------------------
     Case("sweep_window_too_small", lambda e: sweep(e.small, window=[3]), ValueError, ("Use window >=",)),
     # one number is one setting, judged by the settings' check (not "not a sequence")

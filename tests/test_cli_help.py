@@ -117,18 +117,18 @@ def test_cli_identify_reports_progress_on_stderr(tmp_path, capsys):
 
 def test_cli_sweep_select_explains_the_criterion(tmp_path, capsys):
     exps = xr.concat([hdd.simulate(n_samples=400, noise=False, seed=s) for s in (1, 2)], "experiment")
-    save_archive(exps, tmp_path / "arc")
-    assert cli.main(["sweep", str(tmp_path / "arc"), "-o", str(tmp_path / "r.nc"), "--window", "12",
+    save_archive(exps, tmp_path / "arc.nc")
+    assert cli.main(["sweep", str(tmp_path / "arc.nc"), "-o", str(tmp_path / "r.nc"), "--window", "12",
                      "--degrees", "2-2-2", "--select", str(tmp_path / "c.nc")]) == 0
     captured = capsys.readouterr()
     assert "criterion cross (held-out experiments" in captured.out
     assert "100% Completed" in captured.err and "\r" not in captured.err
     # a second run refuses the existing outputs unless told to overwrite them
-    assert cli.main(["sweep", str(tmp_path / "arc"), "-o", str(tmp_path / "r.nc"), "--window", "12",
+    assert cli.main(["sweep", str(tmp_path / "arc.nc"), "-o", str(tmp_path / "r.nc"), "--window", "12",
                      "--degrees", "2-2-2"]) == 2
     assert "already exists" in capsys.readouterr().err
     before = (tmp_path / "r.nc").stat().st_mtime_ns
-    assert cli.main(["sweep", str(tmp_path / "arc"), "-o", str(tmp_path / "r.nc"), "--window", "12",
+    assert cli.main(["sweep", str(tmp_path / "arc.nc"), "-o", str(tmp_path / "r.nc"), "--window", "12",
                      "--degrees", "2-2-2", "--overwrite"]) == 0
     assert (tmp_path / "r.nc").stat().st_mtime_ns != before
     with xr.open_dataset(tmp_path / "r.nc") as result:

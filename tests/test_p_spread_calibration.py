@@ -122,8 +122,8 @@ def test_archive_and_chunks_equal_eager(tmp_path):
 
     ds = _pooled(5, True, n_exp=4, n=480)
     eager = identify(ds, window=20, combine="experiment")
-    save_archive(ds, tmp_path / "arc")
-    lazy = identify(open_archive(tmp_path / "arc"), window=20, combine="experiment")
+    save_archive(ds, tmp_path / "arc.nc")
+    lazy = identify(open_archive(tmp_path / "arc.nc"), window=20, combine="experiment")
     chunked = identify(ds.chunk({"experiment": 1}), window=20, combine="experiment",
                        frequency_chunks=40).compute()
     for got, rtol in ((lazy.compute(), 1e-9), (chunked, 1e-6)):

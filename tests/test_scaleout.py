@@ -96,7 +96,7 @@ def test_archive_refuses_different_lengths_with_the_lengths(tmp_path):
     mixed = [_experiment(0, n=480).assign_coords(experiment="short"),
              _experiment(1, n=960).assign_coords(experiment="long")]
     with pytest.raises(ValueError, match=r"N=480: 1 \(short\); N=960: 1 \(long\).*own archive"):
-        save_archive(mixed, tmp_path / "a")
+        save_archive(mixed, tmp_path / "a.nc")
     # files written by separate calls into one directory: refused on the second write...
     save_archive([mixed[0]], tmp_path / "b", layout="files")
     with pytest.raises(ValueError, match=r"another shape.*short\.nc \(N=480"):
@@ -125,7 +125,7 @@ def test_archive_overwrite_rules(tmp_path):
 def test_archive_errors(tmp_path):
     with pytest.raises(FileNotFoundError, match="does not exist"):
         open_archive(tmp_path / "missing")
-    with pytest.raises(FileNotFoundError, match="holds no .nc files"):
+    with pytest.raises(FileNotFoundError, match="holds no .nc, .nc4 or .netcdf files"):
         open_archive(tmp_path)
     save(xr.Dataset({"a": ("x", [1.0])}, attrs={"conventions": "other"}), tmp_path / "foreign.nc")
     with pytest.raises(ValueError, match="not an lcmr-xr-1 experiment file"):
@@ -389,9 +389,9 @@ def _cli(argv):
 def test_cli_sweep_writes_the_same_result(tmp_path, capsys, cluster_client, scheduler):
     cluster, _ = cluster_client
     exps = _stack(["e0", "e1"])
-    save_archive(exps, tmp_path / "arc")
+    save_archive(exps, tmp_path / "arc.nc")
     address = cluster.scheduler_address if scheduler == "cluster" else scheduler
-    status = _cli(["sweep", str(tmp_path / "arc"), "-o", str(tmp_path / "res.nc"), "--window", "12", "20",
+    status = _cli(["sweep", str(tmp_path / "arc.nc"), "-o", str(tmp_path / "res.nc"), "--window", "12", "20",
                    "--degrees", "3-3-0", "2-2-0", "--method", "lrm", "lpm", "--scheduler", address,
                    "--select", str(tmp_path / "choice.nc")])
     assert status == 0
@@ -409,10 +409,10 @@ def test_cli_sweep_writes_the_same_result(tmp_path, capsys, cluster_client, sche
 
 
 def test_cli_errors_exit_2_and_write_nothing(tmp_path, capsys):
-    save_archive(_stack(["e0"]), tmp_path / "arc")
-    assert _cli(["sweep", str(tmp_path / "arc"), "-o", str(tmp_path / "r.nc"), "--window", "3"]) == 2
+    save_archive(_stack(["e0"]), tmp_path / "arc.nc")
+    assert _cli(["sweep", str(tmp_path / "arc.nc"), "-o", str(tmp_path / "r.nc"), "--window", "3"]) == 2
     assert "Use window >=" in capsys.readouterr().err
-    assert _cli(["sweep", str(tmp_path / "arc"), "-o", str(tmp_path / "r.nc"),
+    assert _cli(["sweep", str(tmp_path / "arc.nc"), "-o", str(tmp_path / "r.nc"),
                  "--scheduler", "gpu"]) == 2
     assert "neither threads" in capsys.readouterr().err
     assert not (tmp_path / "r.nc").exists()
@@ -420,8 +420,8 @@ def test_cli_errors_exit_2_and_write_nothing(tmp_path, capsys):
 
 def test_cli_sweep_variables_writes_only_those(tmp_path, capsys):
     exps = _stack(["e0", "e1"])
-    save_archive(exps, tmp_path / "arc")
-    status = _cli(["sweep", str(tmp_path / "arc"), "-o", str(tmp_path / "res.nc"), "--window", "12",
+    save_archive(exps, tmp_path / "arc.nc")
+    status = _cli(["sweep", str(tmp_path / "arc.nc"), "-o", str(tmp_path / "res.nc"), "--window", "12",
                    "--degrees", "2-2-2", "--variables", "P", "P_std", "--scheduler", "synchronous"])
     assert status == 0
     got = open_dataset(tmp_path / "res.nc")
@@ -433,8 +433,8 @@ def test_cli_sweep_variables_writes_only_those(tmp_path, capsys):
 
 
 def test_cli_sweep_variables_refused_before_anything_runs(tmp_path, capsys):
-    save_archive(_stack(["e0", "e1"]), tmp_path / "arc")
-    base = ["sweep", str(tmp_path / "arc"), "-o", str(tmp_path / "r.nc"), "--window", "12",
+    save_archive(_stack(["e0", "e1"]), tmp_path / "arc.nc")
+    base = ["sweep", str(tmp_path / "arc.nc"), "-o", str(tmp_path / "r.nc"), "--window", "12",
             "--degrees", "2-2-2", "--scheduler", "synchronous"]
     assert _cli(base + ["--variables", "P", "Pstd"]) == 2
     err = capsys.readouterr().err
@@ -447,8 +447,8 @@ def test_cli_sweep_variables_refused_before_anything_runs(tmp_path, capsys):
 
 
 def test_cli_sweep_pooled_variables(tmp_path):
-    save_archive(_stack(["e0", "e1"]), tmp_path / "arc")
-    status = _cli(["sweep", str(tmp_path / "arc"), "-o", str(tmp_path / "res.nc"), "--window", "15",
+    save_archive(_stack(["e0", "e1"]), tmp_path / "arc.nc")
+    status = _cli(["sweep", str(tmp_path / "arc.nc"), "-o", str(tmp_path / "res.nc"), "--window", "15",
                    "--degrees", "2-2-2", "--pool", "2", "--variables", "P", "P_flag",
                    "--scheduler", "synchronous"])
     assert status == 0
@@ -457,8 +457,8 @@ def test_cli_sweep_pooled_variables(tmp_path):
 
 def test_cli_sweep_pools_experiments(tmp_path):
     exps = _stack(["e0", "e1", "e2"])
-    save_archive(exps, tmp_path / "arc")
-    status = _cli(["sweep", str(tmp_path / "arc"), "-o", str(tmp_path / "res.nc"), "--window", "15",
+    save_archive(exps, tmp_path / "arc.nc")
+    status = _cli(["sweep", str(tmp_path / "arc.nc"), "-o", str(tmp_path / "res.nc"), "--window", "15",
                    "--degrees", "2-2-2", "--pool", "1", "2", "--scheduler", "synchronous"])
     assert status == 0
     got = open_dataset(tmp_path / "res.nc")

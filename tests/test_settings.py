@@ -255,9 +255,9 @@ def test_cli_degrees_syntax_and_lpm_rule(tmp_path, capsys):
 
 def test_cli_sweep_takes_bare_integers_as_one_setting(tmp_path):
     save_archive(xr.concat([hdd.simulate(n_samples=400, seed=s) for s in (0, 1)], "experiment"),
-                 tmp_path / "arc")
+                 tmp_path / "arc.nc")
     out = tmp_path / "res.nc"
-    assert cli.main(["sweep", str(tmp_path / "arc"), "-o", str(out), "--window", "12",
+    assert cli.main(["sweep", str(tmp_path / "arc.nc"), "-o", str(out), "--window", "12",
                      "--degrees", "2", "2", "2", "--scheduler", "synchronous"]) == 0
     assert lcmr_xr.open_dataset(out).degrees.values.tolist() == ["2-2-2"]
 

@@ -53,6 +53,9 @@ from lcmr_xr.transforms._coords import even_spacing
 __all__ = ["save_archive", "open_archive", "append_to_archive", "consolidate_archive", "index_archive",
            "archive_files"]
 
+#: The ending the writers give a new experiment file of a directory archive (``LABEL.nc``);
+#: the directory holds every visible name ending in any of
+#: :data:`lcmr_xr.io._guards.NETCDF_SUFFIXES`, any case (:func:`dirindex.plain_name`).
 SUFFIX = ".nc"
 #: Dataset attribute that keeps the order of the experiments across save/open; dropped on open.
 ORDER_ATTR = cv.ARCHIVE_ORDER_ATTR
@@ -162,7 +165,8 @@ def archive_files(directory) -> list[Path]:
     Parameters
     ----------
     directory : str or os.PathLike
-        Archive directory written by :func:`save_archive` (any ``*.nc`` files count).
+        Archive directory written by :func:`save_archive` (every visible file whose name
+        ends in ``.nc``, ``.nc4`` or ``.netcdf``, any case, counts).
 
     Returns
     -------
@@ -198,8 +202,10 @@ def archive_files(directory) -> list[Path]:
 
 
 def _nc_files(directory) -> list[Path]:
-    """The ``*.nc`` files of an archive directory in name order, without the hidden
-    temporaries of interrupted atomic writes; refuse a path that is no directory."""
+    """The NetCDF files of an archive directory in name order: every visible name ending in
+    ``.nc``, ``.nc4`` or ``.netcdf``, any case (:func:`lcmr_xr.scaleout.dirindex.plain_name`),
+    so never the hidden index, its journal or the temporaries of interrupted atomic writes;
+    refuse a path that is no directory."""
     directory = Path(directory)
     return [directory / name for name in _nc_names(directory)]
 
@@ -215,9 +221,9 @@ def _nc_names(directory: Path) -> list[str]:
     if not directory.is_dir():
         raise FileNotFoundError(f"archive directory {directory} does not exist; check the path "
                                 "or write one with lcmr_xr.scaleout.save_archive.")
-    # names sorted as strings (as sorted paths of one directory), without pathlib's glob
-    return sorted(name for name in os.listdir(directory)
-                  if name.endswith(SUFFIX) and not name.startswith("."))
+    # names sorted as strings (as sorted paths of one directory), without pathlib's glob;
+    # the index's rule (dirindex.plain_name): visible names ending in a NetCDF suffix, any case
+    return sorted(name for name in os.listdir(directory) if dirindex.plain_name(name))
 
 
 def _entry(known, path: Path) -> tuple:
@@ -345,7 +351,8 @@ LAYOUTS = ("consolidated", "files")
 def _refuse_inside_directory_archive(path: Path) -> None:
     """Refuse a consolidated archive file directly inside a directory archive.
 
-    :func:`open_archive` of the directory reads every ``*.nc`` file in it as one
+    :func:`open_archive` of the directory reads every NetCDF file in it (``.nc``,
+    ``.nc4``, ``.netcdf``, any case) as one
     experiment: a file of another structure makes it refuse the whole directory.  A
     directory archive is recognised by its header index (written by every write of this
     library into it); a directory of plain experiment files without one is not.
@@ -360,6 +367,20 @@ def _refuse_inside_directory_archive(path: Path) -> None:
         f"file outside it (e.g. {parent.parent / (parent.name + SUFFIX)}), or add the "
         f"experiments to the directory archive itself: save_archive(experiments, {str(parent)!r})."
     )
+
+
+def _check_archive_name(path: Path, directory_hint: str = "") -> None:
+    """Refuse a new consolidated archive whose name does not end in a NetCDF suffix
+    (:data:`lcmr_xr.io._guards.NETCDF_SUFFIXES`, any case), as :func:`lcmr_xr.io.save`
+    refuses such a name: ``campaign.h5`` or ``runs`` would hold NetCDF-4 under a name that
+    says otherwise.  The message names the accepted endings, then ``directory_hint`` (how
+    the caller writes a directory archive instead, whose name is free)."""
+    from lcmr_xr.io._guards import NETCDF_SUFFIXES, check_suffix
+
+    try:
+        check_suffix(path, NETCDF_SUFFIXES, "cannot write the consolidated archive")
+    except ValueError as err:
+        raise ValueError(f"{err}{' ' + directory_hint if directory_hint else ''}") from None
 
 
 def _layout(path: Path, layout) -> str:
@@ -419,7 +440,11 @@ def save_archive(experiments, path, *, overwrite: bool = False, layout: str | No
         Every one is validated (:func:`lcmr_xr.experiment.validate_experiment`).
     path : str or os.PathLike
         The archive: a file (consolidated) or a directory (files; created if missing).
-        A consolidated file is refused directly inside a directory archive (one with the
+        A new consolidated file's name ends in ``.nc``, ``.nc4`` or ``.netcdf`` (any case),
+        as :func:`lcmr_xr.io.save` requires of NetCDF files: other names (``campaign.h5``,
+        ``runs``) are refused, with the remedy; an existing archive file is appended to
+        whatever its name (one written before the rule came in).  A directory's name is
+        free.  A consolidated file is refused directly inside a directory archive (one with the
         header index): the directory's open would refuse a file of another structure.
     overwrite : bool, default False
         Consolidated: replace an existing archive file instead of appending to it.
@@ -487,6 +512,10 @@ def save_archive(experiments, path, *, overwrite: bool = False, layout: str | No
     overwrite = as_bool(overwrite, "overwrite")  # "no" must not replace an archive
     layout = _layout(path, layout)
     if layout == "consolidated":
+        if overwrite or not path.exists():  # a new file; an existing archive is appended to
+            _check_archive_name(path, "For an archive directory (one file per experiment) pass "
+                                f"layout='files': save_archive(experiments, {str(path)!r}, "
+                                "layout='files').")
         _refuse_inside_directory_archive(path)
     items, first = _validated(experiments)
     if layout == "files":
@@ -553,7 +582,9 @@ def append_to_archive(experiment, path) -> Path:
         an archive of text labels).  Several stacked along
         ``experiment`` are appended in order.
     path : str or os.PathLike
-        A consolidated archive file (created when missing) or an archive directory.
+        A consolidated archive file (created when missing; a new one's name ends in
+        ``.nc``, ``.nc4`` or ``.netcdf``, any case, as :func:`save_archive` requires) or an
+        archive directory.
 
     Returns
     -------
@@ -565,8 +596,9 @@ def append_to_archive(experiment, path) -> Path:
     ValueError
         The experiment is invalid, of another shape than the archive, carries other
         metadata, or its label is taken or of another kind than the archive's (integer
-        vs text); or ``path`` is a consolidated archive file directly inside a directory
-        archive (its open would refuse the file; see :func:`save_archive`).
+        vs text); ``path`` is a consolidated archive file directly inside a directory
+        archive (its open would refuse the file; see :func:`save_archive`); or ``path``
+        does not exist and its name does not end in a NetCDF suffix.
     FileExistsError
         Directory, where the write lock is not available (some network file systems):
         another append took the same file name while this one was writing (nothing was
@@ -614,7 +646,10 @@ def append_to_archive(experiment, path) -> Path:
             written = _save_files(items, first, path, overwrite=False, add_only=True, locked=True)
         _compact_if_due(path, written.due)
         return written[-1]
-    if not path.exists():
+    if not path.exists():  # a new consolidated archive: named as save names NetCDF files
+        _check_archive_name(path, "To append to an archive directory instead, create the "
+                            f"directory first (os.makedirs({str(path)!r})) or write it with "
+                            f"save_archive(experiment, {str(path)!r}, layout='files').")
         return save_archive(experiment, path, layout="consolidated")[0]
     _refuse_inside_directory_archive(path)
     if unlabelled:
@@ -632,9 +667,11 @@ def consolidate_archive(directory, path, *, overwrite: bool = False, progress=No
     Parameters
     ----------
     directory : str or os.PathLike
-        Archive directory (``*.nc`` experiment files).
+        Archive directory (experiment files named ``*.nc``, ``*.nc4`` or ``*.netcdf``, any case).
     path : str or os.PathLike
-        The consolidated archive to write (atomically: temporary file, then rename); not
+        The consolidated archive to write (atomically: temporary file, then rename), its
+        name ending in ``.nc``, ``.nc4`` or ``.netcdf`` (any case; other names refused, as
+        :func:`lcmr_xr.io.save` refuses them); not
         ``directory`` itself nor inside it (refused, even with ``overwrite``: the file
         would break the directory archive or replace one of its experiments).
     overwrite : bool, default False
@@ -687,6 +724,7 @@ def consolidate_archive(directory, path, *, overwrite: bool = False, progress=No
             "inside the archive directory"
         raise ValueError(f"refusing to write {path}: it is {where} {directory}, which "
                          "consolidate_archive reads; choose another path, outside it.")
+    _check_archive_name(path)  # a new file: named as save names NetCDF files
     _refuse_inside_directory_archive(path)  # nor inside another directory archive
     if path.exists() and not overwrite:
         raise FileExistsError(f"{path} exists; pass overwrite=True (--overwrite) to replace it, "
@@ -1147,7 +1185,7 @@ def index_archive(directory) -> Path:
     Parameters
     ----------
     directory : str or os.PathLike
-        Archive directory (``*.nc`` experiment files).
+        Archive directory (experiment files named ``*.nc``, ``*.nc4`` or ``*.netcdf``, any case).
 
     Returns
     -------
@@ -1212,16 +1250,23 @@ def open_archive(path, chunks=None) -> xr.Dataset:
     Parameters
     ----------
     path : str or os.PathLike
-        A consolidated archive file or an archive directory (``*.nc`` experiment files),
+        A consolidated archive file or an archive directory (experiment files named
+        ``*.nc``, ``*.nc4`` or ``*.netcdf``, any case; hidden names are never read),
         as written by :func:`save_archive`.
     chunks : dict, optional
-        Dask chunks.  Default ``None``: :data:`EXPERIMENTS_PER_CHUNK` experiments (files
-        of a directory) per chunk, whole records along ``time``, which
-        :func:`lcmr_xr.identify` needs.  For a consolidated archive only the
-        ``experiment`` entry is used (``{"experiment": 64}``; also -1 or None, one chunk,
-        and ``"auto"``, the default, as for a directory); anything else is refused.
-        Sizes follow the library's integer rule, as :func:`lcmr_xr.io.open_dataset`'s
-        (``64.0`` and a 0-d array ``np.array(64)`` are 64, ``1.5`` is refused).
+        Dask chunks, the same for both layouts.  Default ``None``:
+        :data:`EXPERIMENTS_PER_CHUNK` experiments (files of a directory) per chunk, whole
+        records along ``time``, which :func:`lcmr_xr.identify` needs (it rechunks the
+        core dims to one chunk itself).  ``chunks["experiment"]``: a whole number >= 1 of
+        experiments per chunk, -1 or None (one chunk) or ``"auto"`` (the default); every
+        other entry is checked as :func:`lcmr_xr.io.open_dataset` checks chunks (a whole
+        number >= 1, -1 or None for the whole dim, ``"auto"``, a size in bytes such as
+        ``"64MiB"``, or a tuple of sizes adding up to the dim's length) and applied to the
+        dims the archive has (``time``, ``slow_time``, ``input``, ``output``); entries for
+        other dims are ignored, as ``open_dataset`` ignores them, and a malformed one
+        (``{"time": "x"}``, ``{"time": 100.5}``, whatever the dim) is refused.  Sizes follow
+        the library's integer rule, as ``open_dataset``'s (``64.0`` and a 0-d array
+        ``np.array(64)`` are 64, ``1.5`` is refused, never rounded).
 
     Returns
     -------
@@ -1234,14 +1279,17 @@ def open_archive(path, chunks=None) -> xr.Dataset:
     Raises
     ------
     FileNotFoundError
-        The path does not exist, or the directory holds no ``*.nc`` file.
+        The path does not exist, or the directory holds no such file.
     ValueError
         ``path`` is a file but not a consolidated archive (not NetCDF-4, or without the
         file attribute ``lcmr_archive = "consolidated-1"``), a file of the directory is not
         a readable experiment file (the message names it), the experiments differ in
         length, factor, sample time or channel labels (the message lists them and says
-        what to do), or a file of the directory differs from the first in its variables,
-        their shapes or types, or its time coordinates (named).
+        what to do), a file of the directory differs from the first in its variables,
+        their shapes or types, or its time coordinates (named), or an entry of ``chunks``
+        is malformed (refused before anything is read) or does not fit its dim.
+    TypeError
+        ``chunks`` is not None or a dict.
 
     Notes
     -----
@@ -1287,6 +1335,7 @@ def open_archive(path, chunks=None) -> xr.Dataset:
     if chunks is not None and not isinstance(chunks, dict):  # [1] failed inside: 'list' has no .get
         raise TypeError(f"chunks must be None or a dict such as {{'experiment': "
                         f"{EXPERIMENTS_PER_CHUNK}}}, got {chunks!r} ({type(chunks).__name__}).")
+    other = _other_chunks(chunks)  # before any read: a bad argument is not a bad archive
     if path.is_file():
         _check_consolidated(path)
         # checked as for a directory (0 passed, 1.5 failed inside dask); -1: one chunk
@@ -1296,17 +1345,47 @@ def open_archive(path, chunks=None) -> xr.Dataset:
         except (OSError, KeyError) as err:
             raise ValueError(f"{path} is not a readable consolidated archive ({err}); write one "
                              "with lcmr_xr.scaleout.save_archive.") from err
+        ds = _chunk_other_dims(ds, other)
         ds.encoding["source"] = str(path)
         try:
             return validate_experiment(ds, check_values=False)
         except ValueError as err:
             raise ValueError(f"archive {path}: {err}") from err
-    return _open_directory(path, chunks)
+    return _open_directory(path, chunks, other)
+
+
+def _other_chunks(chunks) -> dict:
+    """The entries of ``chunks`` other than ``experiment``, checked and read as
+    :func:`lcmr_xr.io.open_dataset` reads chunks (its words for a malformed one, whatever
+    the dim: ``{'time': 'x'}``, ``{'time': 100.5}``; whole floats and 0-d arrays as ints)."""
+    rest = {d: c for d, c in (chunks or {}).items() if d != cv.EXPERIMENT}
+    if not rest:
+        return {}
+    from lcmr_xr.io.netcdf import _check_chunks
+
+    return _check_chunks(rest)
+
+
+def _chunk_other_dims(ds: xr.Dataset, other: dict) -> xr.Dataset:
+    """``ds`` rechunked by the entries of ``other`` (:func:`_other_chunks`) for the dims it
+    has; the others are ignored, as :func:`lcmr_xr.io.open_dataset` ignores them.  Sizes
+    that do not fit a dim (a tuple that does not add up to its length) are refused here,
+    naming the dim and its length."""
+    rest = {d: c for d, c in other.items() if d in ds.dims}
+    if not rest:
+        return ds
+    try:
+        return ds.chunk(rest)
+    except ValueError as err:
+        sizes = {d: ds.sizes[d] for d in rest}
+        raise ValueError(f"chunks {rest!r} do not fit the archive's dims {sizes} ({err}); pass "
+                         "sizes that add up to each dim's length, or one size per dim, e.g. "
+                         f"{{{next(iter(rest))!r}: 100}}.") from err
 
 
 #: What an archive is, for the messages that refuse something else.
 ARCHIVE_KINDS = ("an archive is one NetCDF file written by lcmr_xr.scaleout.save_archive (file "
-                 f"attribute {con.KIND_ATTR}={con.KIND!r}) or a directory of experiment .nc files")
+                 f"attribute {con.KIND_ATTR}={con.KIND!r}) or a directory of experiment .nc (.nc4, .netcdf) files")
 
 
 def _check_consolidated(path: Path) -> None:
@@ -1327,7 +1406,7 @@ def _check_consolidated(path: Path) -> None:
     )
 
 
-def _open_directory(directory: Path, chunks) -> xr.Dataset:
+def _open_directory(directory: Path, chunks, other: dict) -> xr.Dataset:
     """A directory archive as one lazy dataset, from one header pass over its files.
 
     The result is what concatenating every file's lazy xarray open along ``experiment``
@@ -1341,8 +1420,9 @@ def _open_directory(directory: Path, chunks) -> xr.Dataset:
     paths = _nc_files(directory)
     if not paths:
         raise FileNotFoundError(
-            f"archive directory {directory} holds no {SUFFIX} files; write experiments into it "
-            "with lcmr_xr.scaleout.save_archive."
+            f"archive directory {directory} holds no .nc, .nc4 or .netcdf files (any case; "
+            "hidden names are not read); write experiments into it with "
+            "lcmr_xr.scaleout.save_archive."
         )
     # one pass in name order; only small summaries are kept per file (not the headers)
     files, foreign = [], []
@@ -1452,12 +1532,7 @@ def _open_directory(directory: Path, chunks) -> xr.Dataset:
     attrs.update({k: v for k, v in merged.result.items() if k not in attrs})
     combined = xr.Dataset(data_vars, coords, attrs)
     combined.encoding["source"] = str(directory)
-    rest = {d: c for d, c in (chunks or {}).items() if d != cv.EXPERIMENT and d in combined.dims}
-    if rest:  # checked and read as open_dataset reads chunks ({'time': np.array(100)} is 100)
-        from lcmr_xr.io.netcdf import _check_chunks
-
-        rest = _check_chunks(rest)
-        combined = combined.chunk(rest)
+    combined = _chunk_other_dims(combined, other)  # as a consolidated archive's
     try:
         return validate_experiment(combined, check_values=False)
     except ValueError as err:

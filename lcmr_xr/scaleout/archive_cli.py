@@ -58,7 +58,7 @@ def add_archive_parser(subparsers) -> argparse.ArgumentParser:
         description="Copy every experiment file of an archive directory, in archive order, into "
                     "one consolidated NetCDF archive (experiment dim, metadata as coordinates). "
                     "The directory is not changed.")
-    con.add_argument("directory", type=Path, help="archive directory (one experiment .nc per file)")
+    con.add_argument("directory", type=Path, help="archive directory (one experiment per .nc, .nc4 or .netcdf file)")
     con.add_argument("-o", "--output", type=Path, required=True,
                      help="archive file to write (.nc; not inside the directory)")
     add_overwrite(con)
@@ -69,7 +69,7 @@ def add_archive_parser(subparsers) -> argparse.ArgumentParser:
                     "directory, so that open_archive takes each file's header facts from it "
                     "instead of reading every file. Entries that still match their files are "
                     "kept; the experiment files are not changed.")
-    idx.add_argument("directory", type=Path, help="archive directory (one experiment .nc per file)")
+    idx.add_argument("directory", type=Path, help="archive directory (one experiment per .nc, .nc4 or .netcdf file)")
     arc.set_defaults(func=run_archive)
     return arc
 
@@ -126,7 +126,7 @@ def run_archive(args) -> int:
                 raise ValueError(f"{args.directory} is a consolidated archive file already (open it "
                                  "with open_archive); consolidate takes an archive directory.")
             raise ValueError(f"{args.directory} is a file, not an archive directory; consolidate "
-                             "takes a directory of experiment .nc files.")
+                             "takes a directory of experiment .nc (.nc4, .netcdf) files.")
         path = consolidate_archive(args.directory, args.output, overwrite=args.overwrite,
                                    progress=progress)
     except (ValueError, TypeError, FileNotFoundError, FileExistsError, OSError) as exc:

@@ -86,7 +86,7 @@ def add_sweep_parser(subparsers) -> argparse.ArgumentParser:
                     "identified is flagged (experiment_error), not fatal. With --select, also "
                     f"write the best settings per experiment by a validation criterion. {criteria}")
     sw.add_argument("archive", type=Path,
-                    help="consolidated archive file, or archive directory (one experiment .nc per file)")
+                    help="consolidated archive file, or archive directory (one experiment per .nc, .nc4 or .netcdf file)")
     sw.add_argument("-o", "--output", type=Path, required=True,
                     help="result NetCDF file to write (.nc; not inside the archive; its parts "
                          "are kept in .OUTPUT.parts/ next to it while the sweep runs)")
@@ -327,6 +327,7 @@ def run_sweep(args) -> int:
     from lcmr_xr.io import open_dataset, save
     from lcmr_xr.scaleout.archive import open_archive
     from lcmr_xr.scaleout.select import select_settings
+    from lcmr_xr.scaleout.stream import check_output_name
     from lcmr_xr.scaleout.sweep import sweep, sweep_settings
     from lcmr_xr.settings import degrees_arguments
 
@@ -342,6 +343,7 @@ def run_sweep(args) -> int:
                              "estimates are per group of experiments: drop one of them.")
         _check_scheduler(args.scheduler)
         _check_timeout(getattr(args, "connect_timeout", CONNECT_TIMEOUT))  # before any output
+        check_output_name(args.output, "-o")  # names the parts a sweep left under a refused name
         check_outputs({"-o": (args.output, NETCDF_SUFFIXES), "--select": (args.select, NETCDF_SUFFIXES)},
                       inputs=[args.archive], overwrite=getattr(args, "overwrite", False))
         experiments = open_archive(args.archive)

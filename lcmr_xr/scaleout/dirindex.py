@@ -78,12 +78,13 @@ from pathlib import Path
 import numpy as np
 
 from lcmr_xr import conventions as cv
+from lcmr_xr.io._guards import NETCDF_SUFFIXES
 
 # The functions below serve lcmr_xr.scaleout.archive (the public API: index_archive,
 # open_archive, save_archive); only this is public.
 __all__ = ["Unindexable"]
 
-#: Name of the index file in an archive directory (hidden; not a ``*.nc`` experiment).
+#: Name of the index file in an archive directory (hidden; never an experiment file: :func:`plain_name`).
 INDEX_NAME = cv.ARCHIVE_INDEX_FILE
 #: Name of the journal directory next to it (hidden; its files are ``*.json``).
 JOURNAL_NAME = cv.ARCHIVE_INDEX_JOURNAL
@@ -472,9 +473,15 @@ def _newer_facts(f, version) -> BaseFacts:
 
 
 def plain_name(name: str) -> bool:
-    """Whether ``name`` can be an experiment file of the directory: a visible ``*.nc`` name
-    without a directory part (an index never makes a writer open ``../x.nc`` or ``/x.nc``)."""
-    return (name.endswith(".nc") and not name.startswith(".") and "/" not in name
+    """Whether ``name`` can be an experiment file of the directory: a visible NetCDF name
+    (ending in ``.nc``, ``.nc4`` or ``.netcdf``, any case: the names :func:`lcmr_xr.io.save`
+    writes NetCDF-4 to, :data:`lcmr_xr.io._guards.NETCDF_SUFFIXES`; for a name that does not
+    begin with a dot, ``endswith`` answers as the ``Path.suffix`` that save's check reads,
+    at a fifth of the cost) without a directory part (an index never makes a writer open
+    ``../x.nc`` or ``/x.nc``).  Hidden names (the index, its journal, the temporaries
+    ``.NAME.*.tmp`` of atomic writes, a sweep's ``.OUTPUT.parts``) never are.  The one rule
+    of what a directory archive holds: its listing, its index and its writers."""
+    return (not name.startswith(".") and name.lower().endswith(NETCDF_SUFFIXES) and "/" not in name
             and os.sep not in name and (os.altsep is None or os.altsep not in name))
 
 

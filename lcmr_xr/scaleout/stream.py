@@ -49,6 +49,59 @@ def parts_directory(output: Path) -> Path:
     return output.with_name(f".{output.name}{cv.ARCHIVE_PARTS_SUFFIX}")
 
 
+def check_output_name(output, what: str = "output") -> Path:
+    """Refuse a sweep result name that does not end in a NetCDF suffix, as
+    :func:`lcmr_xr.io.save` refuses it, and say how to resume an interrupted sweep whose
+    parts wait under that name.
+
+    A sweep started under such a name (before the rule came in) left its finished parts in
+    ``.NAME.parts/`` next to it.  The parts are kept by the sweep's arguments (the
+    directory's ``manifest.json``, the part files named by setting and experiments), not by
+    the output's name, so renaming the directory along with the output resumes it: the
+    message names both new names.
+
+    Parameters
+    ----------
+    output : str or os.PathLike
+        The result file about to be written.
+    what : str, default "output"
+        How the message names it (``"-o"`` on the command line).
+
+    Returns
+    -------
+    pathlib.Path
+        ``output``.
+
+    Raises
+    ------
+    ValueError
+        The name does not end in ``.nc``, ``.nc4`` or ``.netcdf`` (any case); when
+        ``.NAME.parts/`` holds the parts of a sweep, the message names it and the rename.
+
+    Examples
+    --------
+    >>> check_output_name("result.nc").name
+    'result.nc'
+    """
+    from lcmr_xr.io._guards import NETCDF_SUFFIXES, check_suffix
+
+    output = Path(output)
+    try:
+        return check_suffix(output, NETCDF_SUFFIXES, what)
+    except ValueError as err:
+        parts = parts_directory(output)
+        if not (parts / _MANIFEST).is_file():
+            raise
+        renamed = output.with_name((output.stem or "result") + NETCDF_SUFFIXES[0])
+        raise ValueError(
+            f"{err} {parts} holds the finished parts of a sweep to {output.name} that did not "
+            f"complete: to resume it, rename that directory to {parts_directory(renamed)} and "
+            f"run the same sweep again with the output {renamed} (the parts are matched by "
+            "the sweep's arguments, not by the output's name); or remove the directory to "
+            "start afresh."
+        ) from None
+
+
 def _pieces(lazy: xr.Dataset, chunks: tuple[int, ...]):
     """``[(name, (i_method, i_degrees, i_window), (start, stop))]`` of every task."""
     bounds = np.concatenate([[0], np.cumsum(chunks)]).astype(int)
@@ -492,6 +545,9 @@ def sweep_to_disk(experiments: xr.Dataset, output, *, window=(30,), degrees=None
         The result NetCDF file (name ending in ``.nc``, ``.nc4`` or ``.netcdf``, checked
         before any work): the dataset :func:`lcmr_xr.scaleout.sweep` returns,
         computed.  Parts are kept in ``.OUTPUT.parts/`` next to it until it is written.
+        A name refused for its ending while ``.OUTPUT.parts/`` holds the parts of a sweep
+        (started before the rule came in) is refused with the way to resume: rename that
+        directory along with the output (:func:`check_output_name`).
     window, degrees, method, closed_loop, covariance, experiments_per_task, denominator
         As for :func:`lcmr_xr.scaleout.sweep` (one task per setting and chunk).
     client : distributed.Client, optional
@@ -587,6 +643,7 @@ def sweep_to_disk(experiments: xr.Dataset, output, *, window=(30,), degrees=None
     # never write over the archive or inside it: the result, and the parts next to it; the
     # directories the lazy data read count too (astype, isel and the like drop the source)
     archives = list(dict.fromkeys(([source] if source else []) + list(_sources(experiments))))
+    check_output_name(output)  # with the way to resume parts left under a refused name
     check_outputs({"output": (output, NETCDF_SUFFIXES)}, inputs=archives,
                   overwrite=overwrite, overwrite_hint="pass overwrite=True (--overwrite) to replace it")
     for archive in archives:

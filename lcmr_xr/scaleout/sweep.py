@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import itertools
 import numbers
+import os
 from collections.abc import Iterable
 
 import dask.array as dsa
@@ -444,12 +445,18 @@ def _label_and_file(one: xr.Dataset, source):
         return label, None
     from pathlib import Path
 
-    from lcmr_xr.scaleout.archive import SUFFIX, _file_stem
+    from lcmr_xr.scaleout.archive import SUFFIX, _file_stem, _nc_names
 
+    stem = _file_stem(label)
     for place in ((source,) if isinstance(source, str) else source):
-        file = Path(place) / (_file_stem(label) + SUFFIX)
+        file = Path(place) / (stem + SUFFIX)  # the name the library's writers give it
         if Path(place).is_dir() and file.is_file():
             return label, file
+    for place in ((source,) if isinstance(source, str) else source):  # another NetCDF
+        if Path(place).is_dir():  # ending (x.NC, x.nc4): listed only on this error path
+            name = next((n for n in _nc_names(Path(place)) if os.path.splitext(n)[0] == stem), None)
+            if name is not None:
+                return label, Path(place) / name
     return label, None
 
 
