@@ -466,7 +466,7 @@ def fit_packed(R, Z, *, half_width: int, degrees=(3, 3, 3), circular: bool = Tru
 def _fit_terms(R, Z, *, half_width, degrees, circular, covariance, known_covariance,
                experiment_axis, closed_loop, denominator="ls", instruments=None,
                halves_instruments=None, bins=None, spread=True, first_row_only=False,
-               select=None, buffers=None) -> dict:
+               select=None, buffers=None, unfloored: bool = False) -> dict:
     """The local model at every bin (``bins``: those of the circle) reduced by
     :func:`slow_bin_terms`: ``G``, ``T`` (pooled: (..., M, E, nz)), ``noise_variance``,
     ``condition``, ``ill_posed`` and the terms; ``G_cov`` is dropped.  ``G_cov`` is
@@ -477,7 +477,10 @@ def _fit_terms(R, Z, *, half_width, degrees, circular, covariance, known_covaria
     those of :func:`slow_bin_terms` with ``first_row_only``.  ``select`` (M,) bool (of the
     circle with ``bins``): fit and reduce only those bins, the others NaN (not fitted).
     ``buffers``: a :class:`lcmr_xr.kernels.local_models.CovarianceBuffer` for ``G_cov``
-    (nothing returned views it)."""
+    (nothing returned views it).  ``unfloored`` (one record with its covariance from its
+    residuals): where :func:`_resolution_floor` changes a bin, also ``P1_cov``, ``rho``
+    and ``rho_v`` without it (``P1_cov_unfloored``, ...; returned only then), for
+    ``window="auto"``'s choice: the floor bounds the band, it is no variance estimate."""
     if check_denominator(denominator, degrees) and instruments is None:
         instruments = denominator_instruments(R, Z, degrees=degrees, circular=circular,
                                               experiment_axis=experiment_axis)
@@ -520,6 +523,7 @@ def _fit_terms(R, Z, *, half_width, degrees, circular, covariance, known_covaria
         # one record: residuals below the moments' resolution give G_cov no width there
         level = _resolution_level(Z, half_width=half_width, dof=fit.dof, circular=circular,
                                   bins=bins)
+        before, G_cov0 = dict(out), G_cov
         floored, G_cov, s = _resolution_floor(out, fit, G_cov, R, Z, terms, level=level,
                                               half_width=half_width, degrees=degrees,
                                               circular=circular, bins=bins, select=select)
@@ -530,6 +534,16 @@ def _fit_terms(R, Z, *, half_width, degrees, circular, covariance, known_covaria
             out["rho"] = _rounding_floor(out["rho"], out["s_condition"], fit.noise_variance,
                                          Z, half_width=half_width, dof=fit.dof,
                                          circular=circular, bins=bins, level=level)
+        if unfloored and floored:  # the terms as they were without the floor (mended,
+            # rho's rounding floor); nothing more where it changes no bin (noisy records)
+            before.update(_mend_indefinite(before, fit.G, G_cov0, fit.noise_covariance, terms))
+            if closed_loop == "indirect" and not first_row_only:
+                before["rho"] = _rounding_floor(
+                    before["rho"], before["s_condition"], fit.noise_variance, Z,
+                    half_width=half_width, dof=fit.dof, circular=circular, bins=bins,
+                    level=level)
+            out.update({f"{k}_unfloored": before[k] for k in _UNFLOORED if k in before})
+        del before, G_cov0
     if buffers is not None:  # (G_var is a view of G_cov's diagonal: the next fit reuses it)
         out = {k: v.copy() if isinstance(v, np.ndarray) and np.may_share_memory(v, fit.G_cov)
                else v for k, v in out.items()}
@@ -787,7 +801,7 @@ def _block_plan(R, Z, *, half_width, degrees, covariance, noise_covariance, expe
 
 def _block_terms(R, Z, a, b, *, known, covariance, half_width, degrees, experiment_axis,
                  closed_loop, denominator, instruments, first_row_only=False,
-                 select=None, buffers=None) -> dict:
+                 select=None, buffers=None, unfloored: bool = False) -> dict:
     """:func:`_fit_terms` of the slow bins ``a..b-1`` of the circle (a block of
     :func:`_fit_blocks`, or a refit of :func:`_refit_chosen`), with those bins' window
     mean ``known`` of a known noise covariance; without the split-half spread, which
@@ -798,18 +812,21 @@ def _block_terms(R, Z, a, b, *, known, covariance, half_width, degrees, experime
                       experiment_axis=experiment_axis, closed_loop=closed_loop,
                       denominator=denominator, instruments=instruments, bins=(a, b),
                       spread=False, first_row_only=first_row_only, select=select,
-                      buffers=buffers)
+                      buffers=buffers, unfloored=unfloored)
 
 
 def _fit_blocks(R, Z, *, half_width, degrees, covariance, noise_covariance, experiment_axis,
                 closed_loop, denominator="ls", instruments=None, halves_instruments=None,
-                first_row_only=False, select=None, fitted_half=None, buffers=None) -> dict:
+                first_row_only=False, select=None, fitted_half=None, buffers=None,
+                unfloored: bool = False) -> dict:
     """:func:`_fit_terms` of every slow bin of the circle, fitted in blocks of bins
     (:data:`BLOCK_BYTES`).  Spectra of real signals: the blocks cover bins ``0..M/2``
     and the others are their mirrors, as in one fit over all bins
     (:func:`lcmr_xr.kernels.local_models.fits_half`).  ``first_row_only``: the terms of
     :func:`slow_bin_terms` with ``first_row_only``, no split-half spread.  ``fitted_half``
-    as :func:`_block_plan`; ``buffers`` as :func:`_fit_terms`."""
+    as :func:`_block_plan`; ``buffers`` and ``unfloored`` as :func:`_fit_terms` (the
+    unfloored terms of every bin, the floored ones' values where a block has none, returned
+    if any block has them)."""
     R, Z = np.asarray(R), np.asarray(Z)
     iv = check_denominator(denominator, degrees)
     if iv and instruments is None:
@@ -827,15 +844,22 @@ def _fit_blocks(R, Z, *, half_width, degrees, covariance, noise_covariance, expe
                              half_width=half_width, degrees=degrees,
                              experiment_axis=experiment_axis, closed_loop=closed_loop,
                              denominator=denominator, instruments=instruments,
-                             first_row_only=first_row_only, select=select, buffers=buffers)
+                             first_row_only=first_row_only, select=select, buffers=buffers,
+                             unfloored=unfloored)
         if out is None:  # every per-bin output, all M bins: the bin axis of each
             axes = {k: _bin_axis(k, n_exp) for k, v in block.items() if v is not None}
             out = {k: (None if v is None else
                        np.empty(v.shape[:v.ndim + axes[k]] + (m,) + v.shape[v.ndim + axes[k] + 1:],
                                 v.dtype)) for k, v in block.items()}
+        for k in [k for k in block if k.endswith("_unfloored") and k not in out]:
+            # the first block with floored bins: the earlier blocks' unfloored terms are
+            # their floored ones (the later bins of the copy are written below)
+            base = k.removesuffix("_unfloored")
+            out[k], axes[k] = out[base].copy(), axes[base]
         keep = min(b, last) - a
         for k, ax in axes.items():
-            out[k][_bins_at(ax, slice(a, a + keep))] = block[k][_bins_at(ax, slice(0, keep))]
+            src = block[k] if k in block else block[k.removesuffix("_unfloored")]
+            out[k][_bins_at(ax, slice(a, a + keep))] = src[_bins_at(ax, slice(0, keep))]
         del block
     if half:  # bins M/2+1..M-1 are the conjugates of (M-1)/2..1 (as local_model mirrors)
         for k, ax in axes.items():
@@ -855,6 +879,7 @@ def _fit_blocks(R, Z, *, half_width, degrees, covariance, noise_covariance, expe
 
 def _bin_axis(name, n_exp) -> int:
     """The slow-bin axis (negative) of a per-bin output of :func:`_fit_terms`."""
+    name = name.removesuffix("_unfloored")
     if name == "T":  # (..., M, nz), pooled (..., M, E, nz)
         return -2 if n_exp is None else -3
     return _BIN_AXES[name]
@@ -1033,20 +1058,35 @@ def _finish(fit: dict, *, n_fast, factor, nu, ny, closed_loop, dof,
                 "ill_posed": fit["ill_posed"]})
     if calibration is not None:
         out["spread_calibration"] = calibration
+    if "P1_cov_unfloored" in fit:  # window="auto"'s choice reads the unfloored variances
+        raw = {k: fit[f"{k}_unfloored"] for k in _UNFLOORED}
+        choice = _recover(
+            {**fit, **raw}, n_fast=n_fast, factor=factor, nu=nu, ny=ny,
+            closed_loop=closed_loop, ill_posed=fit["ill_posed"], dof=dof,
+            calibration=calibration, halves=halves, neighbourhood=neighbourhood)
+        out["P_var_choice"] = choice["P_var"]
+        out["P_var_linear_choice"] = choice["P_var_linear"]
     return out
+
+
+#: The terms of :func:`_fit_terms` that ``unfloored`` also returns without the
+#: resolution floor (:func:`_finish` recovers ``window="auto"``'s choice from them).
+_UNFLOORED = ("P1_cov", "rho", "rho_v")
 
 
 def _fit_and_finish(R, Z, *, half_width, degrees, covariance, noise_covariance, experiment_axis,
                     n_fast, factor, nu, ny, closed_loop, n_exp, denominator="ls",
                     instruments=None, halves_instruments=None, fitted_half=None,
-                    buffers=None, neighbourhood: bool = False) -> dict:
+                    buffers=None, neighbourhood: bool = False, unfloored: bool = False) -> dict:
     """The local model in blocks of bins (:func:`_fit_blocks`), then :func:`_finish`
-    (``neighbourhood`` as :func:`finish_packed`)."""
+    (``neighbourhood`` as :func:`finish_packed`; ``unfloored`` as :func:`_fit_terms`, and
+    :func:`_finish` then also returns ``P_var_choice`` and ``P_var_linear_choice`` where
+    a bin was floored)."""
     fit = _fit_blocks(R, Z, half_width=half_width, degrees=degrees, covariance=covariance,
                       noise_covariance=noise_covariance, experiment_axis=experiment_axis,
                       closed_loop=closed_loop, denominator=denominator,
                       instruments=instruments, halves_instruments=halves_instruments,
-                      fitted_half=fitted_half, buffers=buffers)
+                      fitted_half=fitted_half, buffers=buffers, unfloored=unfloored)
     return _finish(fit, n_fast=n_fast, factor=factor, nu=nu, ny=ny, closed_loop=closed_loop,
                    dof=window_dof(half_width, R.shape[-1], degrees, n_exp or 1),
                    neighbourhood=neighbourhood)
@@ -1211,7 +1251,9 @@ def identify_spectra_auto(R, Z, *, n_fast: int, factor: int, nu: int, windows,
     for j, w in enumerate(windows):
         out = _fit_and_finish(R, Z, half_width=w, covariance=True, n_fast=n_fast,
                               factor=factor, nu=nu, ny=ny, n_exp=n_exp,
-                              halves_instruments=halves, **fit)
+                              halves_instruments=halves, unfloored=True, **fit)
+        for k in ("P_var", "P_var_linear"):  # the same where no bin was floored
+            out.setdefault(f"{k}_choice", out[k])
         if fast is None:
             fast = {k: np.empty((len(windows),) + out[k].shape, out[k].dtype)
                     for k in _FAST if k in out}
@@ -1224,7 +1266,11 @@ def identify_spectra_auto(R, Z, *, n_fast: int, factor: int, nu: int, windows,
             held[j], held_bytes = out, held_bytes + size
         if j < len(windows) - 1:
             out = None  # (not held while the next candidate is fitted)
-    choice, bias2 = select_windows(fast["P"], fast["P_var"], fast["P_var_linear"], m)
+    # the choice from the variances without the resolution floor (a bound for the band,
+    # not a variance: with it every candidate's band at the floor, the widest won every
+    # bin of noiseless records); the band released is the chosen window's floored one
+    choice, bias2 = select_windows(fast["P"], fast.pop("P_var_choice", fast["P_var"]),
+                                   fast.pop("P_var_linear_choice", fast["P_var_linear"]), m)
     fast_choice = np.take(choice, np.arange(bias2.shape[-3]) % m, axis=-1)
     twin = None
     if checks_denominator_bias(denominator, degrees, closed_loop, n_exp,
@@ -1291,7 +1337,8 @@ HELD_BYTES = 8 << 20
 
 #: The outputs of :func:`_finish` on the fast bins (what the window choice reads, and the
 #: pooled fits' factor on ``P_var``, which is smoothed over fast bins).
-_FAST = ("P", "P_var", "P_var_linear", "P_spread_calibration")
+_FAST = ("P", "P_var", "P_var_linear", "P_spread_calibration", "P_var_choice",
+         "P_var_linear_choice")
 
 
 def _refit_chosen(out, flags, chosen, R, Z, *, half_width, degrees, noise_covariance,
