@@ -99,3 +99,24 @@ def test_noiseless_band_holds_at_36000(window):
     assert (err <= K95 * std).mean() > {30: 0.8, "auto": 0.92}[window]
     # slow DC stays flagged (fast 0 and N/2)
     assert out.P_undetermined.values[[0, -1]].all()
+
+
+def test_resolution_floor_of_a_haloed_block_as_of_the_circle():
+    """The frequency-chunk path fits a haloed block with ``circular=False``: it floors the
+    band as the circular fit does.  Before, ``_resolution_floor`` returned at once for
+    ``circular=False``: the noiseless HDD at N = 36 000, window 30, ``frequency_chunks``
+    2000 had 1926 entries of ``P_std`` exactly 0 (none without chunks).  The probe's
+    phases follow the block's bins, not the circle's: the bands agree to the probe's
+    effect (here 1e-4)."""
+    from lcmr_xr.kernels.identification import _fit_terms
+
+    n, degrees, m, h = 6, (2, 2, 0), 64, 9
+    R, Z = _lpm_data(0.0, m=m)
+    kw = dict(half_width=n, degrees=degrees, covariance=True, known_covariance=None,
+              experiment_axis=None, closed_loop="direct")
+    whole = _fit_terms(R, Z, circular=True, **kw)
+    near = np.arange(-h, m + h) % m
+    block = _fit_terms(R[near], Z[near], circular=False, **kw)
+    # the floor: the Cauchy-Schwarz width, not rounding (as the first test's oracle)
+    assert (whole["G_var"] > 1e-6 * EPS).all()
+    np.testing.assert_allclose(block["G_var"][h:m + h], whole["G_var"], rtol=1e-3)

@@ -595,7 +595,7 @@ def _resolution_floor(out, fit, G_cov, R, Z, terms, *, half_width, degrees, circ
     those bins replaced (the arguments themselves where nothing is).  ``level``: the
     :func:`_resolution_level`, when the caller has it."""
     s = fit.noise_covariance
-    if not circular or G_cov is None:
+    if G_cov is None:
         return {}, G_cov, s
     if level is None:
         level = _resolution_level(Z, half_width=half_width, dof=fit.dof, circular=circular,
@@ -614,11 +614,13 @@ def _resolution_floor(out, fit, G_cov, R, Z, terms, *, half_width, degrees, circ
     if select is not None:
         on &= np.asarray(select, dtype=bool)
     # a deterministic probe of unit modulus (golden-ratio phases) times the local rms
+    # (circular=False, a haloed block of the frequency chunks: the block's bins, its rms
+    # wrapped at the ends, only the probe of the bins near them differs from the circle's)
     k = np.arange(m)[:, None] * nz + np.arange(nz)
     phase = np.exp(2j * np.pi * ((k * 0.6180339887498949) % 1.0))
     rms = np.sqrt(window_mean(np.abs(Z) ** 2, int(half_width), axis=-2, circular=True))
     probed = local_model(R, Z + PROBE_AMPLITUDE * rms * phase, half_width=half_width,
-                         degrees=tuple(degrees), circular=True, covariance="full",
+                         degrees=tuple(degrees), circular=circular, covariance="full",
                          bins=bins, select=on)
     # every row's variance at least the floor; an unresolved row's correlations
     # (rounding) dropped, the resolved rows' kept, made a covariance
