@@ -522,7 +522,9 @@ def _fit_terms(R, Z, *, half_width, degrees, circular, covariance, known_covaria
                                   bins=bins)
         floored, G_cov, s = _resolution_floor(out, fit, G_cov, R, Z, terms, level=level,
                                               half_width=half_width, degrees=degrees,
-                                              circular=circular, bins=bins, select=select)
+                                              circular=circular, bins=bins, select=select,
+                                              instruments=instruments if denominator == "iv"
+                                              else None)
         out.update(floored)
         # the same mend where cov(P_1) is not a covariance (below)
         out.update(_mend_indefinite(out, fit.G, G_cov, s, terms))
@@ -568,7 +570,7 @@ PROBE_AMPLITUDE = 1e-6
 
 
 def _resolution_floor(out, fit, G_cov, R, Z, terms, *, half_width, degrees, circular,
-                      bins=None, select=None, level=None):
+                      bins=None, select=None, level=None, instruments=None):
     """One record's :func:`slow_bin_terms` ``out`` recomputed at the bins where a row's
     residual noise variance is below the floor of what the local model's moments resolve,
     with ``G_cov`` rebuilt from a diagonal noise covariance raised to that floor.
@@ -593,7 +595,8 @@ def _resolution_floor(out, fit, G_cov, R, Z, terms, *, half_width, degrees, circ
     bin's terms are left bit for bit (the HDD's noisy records: no bin is below the floor).
     Returns the recomputed entries (copies), and ``G_cov`` and the noise covariance with
     those bins replaced (the arguments themselves where nothing is).  ``level``: the
-    :func:`_resolution_level`, when the caller has it."""
+    :func:`_resolution_level`, when the caller has it.  ``instruments``: those of the fit
+    (``denominator="iv"``): the refit uses them, so that ``X`` is the fit's own."""
     s = fit.noise_covariance
     if G_cov is None:
         return {}, G_cov, s
@@ -621,7 +624,7 @@ def _resolution_floor(out, fit, G_cov, R, Z, terms, *, half_width, degrees, circ
     rms = np.sqrt(window_mean(np.abs(Z) ** 2, int(half_width), axis=-2, circular=True))
     probed = local_model(R, Z + PROBE_AMPLITUDE * rms * phase, half_width=half_width,
                          degrees=tuple(degrees), circular=circular, covariance="full",
-                         bins=bins, select=on)
+                         bins=bins, select=on, instruments=instruments)
     # every row's variance at least the floor; an unresolved row's correlations
     # (rounding) dropped, the resolved rows' kept, made a covariance
     eye = np.eye(nz, dtype=bool)
