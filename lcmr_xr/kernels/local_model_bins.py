@@ -43,7 +43,10 @@ estimate is scale-free:
        tau_ij = sum_r c_ij(r) (1 - lev(r) - nu_i(r) - nu_j(r))
                 + tr((U_j^H U_i)(U_i^H diag(c_ij) U_j)),   c_ij = d_i conj(d_j)
 
-   (``lev``, ``nu_i`` the squared row norms of ``Q_A``, ``U_i``).
+   (``lev``, ``nu_i`` the squared row norms of ``Q_A``, ``U_i``).  Least squares and
+   instrumental variables share the code over the window (:func:`_row_gains` for the
+   columns and gains, :func:`_iv_tau` for ``tau``: least squares is its form with ``Y =
+   U``, whose weights are real), one copy to compile.
 
 Instrumental variables (``iv`` not None; ``local_model(..., instruments=)``): the
 denominator columns ``B_i`` get the instruments ``W_i = -rho^s Zhat_i`` (``A`` is its
@@ -81,7 +84,8 @@ import numpy as np
 COV_NONE, COV_DIAG, COV_FULL = 0, 1, 2
 
 _JIT = {"cache": True, "nogil": True, "error_model": "numpy", "boundscheck": False,
-        "fastmath": {"reassoc", "contract"}}
+        "fastmath": {"reassoc", "contract"}, "no_cfunc_wrapper": True}
+#: (No C-callback wrapper for anything: Python calls through the CPython wrapper.)
 #: Helpers only called from compiled code: built without the CPython and C-callback
 #: wrappers that numba otherwise compiles for every function (measured: about a tenth of
 #: the first call's compile time).  Such a function must NOT be called from Python (numba
@@ -268,37 +272,9 @@ def _chol_solve(low, rank, b, x):
 
 
 @numba.njit(**_INNER)
-def _lu_factor(a, k, ipiv):
-    """LU with partial (row) pivoting of the leading ``k x k`` block of the small,
-    general ``a``, in place (``L`` unit lower below the diagonal, ``U`` on and above);
-    ``ipiv[j]`` the row swapped with row ``j``.  Returns ``sum_j log|u_jj|`` (``-inf``
-    at the first zero pivot, which stops the factorisation)."""
-    logdet = 0.0
-    for j in range(k):
-        best = j
-        for t in range(j + 1, k):
-            if abs(a[t, j]) > abs(a[best, j]):
-                best = t
-        ipiv[j] = best
-        if best != j:
-            for c in range(k):
-                a[j, c], a[best, c] = a[best, c], a[j, c]
-        p = a[j, j]
-        if not abs(p) > 0.0:
-            return -np.inf
-        logdet += math.log(abs(p))
-        for t in range(j + 1, k):
-            f = a[t, j] / p
-            a[t, j] = f
-            for c in range(j + 1, k):
-                a[t, c] -= f * a[j, c]
-    return logdet
-
-
-@numba.njit(**_INNER)
 def _lu_solve(a, k, ipiv, x):
-    """``x = A^-1 x`` in place from :func:`_lu_factor`'s factors of ``A`` (leading
-    ``k`` entries)."""
+    """``x = A^-1 x`` in place from the LU factors of ``A`` that :func:`_iv_row` makes
+    (leading ``k`` entries; ``ipiv[j]`` the row swapped with row ``j``)."""
     for j in range(k):
         t = ipiv[j]
         if t != j:
@@ -313,27 +289,6 @@ def _lu_solve(a, k, ipiv, x):
         for c in range(j + 1, k):
             acc -= a[j, c] * x[c]
         x[j] = acc / a[j, j]
-
-
-@numba.njit(**_INNER)
-def _chol_logdet(s, k, floor, scratch):
-    """``log det`` of the leading ``k x k`` block of the small Hermitian ``s`` by an
-    unpivoted Cholesky (``-inf`` when a pivot is not above ``floor``); ``s`` is kept,
-    ``scratch`` overwritten."""
-    for a in range(k):
-        for c in range(k):
-            scratch[a, c] = s[a, c]
-    logdet = 0.0
-    for j in range(k):
-        p = scratch[j, j].real
-        if not p > floor:
-            return -np.inf
-        logdet += math.log(p)
-        for a in range(j + 1, k):
-            f = scratch[a, j] / p
-            for c in range(j + 1, a + 1):
-                scratch[a, c] -= f * scratch[c, j].conjugate()
-    return logdet
 
 
 @numba.njit(**_INNER)
@@ -382,11 +337,48 @@ def _iv_row(m, q, nx, i, rk, perm, low, tsc, wx, ww, twc, siv, ipiv, gw, scratch
         for a in range(q):
             acc -= m[a, cw + s1].conjugate() * m[a, cx]
         dsol[j1] = -acc * twc[s1 - 1]
-    log_w = _chol_logdet(gw, rk, drop_tol, scratch)
+    # log det W~^H W~ by an unpivoted Cholesky in scratch (-inf when a pivot is not
+    # above drop_tol)
+    for a in range(rk):
+        for c in range(rk):
+            scratch[a, c] = gw[a, c]
+    log_w = 0.0
+    for j in range(rk):
+        p = scratch[j, j].real
+        if not p > drop_tol:
+            log_w = -np.inf
+            break
+        log_w += math.log(p)
+        for a in range(j + 1, rk):
+            f = scratch[a, j] / p
+            for c in range(j + 1, a + 1):
+                scratch[a, c] -= f * scratch[c, j].conjugate()
     log_x = 0.0
     for j in range(rk):
         log_x += 2.0 * math.log(low[j, j].real)
-    log_iv = _lu_factor(siv, rk, ipiv)
+    # LU with partial (row) pivoting of S in place (L unit lower below the diagonal, U on
+    # and above; ipiv[j] the row swapped with row j); log_iv = sum_j log|u_jj|, -inf at
+    # the first zero pivot, which stops the factorisation
+    log_iv = 0.0
+    for j in range(rk):
+        best = j
+        for t in range(j + 1, rk):
+            if abs(siv[t, j]) > abs(siv[best, j]):
+                best = t
+        ipiv[j] = best
+        if best != j:
+            for c in range(rk):
+                siv[j, c], siv[best, c] = siv[best, c], siv[j, c]
+        pv = siv[j, j]
+        if not abs(pv) > 0.0:
+            log_iv = -np.inf
+            break
+        log_iv += math.log(abs(pv))
+        for t in range(j + 1, rk):
+            f = siv[t, j] / pv
+            siv[t, j] = f
+            for c in range(j + 1, rk):
+                siv[t, c] -= f * siv[j, c]
     if not (log_iv > -np.inf and log_w > -np.inf):
         return -np.inf
     _lu_solve(siv, rk, ipiv, dsol)
@@ -475,94 +467,6 @@ def _products(rt, zt, b, j, slot_i, slot_j, base, x):
 
 
 @numba.njit(**_INNER)
-def direct_moments(rt, zt, b, k, n, slot_i, slot_j, rho_pow, mom, base, x, y):
-    """``mom[a n_slots + s] = sum_r rho^a conj(base_i) base_j`` over the window of output
-    bin ``k`` (padded samples ``k .. k + 2n``) by direct sums, ``(i, j) = (slot_i[s],
-    slot_j[s])``.  Power-major, so that the inner loops run over the slots.  The samples
-    at ``rho = +-u/n`` are summed in pairs: ``rho^a (x(+u) + (-1)^a x(-u))``, half the
-    multiply-adds of a sum sample by sample (``x``, ``y`` are scratch)."""
-    ns = slot_i.shape[0]
-    p1 = rho_pow.shape[1]
-    n2 = 2 * ns
-    # every weight is real: the sums run over the real and imaginary parts alike (in
-    # compiled code a real times a complex128 is a full complex product)
-    mf = mom.view(np.float64)
-    xf = x.view(np.float64)
-    yf = y.view(np.float64)
-    for f in range(mf.shape[0]):
-        mf[f] = 0.0
-    _products(rt, zt, b, k + n, slot_i, slot_j, base, x)  # rho = 0: the power 0 only
-    for s in range(n2):
-        mf[s] = xf[s]
-    for u in range(1, n + 1):
-        _products(rt, zt, b, k + n + u, slot_i, slot_j, base, x)
-        _products(rt, zt, b, k + n - u, slot_i, slot_j, base, y)
-        for s in range(n2):  # x <- x(+u) + x(-u), y <- x(+u) - x(-u)
-            xp = xf[s]
-            xm = yf[s]
-            xf[s] = xp + xm
-            yf[s] = xp - xm
-        for a in range(p1):
-            w = rho_pow[n + u, a]
-            row = mf[a * n2: (a + 1) * n2]  # a view: indices from 0 vectorise
-            src = xf if a % 2 == 0 else yf
-            for s in range(n2):
-                row[s] += w * src[s]
-
-
-@numba.njit(**_INNER)
-def step_moments(rt, zt, b, k, n, slot_i, slot_j, shift, lead, mom, base, x_out, x_in):
-    """Moments of output bin ``k + 1`` from those of bin ``k``, in place.
-
-    With ``x`` a product series and the window moved by one bin: first the window's
-    samples change in bin ``k``'s coordinates, ``S_c += ((n+1)/n)^c x(k+n+1) - (-1)^c
-    x(k-n)`` (``shift[0, c]``, ``shift[1, c]``), then the coordinates move by
-    ``h = 1/n``: ``S_a <- sum_c C(a, c) (-h)^(a-c) S_c``, a Taylor shift, applied as
-    ``p (p - 1) / 2`` bidiagonal steps ``S_(j+1) += -h S_j`` (``lead[0] = -h``; sweeps
-    ``i = 0..p-2``, each over ``j = p-2..i`` descending so that it reads the sweep's old
-    ``S_j``), two sweeps per pass over the moments.  ``O(p^2)`` per product whatever the
-    width, and fewer than half the passes over the moments of forming each new power as
-    a sum over the old ones (19 instead of 49 for ``p = 7``).
-    """
-    ns = slot_i.shape[0]
-    _products(rt, zt, b, k, slot_i, slot_j, base, x_out)
-    _products(rt, zt, b, k + 2 * n + 1, slot_i, slot_j, base, x_in)
-    # real weights: real views, as in direct_moments
-    mf = mom.view(np.float64)
-    xo = x_out.view(np.float64)
-    xi = x_in.view(np.float64)
-    n2 = 2 * ns
-    p1 = shift.shape[1]
-    for c in range(p1):
-        w_in = shift[0, c]
-        w_out = shift[1, c]
-        row = mf[c * n2: (c + 1) * n2]  # a view: indices from 0 vectorise (an offset
-        for s in range(n2):  # index might be negative to the compiler: wraparound)
-            row[s] += w_in * xi[s] - w_out * xo[s]
-    # the sweeps two at a time: sweeps i, i + 1 make S_r += 2 h S_(r-1) + h^2 S_(r-2)
-    # (r = p-1..i+2, descending: old values) and S_(i+1) += h S_i; a last single sweep
-    # S_(p-1) += h S_(p-2)
-    h = lead[0]
-    h2 = lead[1]
-    hh = lead[2]
-    i = 0
-    while i < p1 - 1:
-        pair = i + 2 < p1
-        if pair:
-            for r in range(p1 - 1, i + 1, -1):
-                row = mf[r * n2: (r + 1) * n2]
-                r1 = mf[(r - 1) * n2: r * n2]
-                r2 = mf[(r - 2) * n2: (r - 1) * n2]
-                for s in range(n2):
-                    row[s] += h2 * r1[s] + hh * r2[s]
-        row = mf[(i + 1) * n2: (i + 2) * n2]
-        r1 = mf[i * n2: (i + 1) * n2]
-        for s in range(n2):
-            row[s] += h * r1[s]
-        i += 2 if pair else 1
-
-
-@numba.njit(**_INNER)
 def _moment(mom, n_flat, f):
     """Table entry ``f``: the moments, then (``f >= n_flat``) their conjugates."""
     if f >= n_flat:
@@ -599,7 +503,7 @@ def moments_and_floor(rt, zt, n, sel, restart, k_base, slot_i, slot_j, p1, mom_o
 
 @numba.njit(**_INNER)
 def _recurrence(n, p1):
-    """``rho^a`` over the window, and the coefficients of :func:`step_moments`:
+    """``rho^a`` over the window, and the coefficients of the step in :func:`_advance`:
     ``shift`` (2, p1) the weights ``((n+1)/n)^c`` of the sample entering the window and
     ``(-1)^c`` of the one leaving it, ``lead`` (3,) the coordinate step ``h = -1/n``,
     ``2 h`` and ``h^2``."""
@@ -633,13 +537,74 @@ def _advance(rt, zt, b, k, valid, sel_b, restart, k_base, n, slot_i, slot_j, rho
     ``2 eps (W + 2 restart)`` times the R energy of the samples the segment's windows
     cover, a bound of the absolute rounding of the windowed ``sum |R_p|^2``.
     ``scratch`` (>= 3, >= max(n_slots, n_bases)) complex.
+
+    Moments are power-major (``mom[a n_slots + s]``), so that the inner loops run over
+    the slots; every weight is real, so the sums run over the real and imaginary parts
+    alike (float views: in compiled code a real times a complex128 is a full complex
+    product), and over views whose indices start at 0 (an offset index might be negative
+    to the compiler: wraparound), which vectorise.
+
+    One step (``k - 1`` to ``k``): with ``x`` a product series and the window moved by
+    one bin, first the window's samples change in bin ``k - 1``'s coordinates, ``S_c +=
+    ((n+1)/n)^c x(k+n) - (-1)^c x(k-1-n)`` (``shift[0, c]``, ``shift[1, c]``), then the
+    coordinates move by ``h = 1/n``: ``S_a <- sum_c C(a, c) (-h)^(a-c) S_c``, a Taylor
+    shift, applied as ``p (p - 1) / 2`` bidiagonal steps ``S_(j+1) += -h S_j``
+    (``lead[0] = -h``; sweeps ``i = 0..p-2``, each over ``j = p-2..i`` descending so that
+    it reads the sweep's old ``S_j``), two sweeps per pass over the moments.  ``O(p^2)``
+    per product whatever the width, and fewer than half the passes over the moments of
+    forming each new power as a sum over the old ones (19 instead of 49 for ``p = 7``).
+
+    Direct sums: ``mom[a n_slots + s] = sum_r rho^a conj(base_i) base_j`` over the window
+    of bin ``k`` (padded samples ``k .. k + 2n``), ``(i, j) = (slot_i[s], slot_j[s])``;
+    the samples at ``rho = +-u/n`` summed in pairs, ``rho^a (x(+u) + (-1)^a x(-u))``,
+    half the multiply-adds of a sum sample by sample.
+
+    (The step and the direct sums are written here, not as functions of their own: a
+    compiled function is optimised and made machine code alone and again in every
+    caller's linked module.)
     """
     nr = rt.shape[2]
+    ns = slot_i.shape[0]
+    n2 = 2 * ns
+    mf = mom.view(np.float64)
+    base = scratch[0]
     phase = (k_base + k) % restart
     if phase != 0 and (valid or k > 0):
-        if valid:
-            step_moments(rt, zt, b, k - 1, n, slot_i, slot_j, shift, lead, mom, scratch[0],
-                         scratch[1], scratch[2])
+        if valid:  # one step of the recurrence
+            x_out = scratch[1]
+            x_in = scratch[2]
+            _products(rt, zt, b, k - 1, slot_i, slot_j, base, x_out)
+            _products(rt, zt, b, k + 2 * n, slot_i, slot_j, base, x_in)
+            xo = x_out.view(np.float64)
+            xi = x_in.view(np.float64)
+            p1 = shift.shape[1]
+            for c in range(p1):
+                w_in = shift[0, c]
+                w_out = shift[1, c]
+                row = mf[c * n2: (c + 1) * n2]
+                for s in range(n2):
+                    row[s] += w_in * xi[s] - w_out * xo[s]
+            # the sweeps two at a time: sweeps i, i + 1 make S_r += 2 h S_(r-1) + h^2
+            # S_(r-2) (r = p-1..i+2, descending: old values) and S_(i+1) += h S_i; a last
+            # single sweep S_(p-1) += h S_(p-2)
+            h = lead[0]
+            h2 = lead[1]
+            hh = lead[2]
+            i = 0
+            while i < p1 - 1:
+                pair = i + 2 < p1
+                if pair:
+                    for r in range(p1 - 1, i + 1, -1):
+                        row = mf[r * n2: (r + 1) * n2]
+                        r1 = mf[(r - 1) * n2: r * n2]
+                        r2 = mf[(r - 2) * n2: (r - 1) * n2]
+                        for s in range(n2):
+                            row[s] += h2 * r1[s] + hh * r2[s]
+                row = mf[(i + 1) * n2: (i + 2) * n2]
+                r1 = mf[i * n2: (i + 1) * n2]
+                for s in range(n2):
+                    row[s] += h * r1[s]
+                i += 2 if pair else 1
         return valid
     end = min(k + restart - phase, sel_b.shape[0])
     want = False
@@ -647,8 +612,31 @@ def _advance(rt, zt, b, k, valid, sel_b, restart, k_base, n, slot_i, slot_j, rho
         want = want or sel_b[kk]
     if not want:
         return False
-    direct_moments(rt, zt, b, k, n, slot_i, slot_j, rho_pow, mom, scratch[0], scratch[1],
-                   scratch[2])
+    # direct sums over the window
+    x = scratch[1]
+    y = scratch[2]
+    p1 = rho_pow.shape[1]
+    xf = x.view(np.float64)
+    yf = y.view(np.float64)
+    for f in range(mf.shape[0]):
+        mf[f] = 0.0
+    _products(rt, zt, b, k + n, slot_i, slot_j, base, x)  # rho = 0: the power 0 only
+    for s in range(n2):
+        mf[s] = xf[s]
+    for u in range(1, n + 1):
+        _products(rt, zt, b, k + n + u, slot_i, slot_j, base, x)
+        _products(rt, zt, b, k + n - u, slot_i, slot_j, base, y)
+        for s in range(n2):  # x <- x(+u) + x(-u), y <- x(+u) - x(-u)
+            xp = xf[s]
+            xm = yf[s]
+            xf[s] = xp + xm
+            yf[s] = xp - xm
+        for a in range(p1):
+            w = rho_pow[n + u, a]
+            row = mf[a * n2: (a + 1) * n2]
+            src = xf if a % 2 == 0 else yf
+            for s in range(n2):
+                row[s] += w * src[s]
     width = rho_pow.shape[0]
     hi = min(end + width - 1, rt.shape[1])
     for p in range(nr):
@@ -689,7 +677,7 @@ def _failed_bin(o, mode, out_g, out_t, out_ncov, out_cond, out_ill, out_reduced,
 
 @numba.njit(**_JIT)
 def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
-             aug_index, zz_index, a_base, a_pow, mean_pow, dof, mode, drop_tol,
+             aug_index, zz_index, gather, a_base, a_pow, mean_pow, dof, mode, drop_tol,
              pivot_limit, sens_limit, out_g, out_t, out_ncov, out_cond, out_ill,
              out_reduced, out_gcov, out_gvar, pool, iv):
     """Fit the local model at the selected bins of one chunk (see the module notes).
@@ -700,7 +688,10 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
     aligns the moment restarts, see ``_advance``).  Windowed moments of the product pairs ``(slot_i,
     slot_j)``, ``p1`` powers each, power-major (entry ``a n_slots + s``), read through
     ``aug_index`` (q, q + nx) and ``zz_index`` (nz, nz, Rd+1, Rd+1) (entries from
-    ``n_slots p1`` on are conjugates).  ``mode`` is ``COV_*``.  Outputs: ``G`` (., nz,
+    ``n_slots p1`` on are conjugates); ``gather`` the same tables decoded for the one-record
+    gathers (``local_models._gather_tables``: positions of the real parts
+    in the moments' float view and the signs of the imaginary parts, ``aug_index``'s then
+    ``zz_index``'s).  ``mode`` is ``COV_*``.  Outputs: ``G`` (., nz,
     nr), ``T`` (., nz), noise covariance (., nz, nz), condition estimate, ill-posed flag,
     number of dropped denominator columns, ``G`` covariance (., nz nr, nz nr; mode full)
     or variances (., nz, nr; mode diag).
@@ -848,7 +839,8 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
     dwi = np.empty((nz, wc))
     vmr = np.empty((nz, max(rd, 1), wc))
     vmi = np.empty((nz, max(rd, 1), wc))
-    nuv = np.empty((nz, wc))
+    ncr = np.empty((nz, wc))  # x_i(r) of the residual projector (_iv_tau)
+    nci = np.empty((nz, wc))
     hgr = np.empty((nz * nr, wc))
     hgi = np.empty((nz * nr, wc))
     crow = np.empty(wc, dtype=np.complex128)
@@ -872,34 +864,14 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
     wmi = np.empty((rdv, wcv))
     ymr = np.empty((nz, rdv, wcv))
     ymi = np.empty((nz, rdv, wcv))
-    ncr = np.empty((nz, wcv))
-    nci = np.empty((nz, wcv))
 
     n_flat = slot_i.shape[0] * p1
     moms = np.empty((n_exp, n_flat), dtype=np.complex128)
     mom = moms[0]
     momf = mom.view(np.float64)
-    # the gather of [Gaa | A^H X] without a branch per entry: the real and imaginary
-    # parts' positions in momf and the sign of the imaginary part (conjugated half)
-    # (one record only: pooled moments are gathered per experiment)
-    gre = np.empty((q, q + nxw), dtype=np.int64)
-    gsg = np.empty((q, q + nxw))
-    if pool is None:
-        for a in range(q):
-            for c in range(q + nxw):
-                f = aug_index[a, c]
-                gre[a, c] = 2 * (f - n_flat if f >= n_flat else f)
-                gsg[a, c] = -1.0 if f >= n_flat else 1.0
-    zre = np.empty((nz, nz, rd1, rd1), dtype=np.int64)  # the same for X^H X
-    zsg = np.empty((nz, nz, rd1, rd1))
-    if pool is None:
-        for i in range(nz):
-            for j in range(nz):
-                for s in range(rd1):
-                    for t in range(rd1):
-                        f = zz_index[i, j, s, t]
-                        zre[i, j, s, t] = 2 * (f - n_flat if f >= n_flat else f)
-                        zsg[i, j, s, t] = -1.0 if f >= n_flat else 1.0
+    # the gather of [Gaa | A^H X] and X^H X without a branch per entry (one record only:
+    # pooled moments are gathered per experiment)
+    gre, gsg, zre, zsg = gather
     floors = np.empty((n_exp, nr))
     floor = np.empty(nr)
     scratch = np.empty((4, max(slot_i.shape[0], nr + 1 + zt.shape[2])), dtype=np.complex128)
@@ -1191,96 +1163,16 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
                     acc += delta[i, s] * rho_pow[r % wn, s]
                 dwr[i, r] = acc.real
                 dwi[i, r] = acc.imag
-            rk = rank[i]
-            c0 = i * rd1
-            if has_iv:
-                _iv_row_gains(rt, zt, b, k, i, nz, rk, perm[i], tsc[i], twc[i], siv[i],
-                              ipiv[i], m, q, nx, q_all, ds, dwr[i], dwi[i], qhr, qhi, rho_pow,
-                              tpow, wtx, pool is not None, crow, ybk, ybw, wmr, wmi, sinv,
-                              dsol, umr[i], umi[i], ymr[i], ymi[i], hgr, hgi, wa, wb)
-                continue
-            # U_i (rows j, over r): the kept scaled D columns projected off A, whitened
-            # by L_s^-H
-            for j in range(rk):
-                s = perm[i, j]
-                for a in range(q):
-                    ybk[a, j] = -tsc[i, s] * m[a, q + c0 + s + 1]
-            for j in range(rk):
-                s = perm[i, j]
-                f = -tsc[i, s]
-                if pool is not None:
-                    _pooled_d_column(zt, b, k, i, s + 1, q_all + c0 + s + 1, f, rho_pow,
-                                     tpow, wtx, crow)
-                    for r in range(width):
-                        umr[i, j, r] = crow[r].real
-                        umi[i, j, r] = crow[r].imag
-                else:
-                    for r in range(width):
-                        w = f * rho_pow[r, s + 1]
-                        umr[i, j, r] = w * zt[b, k + r, i].real
-                        umi[i, j, r] = w * zt[b, k + r, i].imag
-                for a in range(q):  # - Q_A Y~_B: Q_A(r, a) = conj(qh[a, r])
-                    yr = ybk[a, j].real
-                    yi = ybk[a, j].imag
-                    for r in range(width):
-                        umr[i, j, r] -= qhr[a, r] * yr + qhi[a, r] * yi
-                        umi[i, j, r] -= qhr[a, r] * yi - qhi[a, r] * yr
-                for c in range(j):  # um[j] -= um[c] conj(low[j, c])
-                    fr = low[i, j, c].real
-                    fi = -low[i, j, c].imag
-                    for r in range(width):
-                        umr[i, j, r] -= umr[i, c, r] * fr - umi[i, c, r] * fi
-                        umi[i, j, r] -= umr[i, c, r] * fi + umi[i, c, r] * fr
-                inv = 1.0 / low[i, j, j].real
-                for r in range(width):
-                    umr[i, j, r] *= inv
-                    umi[i, j, r] *= inv
-            # G rows of K_i^+: w_A = L^-1 e_g (non-zero on the trailing nr entries only),
-            # w_B = -L_s^-1 Y~_B^H w_A; gain g~(r) = conj(Q_A w_A + U_i w_B)(r)
-            for p in range(nr):
-                g = q - nr + p
-                x = i * nr + p
-                _gain_shared(m, q, g, qhr, qhi, wa, hgr, hgi, x)
-                for j in range(rk):
-                    acc = 0j
-                    for a in range(g, q):
-                        acc -= ybk[a, j].conjugate() * wa[a]
-                    for c in range(j):
-                        acc -= low[i, j, c] * wb[c]
-                    wb[j] = acc / low[i, j, j].real
-                for j in range(rk):  # += conj(um[j]) conj(wb[j])
-                    fr = wb[j].real
-                    fi = -wb[j].imag
-                    for r in range(width):
-                        hgr[x, r] += umr[i, j, r] * fr + umi[i, j, r] * fi
-                        hgi[x, r] += umr[i, j, r] * fi - umi[i, j, r] * fr
-                _gain_scale(hgr, hgi, x, ds[g], dwr[i], dwi[i])
-        if has_iv:  # the oblique residual projector's tau (_iv_tau)
-            _iv_tau(rank, lev, dwr, dwi, umr, umi, ymr, ymi, ncr, nci, vmr, vmi, ehe, tau,
-                    scov)
-        # tau_ij and s_ij = raw_ij / tau_ij (i <= j, Hermitian).  Per row first: the
-        # weights 1 - lev - nu_i, and V_i = U_i conj(d_i), so that the trace term's
-        # U_i^H diag(d_i conj(d_j)) U_j is V_i^H V_j
-        for i in range(0 if has_iv else nz):
-            for r in range(width):
-                nuv[i, r] = 0.0
-            for s in range(rank[i]):
-                for r in range(width):
-                    ur = umr[i, s, r]
-                    ui = umi[i, s, r]
-                    nuv[i, r] += ur * ur + ui * ui
-                    vmr[i, s, r] = ur * dwr[i, r] + ui * dwi[i, r]
-                    vmi[i, s, r] = ui * dwr[i, r] - ur * dwi[i, r]
-        for i in range(0 if has_iv else nz):
-            for j in range(i, nz):
-                accr = 0.0
-                acci = 0.0
-                for r in range(width):  # d_i conj(d_j) (1 - lev - nu_i - nu_j)
-                    wgt = 1.0 - lev[r] - nuv[i, r] - nuv[j, r]
-                    accr += (dwr[i, r] * dwr[j, r] + dwi[i, r] * dwi[j, r]) * wgt
-                    acci += (dwi[i, r] * dwr[j, r] - dwr[i, r] * dwi[j, r]) * wgt
-                _tau_trace(complex(accr, acci), i, j, rank, umr, umi, vmr, vmi, ehe, tau,
-                           scov)
+            # the row's projected D columns (least squares: whitened, U_i; IV: X~ and
+            # Y = W~ S^-H) and the gains of its G entries (_row_gains)
+            _row_gains(zt, b, k, i, nz, rd1, rank[i], perm[i], low[i], tsc[i], twc[i], siv[i],
+                       ipiv[i], m, nx, q_all, ds, dwr[i], dwi[i], qhr, qhi, rho_pow, tpow,
+                       wtx, pool, has_iv, crow, ybk, ybw, wmr, wmi, sinv, dsol, umr[i],
+                       umi[i], ymr[i], ymi[i], hgr, hgi, wa, wb)
+        # tau_ij and s_ij = raw_ij / tau_ij (least squares: the residual projector is
+        # orthogonal, Y = U; IV: oblique)
+        _iv_tau(rank, lev, dwr, dwi, umr, umi, ymr if has_iv else umr,
+                ymi if has_iv else umi, ncr, nci, vmr, vmi, ehe, tau, scov, has_iv)
         for i in range(nz):
             for j in range(nz):
                 out_ncov[o, i, j] = scov[i, j]
@@ -1308,161 +1200,158 @@ def fit_bins(rt, zt, n, sel, out_offset, m_out, restart, slot_i, slot_j, p1,
 
 
 @numba.njit(**_INNER)
-def _gain_shared(m, q, g, qhr, qhi, wa, hgr, hgi, x):
-    """``wa = L^-1 e_g`` (non-zero from entry ``g`` on: ``G`` is last in ``A``) and the
-    shared columns' part of the gain row ``x``: ``conj(Q_A wa)(r) = sum_a qh[a, r]
-    conj(wa[a])`` (the rows' own columns are added by the caller)."""
-    for a in range(q):
-        wa[a] = 0j
-    for a in range(g, q):
-        acc = 1.0 + 0j if a == g else 0j
-        for c in range(g, a):
-            acc -= m[c, a].conjugate() * wa[c]
-        wa[a] = acc / m[a, a].real
+def _project_kept(zt, b, k, col, mcol, pcol, scale, rk, perm, m, qhr, qhi, rho_pow, tpow, wtx,
+                  pool, crow, yb, ur, ui):
+    """The kept denominator columns ``-scale[s] rho^(s+1) zt[:, col]`` (``s = perm[j]``)
+    over the window, projected off ``A``: ``yb[a, j] = Y~ = L^-1 A~^H b~`` (the scaled
+    column ``mcol + s + 1`` of ``m``) and ``ur``, ``ui`` (rk, W) ``b~ - Q_A Y~`` (pooled:
+    each window also off its experiment's transient, column ``pcol + s + 1`` of ``wtx``).
+    Least squares calls it for the regressors ``Z_i``, IV also for the instruments."""
+    q = qhr.shape[0]
     width = qhr.shape[1]
-    for r in range(width):
-        hgr[x, r] = 0.0
-        hgi[x, r] = 0.0
-    for a in range(g, q):  # += qh[a] conj(wa[a])
-        fr = wa[a].real
-        fi = -wa[a].imag
-        for r in range(width):
-            hgr[x, r] += qhr[a, r] * fr - qhi[a, r] * fi
-            hgi[x, r] += qhr[a, r] * fi + qhi[a, r] * fr
-
-
-@numba.njit(**_INNER)
-def _gain_scale(hgr, hgi, x, sc, dwr, dwi):
-    """Gain row ``x`` times ``sc d(r)`` (the column scale of ``G``, and the equation error
-    ``d V``)."""
-    for r in range(hgr.shape[1]):
-        fr = sc * dwr[r]
-        fi = sc * dwi[r]
-        hr = hgr[x, r]
-        hgr[x, r] = hr * fr - hgi[x, r] * fi
-        hgi[x, r] = hr * fi + hgi[x, r] * fr
-
-
-@numba.njit(**_INNER)
-def _iv_row_gains(rt, zt, b, k, i, nz, rk, perm, tsc, twc, siv, ipiv, m, q, nx, q_all, ds,
-                  dwr, dwi, qhr, qhi, rho_pow, tpow, wtx, pooled, crow, ybk, ybw, wmr, wmi,
-                  sinv, x, umr, umi, ymr, ymi, hgr, hgi, wa, wb):
-    """IV covariance pieces of row ``i`` over the window (the IV counterpart of the
-    least-squares ``U_i`` and gains in :func:`fit_bins`).
-
-    ``X~ = P B~`` (kept scaled columns projected off ``A``, not whitened) into ``umr``,
-    ``umi`` (rk, W); ``Y = W~ S^-H`` into ``ymr``, ``ymi`` (``W~ = P W'``, the scaled
-    instruments projected off ``A``; ``S = W~^H B~`` from the LU in ``siv``), so that
-    the residual projector is ``P - X~ Y^H``.  The gains of ``G_i`` (rows ``i nr + p`` of
-    ``hgr``, ``hgi``): ``delta G = ds_g wa^H (Q_A^H - Y_B Y^H) e`` with ``Y_B = Q_A^H B~``
-    and ``wa = L^-1 e_g``, times ``d_i(r)`` (the equation error is ``d_i V_i``).  ``P``
-    is ``I - Q_A Q_A^H`` (pooled: the columns also off each experiment's transient,
-    through ``wtx``).  ``x`` (>= rk) is scratch.
-    """
-    width = qhr.shape[1]
-    nr = hgr.shape[0] // nz
-    rd1 = tsc.shape[0] + 1
-    c0 = i * rd1
     for j in range(rk):
         s = perm[j]
+        f = -scale[s]
         for a in range(q):
-            ybk[a, j] = -tsc[s] * m[a, q + c0 + s + 1]
-            ybw[a, j] = -twc[s] * m[a, q + nx + c0 + s + 1]
-    for j in range(rk):
-        s = perm[j]
-        f = -tsc[s]
-        fw = -twc[s]
-        if pooled:
-            _pooled_d_column(zt, b, k, i, s + 1, q_all + c0 + s + 1, f, rho_pow, tpow, wtx,
-                             crow)
+            yb[a, j] = f * m[a, mcol + s + 1]
+        if pool is not None:  # (pool None: numba leaves the pooled branch out)
+            _pooled_d_column(zt, b, k, col, s + 1, pcol + s + 1, f, rho_pow, tpow, wtx, crow)
             for r in range(width):
-                umr[j, r] = crow[r].real
-                umi[j, r] = crow[r].imag
-            _pooled_d_column(zt, b, k, nz + i, s + 1, q_all + nx + c0 + s + 1, fw, rho_pow,
-                             tpow, wtx, crow)
-            for r in range(width):
-                wmr[j, r] = crow[r].real
-                wmi[j, r] = crow[r].imag
+                ur[j, r] = crow[r].real
+                ui[j, r] = crow[r].imag
         else:
             for r in range(width):
                 w = f * rho_pow[r, s + 1]
-                umr[j, r] = w * zt[b, k + r, i].real
-                umi[j, r] = w * zt[b, k + r, i].imag
-                w = fw * rho_pow[r, s + 1]
-                wmr[j, r] = w * zt[b, k + r, nz + i].real
-                wmi[j, r] = w * zt[b, k + r, nz + i].imag
+                ur[j, r] = w * zt[b, k + r, col].real
+                ui[j, r] = w * zt[b, k + r, col].imag
         for a in range(q):  # - Q_A Y~: Q_A(r, a) = conj(qh[a, r])
-            yr = ybk[a, j].real
-            yi = ybk[a, j].imag
-            vr = ybw[a, j].real
-            vi = ybw[a, j].imag
+            yr = yb[a, j].real
+            yi = yb[a, j].imag
             for r in range(width):
-                umr[j, r] -= qhr[a, r] * yr + qhi[a, r] * yi
-                umi[j, r] -= qhr[a, r] * yi - qhi[a, r] * yr
-                wmr[j, r] -= qhr[a, r] * vr + qhi[a, r] * vi
-                wmi[j, r] -= qhr[a, r] * vi - qhi[a, r] * vr
-    for t in range(rk):  # S^-1, column by column
-        for u in range(rk):
-            x[u] = 1.0 if u == t else 0.0
-        _lu_solve(siv, rk, ipiv, x)
-        for u in range(rk):
-            sinv[u, t] = x[u]
-    for t in range(rk):  # Y(r, t) = sum_u W~(r, u) conj(S^-1[t, u])
-        for r in range(width):
-            ymr[t, r] = 0.0
-            ymi[t, r] = 0.0
-        for u in range(rk):
-            fr = sinv[t, u].real
-            fi = -sinv[t, u].imag
+                ur[j, r] -= qhr[a, r] * yr + qhi[a, r] * yi
+                ui[j, r] -= qhr[a, r] * yi - qhi[a, r] * yr
+
+
+@numba.njit(**_INNER)
+def _row_gains(zt, b, k, i, nz, rd1, rk, perm, low, tsc, twc, siv, ipiv, m, nx, q_all, ds,
+               dwr, dwi, qhr, qhi, rho_pow, tpow, wtx, pool, has_iv, crow, ybk, ybw, wmr,
+               wmi, sinv, x, umr, umi, ymr, ymi, hgr, hgi, wa, wb):
+    """Covariance pieces of row ``i`` over the window: its projected denominator columns
+    and the gains of its ``G`` entries (rows ``i nr + p`` of ``hgr``, ``hgi``), times
+    ``d_i(r)`` (the equation error is ``d_i V_i``).
+
+    Least squares: ``U_i`` (rk, W) into ``umr``, ``umi``, the kept scaled columns projected
+    off ``A`` (:func:`_project_kept`) and whitened by ``L_s^-H`` (``low``), and the gains
+    ``g~(r) = conj(Q_A w_A + U_i w_B)(r)`` with ``w_A = L^-1 e_g`` (non-zero on the trailing
+    ``nr`` entries only) and ``w_B = -L_s^-1 Y~_B^H w_A``.
+
+    Instrumental variables: ``X~ = P B~`` (not whitened) into ``umr``, ``umi``; ``Y = W~
+    S^-H`` into ``ymr``, ``ymi`` (``W~ = P W'``, the scaled instruments projected off
+    ``A``; ``S = W~^H B~`` from the LU in ``siv``), so that the residual projector is ``P
+    - X~ Y^H``; gains ``delta G = ds_g wa^H (Q_A^H - Y_B Y^H) e`` with ``Y_B = Q_A^H B~``.
+    ``P`` is ``I - Q_A Q_A^H`` (pooled: the columns also off each experiment's transient,
+    through ``wtx``).  ``x`` (>= rk) is scratch.
+    """
+    width = qhr.shape[1]
+    q = qhr.shape[0]
+    nr = hgr.shape[0] // nz
+    c0 = i * rd1
+    _project_kept(zt, b, k, i, q + c0, q_all + c0, tsc, rk, perm, m, qhr, qhi, rho_pow, tpow,
+                  wtx, pool, crow, ybk, umr, umi)
+    if has_iv:
+        _project_kept(zt, b, k, nz + i, q + nx + c0, q_all + nx + c0, twc, rk, perm, m, qhr,
+                      qhi, rho_pow, tpow, wtx, pool, crow, ybw, wmr, wmi)
+        for t in range(rk):  # S^-1, column by column
+            for u in range(rk):
+                x[u] = 1.0 if u == t else 0.0
+            _lu_solve(siv, rk, ipiv, x)
+            for u in range(rk):
+                sinv[u, t] = x[u]
+        for t in range(rk):  # Y(r, t) = sum_u W~(r, u) conj(S^-1[t, u])
             for r in range(width):
-                ymr[t, r] += wmr[u, r] * fr - wmi[u, r] * fi
-                ymi[t, r] += wmr[u, r] * fi + wmi[u, r] * fr
+                ymr[t, r] = 0.0
+                ymi[t, r] = 0.0
+            for u in range(rk):
+                fr = sinv[t, u].real
+                fi = -sinv[t, u].imag
+                for r in range(width):
+                    ymr[t, r] += wmr[u, r] * fr - wmi[u, r] * fi
+                    ymi[t, r] += wmr[u, r] * fi + wmi[u, r] * fr
+    else:
+        for j in range(rk):  # whitened: um[j] -= um[c] conj(low[j, c]), / low[j, j]
+            for c in range(j):
+                fr = low[j, c].real
+                fi = -low[j, c].imag
+                for r in range(width):
+                    umr[j, r] -= umr[c, r] * fr - umi[c, r] * fi
+                    umi[j, r] -= umr[c, r] * fi + umi[c, r] * fr
+            inv = 1.0 / low[j, j].real
+            for r in range(width):
+                umr[j, r] *= inv
+                umi[j, r] *= inv
     for p in range(nr):
         g = q - nr + p
         xg = i * nr + p
-        _gain_shared(m, q, g, qhr, qhi, wa, hgr, hgi, xg)
-        for j in range(rk):  # wb = Y_B^H wa
-            acc = 0j
-            for a in range(g, q):
-                acc += ybk[a, j].conjugate() * wa[a]
-            wb[j] = acc
-        for j in range(rk):  # -= conj(Y(r, j)) conj(wb[j])
-            br = wb[j].real
-            bi = wb[j].imag
+        # wa = L^-1 e_g (non-zero from entry g on: G is last in A) and the shared
+        # columns' part of the gain: conj(Q_A wa)(r) = sum_a qh[a, r] conj(wa[a])
+        for a in range(q):
+            wa[a] = 0j
+        for a in range(g, q):
+            acc = 1.0 + 0j if a == g else 0j
+            for c in range(g, a):
+                acc -= m[c, a].conjugate() * wa[c]
+            wa[a] = acc / m[a, a].real
+        for r in range(width):
+            hgr[xg, r] = 0.0
+            hgi[xg, r] = 0.0
+        for a in range(g, q):  # += qh[a] conj(wa[a])
+            fr = wa[a].real
+            fi = -wa[a].imag
             for r in range(width):
-                hgr[xg, r] -= ymr[j, r] * br - ymi[j, r] * bi
-                hgi[xg, r] += ymr[j, r] * bi + ymi[j, r] * br
-        _gain_scale(hgr, hgi, xg, ds[g], dwr, dwi)
+                hgr[xg, r] += qhr[a, r] * fr - qhi[a, r] * fi
+                hgi[xg, r] += qhr[a, r] * fi + qhi[a, r] * fr
+        if has_iv:
+            for j in range(rk):  # wb = Y_B^H wa
+                acc = 0j
+                for a in range(g, q):
+                    acc += ybk[a, j].conjugate() * wa[a]
+                wb[j] = acc
+            for j in range(rk):  # -= conj(Y(r, j)) conj(wb[j])
+                br = wb[j].real
+                bi = wb[j].imag
+                for r in range(width):
+                    hgr[xg, r] -= ymr[j, r] * br - ymi[j, r] * bi
+                    hgi[xg, r] += ymr[j, r] * bi + ymi[j, r] * br
+        else:
+            for j in range(rk):  # w_B = -L_s^-1 Y~_B^H w_A
+                acc = 0j
+                for a in range(g, q):
+                    acc -= ybk[a, j].conjugate() * wa[a]
+                for c in range(j):
+                    acc -= low[j, c] * wb[c]
+                wb[j] = acc / low[j, j].real
+            for j in range(rk):  # += conj(um[j]) conj(wb[j])
+                fr = wb[j].real
+                fi = -wb[j].imag
+                for r in range(width):
+                    hgr[xg, r] += umr[j, r] * fr + umi[j, r] * fi
+                    hgi[xg, r] += umr[j, r] * fi - umi[j, r] * fr
+        sc = ds[g]  # times ds_g d(r) (the column scale of G, the equation error d V)
+        for r in range(width):
+            fr = sc * dwr[r]
+            fi = sc * dwi[r]
+            hr = hgr[xg, r]
+            hgr[xg, r] = hr * fr - hgi[xg, r] * fi
+            hgi[xg, r] = hr * fi + hgi[xg, r] * fr
 
 
 @numba.njit(**_INNER)
-def _tau_trace(acc, i, j, rank, umr, umi, vmr, vmi, ehe, tau, scov):
-    """``tau_ij = acc + tr((U_j^H U_i)(V_i^H V_j))`` over the kept columns (least squares:
-    ``U`` orthonormal, ``V = U conj(d)``; IV: ``U`` the projected regressors ``X``, ``V =
-    Y conj(d)``), and ``scov_ij = conj(ehe_ij) / tau_ij`` (with its mirror)."""
-    width = umr.shape[2]
-    for s in range(rank[j]):
-        for t in range(rank[i]):
-            ujr = 0.0  # (U_j^H U_i)[s, t]
-            uji = 0.0
-            ucr = 0.0  # (V_i^H V_j)[t, s] = (U_i^H diag(c_ij) U_j)[t, s] (least squares)
-            uci = 0.0
-            for r in range(width):
-                ujr += umr[j, s, r] * umr[i, t, r] + umi[j, s, r] * umi[i, t, r]
-                uji += umr[j, s, r] * umi[i, t, r] - umi[j, s, r] * umr[i, t, r]
-                ucr += vmr[i, t, r] * vmr[j, s, r] + vmi[i, t, r] * vmi[j, s, r]
-                uci += vmr[i, t, r] * vmi[j, s, r] - vmi[i, t, r] * vmr[j, s, r]
-            acc += complex(ujr, uji) * complex(ucr, uci)
-    tau[i, j] = acc
-    scov[i, j] = ehe[i, j].conjugate() / acc
-    scov[j, i] = scov[i, j].conjugate()
-
-
-@numba.njit(**_INNER)
-def _iv_tau(rank, lev, dwr, dwi, umr, umi, ymr, ymi, ncr, nci, vmr, vmi, ehe, tau, scov):
-    """``tau_ij = tr(D_j^H Pi_j^H Pi_i D_i)`` of the IV residual projector
-    ``Pi_i = P - X_i Y_i^H`` (oblique, ``Y_i^H X_i = I``; ``X``, ``Y`` in ``umr``/``ymr``
-    from :func:`_iv_row_gains`) and ``scov = conj(ehe) / tau``::
+def _iv_tau(rank, lev, dwr, dwi, umr, umi, ymr, ymi, ncr, nci, vmr, vmi, ehe, tau, scov,
+            oblique):
+    """``tau_ij = tr(D_j^H Pi_j^H Pi_i D_i)`` of the residual projector
+    ``Pi_i = P - X_i Y_i^H`` (IV: oblique, ``Y_i^H X_i = I``; ``X``, ``Y`` in ``umr``/``ymr``
+    from :func:`_row_gains`; least squares, ``oblique`` false: ``X = Y = U_i``,
+    orthonormal, ``x_i = nu_i`` real, the weight's imaginary part left out) and ``scov = conj(ehe) / tau``::
 
         tau_ij = sum_r c(r) (1 - lev(r) - x_i(r) - conj(x_j(r)))
                  + tr((X_j^H X_i)(Y_i^H diag(c) Y_j)),   c = d_i conj(d_j),
@@ -1490,14 +1379,36 @@ def _iv_tau(rank, lev, dwr, dwi, umr, umi, ymr, ymi, ncr, nci, vmr, vmi, ehe, ta
         for j in range(i, nz):
             accr = 0.0
             acci = 0.0
-            for r in range(width):
-                cr = dwr[i, r] * dwr[j, r] + dwi[i, r] * dwi[j, r]
-                ci = dwi[i, r] * dwr[j, r] - dwr[i, r] * dwi[j, r]
-                wr = 1.0 - lev[r] - ncr[i, r] - ncr[j, r]
-                wi = nci[j, r] - nci[i, r]
-                accr += cr * wr - ci * wi
-                acci += cr * wi + ci * wr
-            _tau_trace(complex(accr, acci), i, j, rank, umr, umi, vmr, vmi, ehe, tau, scov)
+            if oblique:
+                for r in range(width):
+                    cr = dwr[i, r] * dwr[j, r] + dwi[i, r] * dwi[j, r]
+                    ci = dwi[i, r] * dwr[j, r] - dwr[i, r] * dwi[j, r]
+                    wr = 1.0 - lev[r] - ncr[i, r] - ncr[j, r]
+                    wi = nci[j, r] - nci[i, r]
+                    accr += cr * wr - ci * wi
+                    acci += cr * wi + ci * wr
+            else:  # least squares: x_i = nu_i is real, d_i conj(d_j) (1 - lev - nu_i - nu_j)
+                for r in range(width):
+                    wgt = 1.0 - lev[r] - ncr[i, r] - ncr[j, r]
+                    accr += (dwr[i, r] * dwr[j, r] + dwi[i, r] * dwi[j, r]) * wgt
+                    acci += (dwi[i, r] * dwr[j, r] - dwr[i, r] * dwi[j, r]) * wgt
+            # + tr((X_j^H X_i)(V_i^H V_j)) over the kept columns, V = Y conj(d)
+            acc = complex(accr, acci)
+            for s in range(rank[j]):
+                for t in range(rank[i]):
+                    ujr = 0.0  # (X_j^H X_i)[s, t]
+                    uji = 0.0
+                    ucr = 0.0  # (V_i^H V_j)[t, s]
+                    uci = 0.0
+                    for r in range(width):
+                        ujr += umr[j, s, r] * umr[i, t, r] + umi[j, s, r] * umi[i, t, r]
+                        uji += umr[j, s, r] * umi[i, t, r] - umi[j, s, r] * umr[i, t, r]
+                        ucr += vmr[i, t, r] * vmr[j, s, r] + vmi[i, t, r] * vmi[j, s, r]
+                        uci += vmr[i, t, r] * vmi[j, s, r] - vmi[i, t, r] * vmr[j, s, r]
+                    acc += complex(ujr, uji) * complex(ucr, uci)
+            tau[i, j] = acc
+            scov[i, j] = ehe[i, j].conjugate() / acc
+            scov[j, i] = scov[i, j].conjugate()
 
 
 @numba.njit(**_INNER)

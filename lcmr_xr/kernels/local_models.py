@@ -959,8 +959,9 @@ def _fit_chunk(rt, zt, n, degrees, mode, sel, out_offset, m, dof, out, n_exp=1, 
     else:
         slots, aug, zz, iv_arg = _slot_pairs(nr, nz, degrees), lay.aug_index, lay.zz_index, _NO_IV
     mean_pow = _analytic_moments(n, 2 * rd) / (2 * n + 1)
+    gather = _gather_tables(nr, nz, degrees, iv)
     _bins().fit_bins(np.ascontiguousarray(rt), np.ascontiguousarray(zt), n, np.ascontiguousarray(sel),
-                  out_offset, m, _restart_interval(n), *slots, aug, zz, lay.a_base, lay.a_pow, np.ascontiguousarray(mean_pow), float(dof), mode,
+                  out_offset, m, _restart_interval(n), *slots, aug, zz, gather, lay.a_base, lay.a_pow, np.ascontiguousarray(mean_pow), float(dof), mode,
                   DROP_TOLERANCE, CONDITION_LIMIT, G_SENSITIVITY_LIMIT,
                   out["G"], out["T"], out["noise_covariance"], out["condition"],
                   out["ill_posed"], out["dropped"], out["G_cov"], out["G_var"],
@@ -1025,6 +1026,33 @@ def _power_major_layout(nr, nz, degrees):
     slots = _table_slots(nr, nz, degrees, 0)
     return lay._replace(aug_index=_power_major(lay.aug_index, slots),
                         zz_index=_power_major(lay.zz_index, slots))
+
+
+@functools.lru_cache(maxsize=32)
+def _gather_tables(nr, nz, degrees, iv=False):
+    """``fit_bins``'s ``gather`` argument: its ``aug_index`` and ``zz_index`` (least
+    squares' or, ``iv``, the instrumental-variable tables') decoded for the one-record
+    gathers, which read a moment as two floats without a branch per entry: per entry the
+    position of its real part in the moments' float view (``2 f``, ``f`` the moment's
+    index with the conjugated half folded back) and the sign of its imaginary part (-1 in
+    the conjugated half).  Returns ``(aug positions, aug signs, zz positions, zz signs)``,
+    read-only (computed here once per layout, not compiled: less code to compile)."""
+    if iv:
+        tab = _iv_tables(nr, nz, degrees)
+        (slot_i, _, p1), aug, zz = tab.slots, tab.aug_index, tab.zz_index
+    else:
+        lay = _power_major_layout(nr, nz, degrees)
+        slot_i, _, p1 = _slot_pairs(nr, nz, degrees)
+        aug, zz = lay.aug_index, lay.zz_index
+    n_flat = len(slot_i) * p1
+    out = []
+    for index in (aug, zz):
+        conj = index >= n_flat
+        out += [np.ascontiguousarray(2 * np.where(conj, index - n_flat, index), dtype=np.int64),
+                np.ascontiguousarray(np.where(conj, -1.0, 1.0))]
+    for arr in out:
+        arr.flags.writeable = False
+    return tuple(out)
 
 
 class _IVTables(NamedTuple):
