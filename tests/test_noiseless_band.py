@@ -117,3 +117,52 @@ def test_noiseless_auto_chooses_from_the_unfloored_variances():
     rel = np.abs(out.P.values[1:] - truth)[released] / np.abs(truth[released])
     assert np.median(rel[np.isfinite(rel)]) < 6.4e-8
     assert not ((std == 0) & (err > 0)).any() and (err <= K95 * std).mean() > 0.975
+
+
+def test_resolution_floor_of_a_haloed_block_as_of_the_circle():
+    """The frequency-chunk path fits a haloed block with ``circular=False``: it floors the
+    band as the circular fit does.  Before, ``_resolution_floor`` returned at once for
+    ``circular=False``: the noiseless HDD at N = 36 000, window 30, ``frequency_chunks``
+    2000 had 1926 entries of ``P_std`` exactly 0 (none without chunks).  The probe's
+    phases follow the block's bins, not the circle's: the bands agree to the probe's
+    effect (here 1e-4)."""
+    from lcmr_xr.kernels.identification import _fit_terms
+
+    n, degrees, m, h = 6, (2, 2, 0), 64, 9
+    R, Z = _lpm_data(0.0, m=m)
+    kw = dict(half_width=n, degrees=degrees, covariance=True, known_covariance=None,
+              experiment_axis=None, closed_loop="direct")
+    whole = _fit_terms(R, Z, circular=True, **kw)
+    near = np.arange(-h, m + h) % m
+    block = _fit_terms(R[near], Z[near], circular=False, **kw)
+    # the floor: the Cauchy-Schwarz width, not rounding (as the first test's oracle)
+    assert (whole["G_var"] > 1e-6 * EPS).all()
+    np.testing.assert_allclose(block["G_var"][h:m + h], whole["G_var"], rtol=1e-3)
+
+
+def test_resolution_floor_of_an_iv_fit_reads_the_iv_regression_factor():
+    """``denominator="iv"`` with one exact row (0, modelled exactly, residual rounding)
+    and one noisy row (1, resolved): the floor rebuilds ``G_cov`` from ``X`` of the
+    probed refit, which must be the IV fit's own, so that the resolved row keeps its
+    band (its variance is not floored).  Before, the refit was least squares: row 1's
+    ``G_var`` moved by up to 88 % (the HDD's IV twin, case 9 seed 2 N = 3600: 32-43 %)."""
+    from lcmr_xr.kernels.identification import _fit_terms, denominator_instruments
+
+    m, n, degrees = 128, 8, (2, 2, 2)
+    rng = np.random.default_rng(1)
+    R = np.exp(2j * np.pi * rng.random((m, 2)))
+    w = np.exp(2j * np.pi * np.arange(m) / m)
+    noisy = np.einsum("mj,mj->m", np.stack([1 + 0 * w, 0.3 + 0 * w], -1) / (1 - 0.5 * w)[:, None], R)
+    noisy = noisy + 1e-2 * (rng.standard_normal(m) + 1j * rng.standard_normal(m))
+    Z = np.stack([2 * R[:, 0] - 1j * R[:, 1], noisy], -1)
+    W = denominator_instruments(R, Z, degrees=degrees)
+    fit = local_model(R, Z, half_width=n, degrees=degrees, covariance="full", instruments=W)
+    level = _resolution_level(Z, half_width=n, dof=fit.dof, circular=True) * fit.dof
+    var = np.real(np.diagonal(fit.noise_covariance, axis1=-2, axis2=-1))
+    assert (var[:, 0] < level[:, 0]).all() and (var[:, 1] > level[:, 1]).all()
+    out = _fit_terms(R, Z, half_width=n, degrees=degrees, circular=True, covariance=True,
+                     known_covariance=None, experiment_axis=None, closed_loop="direct",
+                     denominator="iv", instruments=W)
+    own = np.real(np.diagonal(fit.G_cov, axis1=-2, axis2=-1)).reshape(fit.G.shape)
+    np.testing.assert_allclose(out["G_var"][:, 1], own[:, 1], rtol=1e-2)
+    assert (out["G_var"][:, 0] > own[:, 0]).all()  # the exact row's band floored

@@ -526,7 +526,9 @@ def _fit_terms(R, Z, *, half_width, degrees, circular, covariance, known_covaria
         before, G_cov0 = dict(out), G_cov
         floored, G_cov, s = _resolution_floor(out, fit, G_cov, R, Z, terms, level=level,
                                               half_width=half_width, degrees=degrees,
-                                              circular=circular, bins=bins, select=select)
+                                              circular=circular, bins=bins, select=select,
+                                              instruments=instruments if denominator == "iv"
+                                              else None)
         out.update(floored)
         # the same mend where cov(P_1) is not a covariance (below)
         out.update(_mend_indefinite(out, fit.G, G_cov, s, terms))
@@ -582,7 +584,7 @@ PROBE_AMPLITUDE = 1e-6
 
 
 def _resolution_floor(out, fit, G_cov, R, Z, terms, *, half_width, degrees, circular,
-                      bins=None, select=None, level=None):
+                      bins=None, select=None, level=None, instruments=None):
     """One record's :func:`slow_bin_terms` ``out`` recomputed at the bins where a row's
     residual noise variance is below the floor of what the local model's moments resolve,
     with ``G_cov`` rebuilt from a diagonal noise covariance raised to that floor.
@@ -607,9 +609,10 @@ def _resolution_floor(out, fit, G_cov, R, Z, terms, *, half_width, degrees, circ
     bin's terms are left bit for bit (the HDD's noisy records: no bin is below the floor).
     Returns the recomputed entries (copies), and ``G_cov`` and the noise covariance with
     those bins replaced (the arguments themselves where nothing is).  ``level``: the
-    :func:`_resolution_level`, when the caller has it."""
+    :func:`_resolution_level`, when the caller has it.  ``instruments``: those of the fit
+    (``denominator="iv"``): the refit uses them, so that ``X`` is the fit's own."""
     s = fit.noise_covariance
-    if not circular or G_cov is None:
+    if G_cov is None:
         return {}, G_cov, s
     if level is None:
         level = _resolution_level(Z, half_width=half_width, dof=fit.dof, circular=circular,
@@ -628,12 +631,14 @@ def _resolution_floor(out, fit, G_cov, R, Z, terms, *, half_width, degrees, circ
     if select is not None:
         on &= np.asarray(select, dtype=bool)
     # a deterministic probe of unit modulus (golden-ratio phases) times the local rms
+    # (circular=False, a haloed block of the frequency chunks: the block's bins, its rms
+    # wrapped at the ends, only the probe of the bins near them differs from the circle's)
     k = np.arange(m)[:, None] * nz + np.arange(nz)
     phase = np.exp(2j * np.pi * ((k * 0.6180339887498949) % 1.0))
     rms = np.sqrt(window_mean(np.abs(Z) ** 2, int(half_width), axis=-2, circular=True))
     probed = local_model(R, Z + PROBE_AMPLITUDE * rms * phase, half_width=half_width,
-                         degrees=tuple(degrees), circular=True, covariance="full",
-                         bins=bins, select=on)
+                         degrees=tuple(degrees), circular=circular, covariance="full",
+                         bins=bins, select=on, instruments=instruments)
     # every row's variance at least the floor; an unresolved row's correlations
     # (rounding) dropped, the resolved rows' kept, made a covariance
     eye = np.eye(nz, dtype=bool)
