@@ -654,13 +654,7 @@ def _resolution_floor(out, fit, G_cov, R, Z, terms, *, half_width, degrees, circ
     G_cov = np.where(bad[..., None, None], floored, G_cov)
     s = np.where(bad[..., None, None], s_new, s)
     fixed = slow_bin_terms(fit.G[bad], G_cov[bad], **terms)
-    mended = {}
-    for name, value in fixed.items():
-        if value is None or out.get(name) is None:
-            continue
-        mended[name] = np.array(out[name], copy=True)
-        mended[name][bad] = value
-    return mended, G_cov, s
+    return _replaced_at(out, fixed, bad), G_cov, s
 
 
 def _rounding_floor(rho, s_condition, noise_variance, Z, *, half_width, dof, circular,
@@ -745,6 +739,13 @@ def _mend_indefinite(out, G, G_cov, noise_covariance, terms) -> dict:
         return {}
     fixed = slow_bin_terms(G[bad], _positive_semidefinite(G_cov[bad], noise_covariance[bad]),
                            **terms)
+    return _replaced_at(out, fixed, bad)
+
+
+def _replaced_at(out, fixed, bad):
+    """Copies of the terms of ``out`` with their values at the bins ``bad`` replaced by
+    ``fixed`` (terms of those bins only, as :func:`slow_bin_terms` returns them); terms
+    missing on either side are left out."""
     mended = {}
     for name, value in fixed.items():
         if value is None or out.get(name) is None:
