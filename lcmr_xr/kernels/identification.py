@@ -530,20 +530,19 @@ def _fit_terms(R, Z, *, half_width, degrees, circular, covariance, known_covaria
                                               instruments=instruments if denominator == "iv"
                                               else None)
         out.update(floored)
-        # the same mend where cov(P_1) is not a covariance (below)
-        out.update(_mend_indefinite(out, fit.G, G_cov, s, terms))
-        if closed_loop == "indirect" and not first_row_only:
-            out["rho"] = _rounding_floor(out["rho"], out["s_condition"], fit.noise_variance,
-                                         Z, half_width=half_width, dof=fit.dof,
-                                         circular=circular, bins=bins, level=level)
-        if unfloored and floored:  # the terms as they were without the floor (mended,
-            # rho's rounding floor); nothing more where it changes no bin (noisy records)
-            before.update(_mend_indefinite(before, fit.G, G_cov0, fit.noise_covariance, terms))
+
+        def mend(d, cov, noise):
+            """The mend where cov(P_1) is not a covariance (below) and rho's rounding floor."""
+            d.update(_mend_indefinite(d, fit.G, cov, noise, terms))
             if closed_loop == "indirect" and not first_row_only:
-                before["rho"] = _rounding_floor(
-                    before["rho"], before["s_condition"], fit.noise_variance, Z,
-                    half_width=half_width, dof=fit.dof, circular=circular, bins=bins,
-                    level=level)
+                d["rho"] = _rounding_floor(d["rho"], d["s_condition"], fit.noise_variance,
+                                           Z, half_width=half_width, dof=fit.dof,
+                                           circular=circular, bins=bins, level=level)
+
+        mend(out, G_cov, s)
+        if unfloored and floored:  # the terms as they were without the floor, mended
+            # alike; nothing more where it changes no bin (noisy records)
+            mend(before, G_cov0, fit.noise_covariance)
             out.update({f"{k}_unfloored": before[k] for k in _UNFLOORED if k in before})
         del before, G_cov0
     if buffers is not None:  # (G_var is a view of G_cov's diagonal: the next fit reuses it)
