@@ -91,9 +91,9 @@ def test_the_listed_helpers_are_exactly_those_fit_bins_calls(one_record_signatur
 
 
 def test_every_listed_helper_is_compiled_and_cached_by_the_second_process(tmp_path):
-    env = compile_ahead._environment() | {"NUMBA_CACHE_DIR": str(tmp_path)}
-    done = subprocess.run([sys.executable, "-m", "lcmr_xr.kernels.compile_ahead"], env=env,
-                          capture_output=True, text=True, timeout=600)
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path))
+    done = subprocess.run(compile_ahead._command(), env=env, capture_output=True, text=True,
+                          timeout=600)
     assert done.returncode == 0, done.stderr
     # a new process on that cache: every helper loads, none compiles
     check = (
@@ -105,8 +105,9 @@ def test_every_listed_helper_is_compiled_and_cached_by_the_second_process(tmp_pa
         "    hits += sum(d.stats.cache_hits.values())\n"
         "    misses += sum(d.stats.cache_misses.values())\n"
         "print(hits, misses)\n")
-    out = subprocess.run([sys.executable, "-c", check], env=env, capture_output=True,
-                         text=True, timeout=600, check=True).stdout.split()
+    out = subprocess.run([sys.executable, "-c", check], env=env | {
+        "PYTHONPATH": compile_ahead._root()}, capture_output=True, text=True, timeout=600,
+        check=True).stdout.split()
     assert [int(x) for x in out] == [len(compile_ahead.HELPER_SIGNATURES), 0]
 
 
@@ -129,15 +130,29 @@ def spawns(monkeypatch):
     return calls
 
 
-def test_starts_once_per_process_with_this_copy_of_lcmr_xr_first_on_the_path(spawns):
+def test_starts_once_per_process_for_this_copy_of_lcmr_xr(spawns):
     assert compile_ahead.start() is not None
     assert compile_ahead.start() is None
     assert len(spawns) == 1
     command, kw = spawns[0]
-    assert command == [sys.executable, "-m", "lcmr_xr.kernels.compile_ahead"]
-    root = os.path.dirname(os.path.dirname(os.path.abspath(compile_ahead.__file__)))
-    assert kw["env"]["PYTHONPATH"].split(os.pathsep)[0] == os.path.dirname(root)
+    package = os.path.dirname(os.path.dirname(os.path.realpath(compile_ahead.__file__)))
+    assert command == [sys.executable, "-c", compile_ahead._BOOT, os.path.dirname(package)]
+    assert "env" not in kw  # this process's environment: numba's cache directory
     assert kw["stdout"] is subprocess.DEVNULL and kw["stderr"] is subprocess.DEVNULL
+
+
+def test_the_second_process_compiles_nothing_for_another_copy_of_lcmr_xr(tmp_path):
+    # the copy asked for is on the path, but behind this one: the other copy's sources
+    # would be compiled, whose cache entries the asking process could not use
+    other = tmp_path / "lcmr_xr"
+    other.mkdir()
+    (other / "__init__.py").write_text("")
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([compile_ahead._root(), str(tmp_path)]),
+               NUMBA_CACHE_DIR=str(tmp_path / "cache"))
+    done = subprocess.run([sys.executable, "-c", compile_ahead._BOOT, str(tmp_path)], env=env,
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 2, done.stderr
+    assert not (tmp_path / "cache").exists()
 
 
 @pytest.mark.parametrize("setting, cpus", [("0", 4), ("1", 1), (None, 1)])

@@ -143,21 +143,33 @@ def _one_record(args) -> bool:
     return len(args) >= 2 and isinstance(args[-2], types.NoneType)
 
 
+#: The second process's program: it must compile the same source files as this process
+#: (their paths are part of numba's cache keys), so this copy of lcmr_xr is put first
+#: on its path unless it is on it already (an installed package), and it stops if
+#: another copy would be imported instead.
+_BOOT = """
+import os, sys
+root = os.path.realpath(sys.argv[1])
+if root not in {os.path.realpath(p) for p in sys.path if p}:
+    sys.path.insert(0, root)
+import lcmr_xr
+if os.path.dirname(os.path.dirname(os.path.realpath(lcmr_xr.__file__))) != root:
+    sys.exit(2)
+from lcmr_xr.kernels.compile_ahead import main
+sys.exit(main())
+"""
+
+
+def _root() -> str:
+    """The directory holding this copy of the ``lcmr_xr`` package."""
+    return os.path.dirname(os.path.dirname(os.path.dirname(os.path.realpath(__file__))))
+
+
 def _command() -> list[str] | None:
     """The second process's command line, or None where there is no Python to run."""
     if not sys.executable or not os.path.exists(sys.executable):
         return None
-    return [sys.executable, "-m", "lcmr_xr.kernels.compile_ahead"]
-
-
-def _environment() -> dict:
-    """This process's environment (numba's cache directory and settings), with this
-    copy of lcmr_xr first on the path: the second process must compile the same source
-    files, whose paths are part of numba's cache keys."""
-    root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-    env = dict(os.environ)
-    env["PYTHONPATH"] = os.pathsep.join(p for p in (root, env.get("PYTHONPATH")) if p)
-    return env
+    return [sys.executable, "-c", _BOOT, _root()]
 
 
 def start() -> subprocess.Popen | None:
@@ -181,7 +193,7 @@ def start() -> subprocess.Popen | None:
     if command is None:
         return None
     try:
-        process = subprocess.Popen(command, env=_environment(), stdin=subprocess.DEVNULL,
+        process = subprocess.Popen(command, stdin=subprocess.DEVNULL,
                                    stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
                                    close_fds=True)
     except OSError:  # (no process could start: compiling here is the normal path)
