@@ -821,11 +821,6 @@ API = [
          ("consolidated archive new.h5", "'.h5'", "e.g. new.nc", "create the directory first")),
     # an existing consolidated archive under such a name (written before the rule) still
     # opens, but took appends: NetCDF-4 went on being written under it; the rename is named
-    Case("append_to_archive_old_h5", lambda e: append_to_archive(e.small.assign_coords(experiment=1), "old.h5"),
-         ValueError, ("cannot append to the consolidated archive old.h5", "'.h5'", "still opens",
-                      "Rename it to old.nc")),
-    Case("save_archive_old_h5", lambda e: save_archive(e.small.assign_coords(experiment=1), "old.h5"),
-         ValueError, ("cannot append to the consolidated archive old.h5", "'.h5'", "Rename it to old.nc")),
     Case("open_archive_old_h5", lambda e: open_archive("old.h5"),
          check=lambda ds, e: (ds.experiment.values.tolist() == [0] and ds.sizes["time"] == 400)
          or pytest.fail(str(ds))),

@@ -383,26 +383,6 @@ def _check_archive_name(path: Path, directory_hint: str = "") -> None:
         raise ValueError(f"{err}{' ' + directory_hint if directory_hint else ''}") from None
 
 
-def _check_appended_name(path: Path) -> None:
-    """Refuse to append to an existing consolidated archive whose name does not end in a
-    NetCDF suffix (one written before new archives had to, or renamed): appending would go
-    on writing NetCDF-4 under a name that says otherwise, which :func:`_check_archive_name`
-    refuses for a new file.  Reading it still works; the message names the rename, after
-    which the appends go on."""
-    from lcmr_xr.io._guards import NETCDF_SUFFIXES, check_suffix
-
-    try:
-        check_suffix(path, NETCDF_SUFFIXES, "cannot append to the consolidated archive")
-    except ValueError as err:
-        renamed = path.with_name((path.stem or path.name) + NETCDF_SUFFIXES[0])
-        raise ValueError(
-            f"{err} The archive still opens as it is (open_archive reads it under any name), "
-            "but this library writes NetCDF-4 only under a NetCDF name, as save does. Rename "
-            f"it to {renamed.name}, e.g. os.rename({str(path)!r}, {str(renamed)!r}), and "
-            "append to that; nothing was written."
-        ) from None
-
-
 def _layout(path: Path, layout) -> str:
     """``layout`` checked; by default a directory that exists is a files archive."""
     if layout is None:
@@ -538,8 +518,6 @@ def save_archive(experiments, path, *, overwrite: bool = False, layout: str | No
             _check_archive_name(path, "For an archive directory (one file per experiment) pass "
                                 f"layout='files': save_archive(experiments, {str(path)!r}, "
                                 "layout='files').")
-        else:  # appended to: only under a NetCDF name
-            _check_appended_name(path)
         _refuse_inside_directory_archive(path)
     items, first = _validated(experiments)
     if layout == "files":
@@ -680,7 +658,6 @@ def append_to_archive(experiment, path) -> Path:
                             f"directory first (os.makedirs({str(path)!r})) or write it with "
                             f"save_archive(experiment, {str(path)!r}, layout='files').")
         return save_archive(experiment, path, layout="consolidated")[0]
-    _check_appended_name(path)  # one written before the rule still opens, but grows only renamed
     _refuse_inside_directory_archive(path)
     if unlabelled:
         header = _header(path)  # the default labels, their positions, of the archive's kind
