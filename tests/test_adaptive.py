@@ -653,6 +653,54 @@ def test_auto_in_frequency_chunks_is_the_eager_result():
     np.testing.assert_allclose(chunked.P_std.values, pooled.P_std.values, rtol=1e-5)
 
 
+def test_packed_auto_chooses_from_the_unfloored_variances_as_the_eager_path():
+    """Noiseless HDD, N = 12 000: most slow bins have a row below the moments' resolution,
+    where the band is floored (``_resolution_floor``) and ``window="auto"`` chooses from
+    the variances without the floor.  ``finish_packed_auto`` on the candidates' packed
+    fits of the whole circle (``fit_packed(..., unfloored=True)``) chooses the eager
+    path's window at every slow bin and gathers its ``P`` bit for bit: the fits' moments
+    are the same (the eager blocks start on the moment recurrence's restart grid), so
+    their unfloored variances are too.  Before, the packed path chose from the floored
+    variances: another window at 403 of the 6000 slow bins."""
+    from lcmr_xr.kernels import identification as ki
+
+    n, windows = 12000, (12, 19, 30)
+    exp = hdd.simulate(n, case=2, noise=False, seed=0)
+    R, Z = ki.experiment_spectra(exp.r.values, exp.u.values, exp.y.values, factor=hdd.FACTOR)
+    nz, nr = Z.shape[-1], R.shape[-1]
+    shape = dict(n_fast=n, factor=hdd.FACTOR, nu=exp.sizes["input"])
+    eager = ki.identify_spectra_auto(R, Z, windows=windows, **shape)
+    packed = np.stack([ki.fit_packed(R, Z, half_width=w, unfloored=True) for w in windows])
+    # (without the Hausman twin, which adds to the band after the choice)
+    got = ki.finish_packed_auto(packed, windows=windows, nz=nz, nr=nr, ny=nz - nr,
+                                unfloored=True, **shape)
+    assert (eager["window"] == 12).any() and (eager["window"] == 19).any()
+    np.testing.assert_array_equal(got["window"], eager["window"])
+    np.testing.assert_array_equal(got["P"], eager["P"])
+
+
+def test_auto_in_frequency_chunks_chooses_as_the_plain_path_on_noiseless_data():
+    """Noiseless HDD, N = 12 000, seed 0, ``frequency_chunks=300``: the chunked
+    ``window="auto"`` chooses from the unfloored variances, as the plain path does.  On
+    noiseless data those variances are rounding (the residuals are below the moments'
+    resolution), so the choice at a bin is decided by rounding: the plain path itself,
+    with ``y`` scaled by ``1 + 2^-50`` or ``1 + 2^-49``, chose another window at 97-110
+    of the 6000 slow bins (seed 1: 102-126) and moved the count of window-12 bins by 5-8
+    (seed 1: 8-20).  Measured, chunked against plain: 94 bins, count +16 (seed 1: 82,
+    +34); before (the chunked path chose from the floored variances, whose floor favours
+    wider windows): 384 bins, count -374 (seed 1: 350, -350).  The bounds sit between.
+    The released bands at floored bins are rounding-driven alike (``P_std`` of the
+    perturbed plain path moves by more than 1 % at 4700-5000 of 12 002 entries), so
+    ``P_std`` is compared only through the window chosen."""
+    exp = hdd.simulate(12000, case=2, noise=False, seed=0)
+    plain = identify(exp, errors="ignore")
+    chunked = identify(exp, frequency_chunks=300, errors="ignore").compute()
+    w, wc = plain.local_window.values, chunked.local_window.values
+    assert 0.5 < (w == 12).mean() < 0.9 and (w == 19).mean() > 0.1  # both contend
+    assert (w != wc).mean() < 0.03
+    assert abs(int((wc == 12).sum()) - int((w == 12).sum())) < 100
+
+
 @pytest.mark.parametrize("real", [True, False], ids=["real-mirrored", "complex-every-bin"])
 def test_hausman_twin_takes_the_widest_candidates_fit_bit_for_bit(real):
     """What window='auto' reuses for its Hausman comparison instead of fitting again: the

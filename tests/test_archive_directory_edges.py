@@ -177,3 +177,41 @@ def test_unlabelled_stacked_experiments_are_appended_at_their_positions(tmp_path
     stack = xr.concat([_labelled(2), _labelled(3)], dim="experiment").drop_vars("experiment")
     append_to_archive(stack, path)
     assert open_archive(path).experiment.values.tolist() == [0, 1, 2, 3]
+
+
+def _tree(root):
+    """Every file and directory under ``root`` (hidden ones too: the index, its journal,
+    temporaries): size and modification time."""
+    import os
+
+    out = {}
+    for base, dirs, files in os.walk(root):
+        for name in dirs + files:
+            st = os.stat(os.path.join(base, name))
+            out[os.path.relpath(os.path.join(base, name), root)] = (st.st_size, st.st_mtime_ns)
+    return out
+
+
+@pytest.mark.parametrize("name", ["run5.NC", "run5.nc4", "run5.NetCDF"])
+def test_a_label_whose_file_exists_under_another_netcdf_ending_is_refused_before_writing(tmp_path, name):
+    """The directory holds every NetCDF name (run5.NC, run5.nc4, run5.NetCDF); an append
+    (or a save) labelled run5 checked only run5.nc, wrote it beside run5.NC, and the
+    archive then no longer opened (the label carried by two files).  Now refused up
+    front, naming the file and the remedy; nothing written, not even the index."""
+    from lcmr_xr.io import save
+    from lcmr_xr.scaleout import append_to_archive
+
+    d = tmp_path / "d"
+    save_archive([_labelled(0), _labelled(1)], d, layout="files")
+    save(_labelled(5), d / name)  # as another tool (or a rename by hand) put it there
+    before = _tree(d)
+    for write in (lambda: append_to_archive(_labelled(5), d),
+                  lambda: save_archive([_labelled(6), _labelled(5)], d, layout="files")):
+        with pytest.raises(ValueError, match=rf"run5.*{name}.*another NetCDF ending.*another label"):
+            write()
+        assert _tree(d) == before  # no file, no temporary, no journal entry
+    assert open_archive(d).experiment.values.tolist() == ["run0", "run1", "run5"]
+    # another label goes in; the file names compare exactly but for the ending's case
+    append_to_archive(_labelled(6), d)
+    append_to_archive(_labelled(7).assign_coords(experiment="Run5"), d)
+    assert open_archive(d).experiment.values.tolist() == ["run0", "run1", "run6", "Run5", "run5"]

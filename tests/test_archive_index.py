@@ -271,6 +271,22 @@ def test_index_command(tmp_path, capsys):
     assert "header index" in capsys.readouterr().out
 
 
+def test_the_names_a_writer_looks_up_for_a_label_are_the_listing_rule_s():
+    """plain_names(stem), which a writer stats before adding STEM.nc, is exactly the set of
+    names the directory's listing (plain_name) reads as STEM and a NetCDF ending, any case."""
+    from itertools import product
+
+    from lcmr_xr.io._guards import NETCDF_SUFFIXES
+
+    got = dirindex.plain_names("run5")
+    assert len(got) == len(set(got)) == 4 + 4 + 64  # .nc, .nc4, .netcdf in every case
+    spellings = {"".join(cs) for s in NETCDF_SUFFIXES + (".h5", ".nc.tmp", ".ncx", ".n")
+                 for cs in product(*({c.lower(), c.upper()} for c in s))}
+    candidates = {"run5" + s for s in spellings} | {"Run5.nc", "run50.nc", "run.nc", ".run5.nc"}
+    assert set(got) == {n for n in candidates if dirindex.plain_name(n) and n.startswith("run5.")}
+    assert dirindex.plain_names(".hidden") == [] and dirindex.plain_names("a/b") == []
+
+
 def test_a_directory_archive_holds_every_netcdf_name_that_save_writes(tmp_path, monkeypatch):
     # save writes NetCDF-4 to x.nc, x.NC, x.nc4, x.netcdf (any case); the directory's listing
     # took only names ending exactly in ".nc", so x.NC and x.nc4 put there were silently

@@ -79,6 +79,7 @@ def template(tmp_path_factory, small, small_frf):
                            dim="experiment").assign_coords(experiment=["e0", "e1"]), root / "arc",
                  layout="files")
     save_archive(small, root / "arc1.nc")  # a consolidated archive (one file)
+    shutil.copy2(root / "arc1.nc", root / "old.h5")  # one as written before new ones had to be .nc
     shutil.copytree(root / "arc", root / "damagedarc")  # its first file's values damaged
     (root / "damagedarc" / "e0.nc").write_bytes(_damaged(root / "arc" / "e0.nc", "r"))
     shutil.copytree(root / "arc", root / "damagedarc2")  # its second file's values damaged
@@ -822,6 +823,20 @@ API = [
          ("consolidated archive runs", "(no suffix)", "e.g. runs.nc", "layout='files'")),
     Case("append_to_archive_new_h5", lambda e: append_to_archive(e.small, "new.h5"), ValueError,
          ("consolidated archive new.h5", "'.h5'", "e.g. new.nc", "create the directory first")),
+    # an existing consolidated archive under such a name (written before the rule) still
+    # opens, but took appends: NetCDF-4 went on being written under it; the rename is named
+    Case("open_archive_old_h5", lambda e: open_archive("old.h5"),
+         check=lambda ds, e: (ds.experiment.values.tolist() == [0] and ds.sizes["time"] == 400)
+         or pytest.fail(str(ds))),
+    # a directory holding e1.NC (any NetCDF ending, any case): an append labelled e1 checked
+    # only e1.nc and wrote it beside, a second file for one label, which the open refuses
+    Case("append_to_archive_label_under_other_ending",
+         lambda e: append_to_archive(e.small.assign_coords(experiment="e1"), "casearc"), ValueError,
+         ("experiment 'e1'", "casearc/e1.nc", "casearc already holds e1.NC", "another NetCDF ending",
+          "another label")),
+    Case("save_archive_label_under_other_ending",
+         lambda e: save_archive(e.small.assign_coords(experiment="e1"), "casearc", layout="files"), ValueError,
+         ("experiment 'e1'", "casearc already holds e1.NC", "another label", "rename e1.NC to e1.nc")),
     Case("consolidate_archive_h5_name", lambda e: consolidate_archive("arc", "all.h5"), ValueError,
          ("consolidated archive all.h5", "'.h5'", ".nc, .nc4 or .netcdf", "e.g. all.nc"),
          absent=("layout=",)),

@@ -544,15 +544,21 @@ def _estimate(r: xr.DataArray, u: xr.DataArray, y: xr.DataArray, s, *, factor: i
         # the spectra once, for every candidate (and the twin)
         R, Z = _chunked_spectra(r, u, y, factor=factor, closed_loop=s.closed_loop,
                                 check_rank=check_rank)
-        # one chunked fit per candidate window (one for a fixed window), stacked in front
+        # one chunked fit per candidate window (one for a fixed window), stacked in front;
+        # auto's candidates of one record with their covariance from their residuals (the
+        # fits the resolution floor applies to) also carry their terms without the floor,
+        # from which the choice is made, as on the eager path
+        unfloored = auto and not pooled and noise is None
         fits = [_fit_frequency_chunked(R, Z, s._replace(window=w), factor=factor, noise=noise,
-                                       pooled=pooled) for w in windows]
+                                       pooled=pooled, unfloored=unfloored) for w in windows]
         if twin:
             zhat = _chunked_prediction(fits[-1], R, Z, chunk=s.frequency_chunks)
-            fits.append(_fit_frequency_chunked(R, Z, s._replace(window=max(windows),
-                                                                denominator="iv"),
-                                               factor=factor, pooled=pooled, instruments=zhat,
-                                               select=twin_bins(R.sizes[SF])))
+            iv = _fit_frequency_chunked(R, Z, s._replace(window=max(windows), denominator="iv"),
+                                        factor=factor, pooled=pooled, instruments=zhat,
+                                        select=twin_bins(R.sizes[SF]))
+            # (padded to the candidates' columns to stack with them; finish_packed reads
+            # its own columns only)
+            fits.append(iv.pad({"_packed": (0, fits[0].sizes["_packed"] - iv.sizes["_packed"])}))
         packed = xr.concat(fits, "_candidate")
         nz_, nr_ = packed.attrs["nz"], packed.attrs["nr"]
         shape = dict(nz=nz_, nr=nr_, n_fast=n, factor=factor, nu=nu, ny=ny,
@@ -565,14 +571,14 @@ def _estimate(r: xr.DataArray, u: xr.DataArray, y: xr.DataArray, s, *, factor: i
                                                  degrees=s.degrees, n_exp=n_exp,
                                                  twin=p[len(windows)] if twin else None,
                                                  known_noise=noise is not None,
-                                                 **shape), **split)
+                                                 unfloored=unfloored, **shape), **split)
             return _split(finish_packed(p[0], covariance=s.covariance, n_exp=n_exp,
                                         dof=window_dof(s.window, nr_, s.degrees, n_exp or 1),
                                         neighbourhood=not pooled and noise is None,
                                         **shape), **split)
 
         # the recovery gathers every slow bin (P(k) uses bin k mod M): one chunk along it
-        results = xr.apply_ufunc(finish, packed.chunk({SF: -1, "_candidate": -1}),
+        results = xr.apply_ufunc(finish, packed.chunk({SF: -1, "_candidate": -1, "_packed": -1}),
                                  input_core_dims=[["_candidate", SF, "_packed"]], **output_spec)
     return xr.Dataset({name: da for (name, _, _), da in zip(specs, results)})
 
@@ -679,7 +685,7 @@ def _chunked_prediction(packed, R, Z, *, chunk):
 
 
 def _fit_frequency_chunked(R, Z, s, *, factor, noise=None, pooled=False, instruments=None,
-                           select=None):
+                           select=None, unfloored: bool = False):
     """Lazy local-model fit in chunks along ``slow_frequency`` with wrapped halos.
 
     ``R``, ``Z``: the spectra of :func:`_chunked_spectra`.  ``noise`` (..., ``slow_frequency``,
@@ -690,7 +696,9 @@ def _fit_frequency_chunked(R, Z, s, *, factor, noise=None, pooled=False, instrum
     optional, one record: those of ``denominator="iv"`` (:func:`_chunked_prediction`),
     haloed like the spectra; then there is no first fit and the halo is ``window``.
     ``select`` (``slow_frequency``,) bool, optional: fit only those bins, the others NaN
-    (the twin's :func:`lcmr_xr.kernels.identification.twin_bins`).
+    (the twin's :func:`lcmr_xr.kernels.identification.twin_bins`).  ``unfloored``: also the
+    terms without the resolution floor (:func:`lcmr_xr.kernels.identification.fit_packed`),
+    for ``window="auto"``'s choice.
 
     Returns a DataArray (..., ``slow_frequency``, ``_packed``) of :func:`fit_packed` columns.
     """
@@ -717,7 +725,7 @@ def _fit_frequency_chunked(R, Z, s, *, factor, noise=None, pooled=False, instrum
     Zg = da.overlap.overlap(Zd, depth=depth, boundary=boundary)
     exp_ax = R.dims.index(cv.EXPERIMENT) if pooled else None
     n_exp = R.sizes[cv.EXPERIMENT] if pooled else 1
-    width = packed_width(nz, nr, s.covariance, n_exp, closed_loop)
+    width = packed_width(nz, nr, s.covariance, n_exp, closed_loop, unfloored)
     blocks = [Rg, Zg]
     if instruments is not None:
         Wd = instruments.transpose(*R.dims[:-1], "_z").chunk(
@@ -752,7 +760,8 @@ def _fit_frequency_chunked(R, Z, s, *, factor, noise=None, pooled=False, instrum
         return fit_packed(rb, zb, half_width=window, degrees=s.degrees, circular=False,
                           covariance=s.covariance, noise_covariance=known,
                           experiment_axis=exp_ax, denominator=_kernel_denominator(s),
-                          closed_loop=closed_loop, instruments=wb, select=sb)
+                          closed_loop=closed_loop, instruments=wb, select=sb,
+                          unfloored=unfloored)
 
     chunks = Rg.chunks[:-1] + ((width,),)
     if pooled:  # the fit pools the experiment axis away

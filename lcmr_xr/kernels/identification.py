@@ -398,20 +398,23 @@ def _slow_recovery(terms, *, closed_loop, ill_posed, dof, calibration=None,
 
 
 def packed_width(nz: int, nr: int, covariance: bool, n_exp: int = 1,
-                 closed_loop: str = "indirect") -> int:
+                 closed_loop: str = "indirect", unfloored: bool = False) -> int:
     """Length of the last axis of :func:`fit_packed`'s output (``n_exp`` transients; with
     ``n_exp >= MIN_SPLIT_EXPERIMENTS`` and ``covariance``, more columns for the split-half
-    spread ratio and the halves' first block rows)."""
+    spread ratio and the halves' first block rows; with ``unfloored`` and ``covariance``,
+    the unfloored ``rho``, ``rho_v`` and ``vec(cov(P_1))``)."""
     ny = nz - nr if closed_loop == "indirect" else nz
     spread = 2 + 2 * ny * nr if covariance and n_exp >= MIN_SPLIT_EXPERIMENTS else 0
     reduced = nz * nr + 2 + (ny * nr) ** 2 if covariance else 0
-    return nz * nr + (n_exp + 1) * nz + 2 + spread + ny * nr + 2 + reduced
+    raw = 2 + (ny * nr) ** 2 if covariance and unfloored else 0
+    return nz * nr + (n_exp + 1) * nz + 2 + spread + ny * nr + 2 + reduced + raw
 
 
 def fit_packed(R, Z, *, half_width: int, degrees=(3, 3, 3), circular: bool = True,
                covariance: bool = True, noise_covariance=None,
                experiment_axis: int | None = None, denominator: str = "ls",
-               closed_loop: str = "indirect", instruments=None, select=None) -> np.ndarray:
+               closed_loop: str = "indirect", instruments=None, select=None,
+               unfloored: bool = False) -> np.ndarray:
     """Local model per bin, reduced to what the recovery reads and packed into one complex
     array ``(..., M, K)``.
 
@@ -446,6 +449,10 @@ def fit_packed(R, Z, *, half_width: int, degrees=(3, 3, 3), circular: bool = Tru
     prediction); then there is no first fit and the halo is ``half_width``.  ``select``
     (M,) bool, optional: fit only those bins (of the haloed bins given), the others NaN
     (:func:`lcmr_xr.kernels.local_models.local_model`; the twin fits :func:`twin_bins`).
+    ``unfloored`` (with ``covariance``; ``window="auto"``'s candidates): three more columns,
+    ``rho``, ``rho_v`` and ``vec(cov(P_1))`` without the resolution floor
+    (:func:`_fit_terms`; the floored ones' values where it changes no bin), from which
+    :func:`finish_packed` recovers the variances the window choice reads.
     """
     known = None
     if covariance and noise_covariance is not None:
@@ -453,12 +460,17 @@ def fit_packed(R, Z, *, half_width: int, degrees=(3, 3, 3), circular: bool = Tru
     terms = _fit_terms(R, Z, half_width=half_width, degrees=degrees, circular=circular,
                        covariance=covariance, known_covariance=known,
                        experiment_axis=experiment_axis, denominator=denominator,
-                       closed_loop=closed_loop, instruments=instruments, select=select)
+                       closed_loop=closed_loop, instruments=instruments, select=select,
+                       unfloored=unfloored)
     lead_m = terms["G"].shape[:-2]
     names = ["G", "T", "noise_variance", "condition", "ill_posed", "spread_ratio", "half_weight",
              "P1_half_a", "P1_half_b", "P1", "s_condition", "s_singular"]
     if covariance:
         names += ["G_var", "rho", "rho_v", "P1_cov"]
+    if covariance and unfloored:
+        for k in _UNFLOORED:
+            terms.setdefault(f"{k}_unfloored", terms[k])
+        names += [f"{k}_unfloored" for k in ("rho", "rho_v", "P1_cov")]
     return np.concatenate([np.asarray(terms[k], dtype=complex).reshape(lead_m + (-1,))
                            for k in names if k in terms], axis=-1)
 
@@ -996,7 +1008,8 @@ def _broadcast_leading(R, Z):
 
 def finish_packed(packed, *, nz: int, nr: int, n_fast: int, factor: int, nu: int, ny: int,
                   closed_loop: str = "indirect", covariance: bool = True, dof=None,
-                  n_exp: int | None = None, neighbourhood: bool = False) -> dict:
+                  n_exp: int | None = None, neighbourhood: bool = False,
+                  unfloored: bool = False) -> dict:
     """Unpack :func:`fit_packed` and recover the fast FRF (see :func:`identify_arrays`).
 
     ``dof``: degrees of freedom per row of the local model (scalar or per slow bin), for the
@@ -1006,7 +1019,9 @@ def finish_packed(packed, *, nz: int, nr: int, n_fast: int, factor: int, nu: int
     flags a bin most of whose neighbours fail the weak-direction test (:func:`_recover`;
     :func:`identify_spectra` does so).  Not for ``window="auto"``'s candidates, whose
     choice reads each one's own test (:func:`_finish_choice` then takes the widest one's
-    neighbourhood).
+    neighbourhood).  ``unfloored``: ``packed`` is of :func:`fit_packed` with ``unfloored``;
+    where those terms differ from the floored ones, also ``P_var_choice`` and
+    ``P_var_linear_choice`` (:func:`_finish`).
     """
     packed = np.asarray(packed)
     lead_m = packed.shape[:-1]
@@ -1021,7 +1036,9 @@ def finish_packed(packed, *, nz: int, nr: int, n_fast: int, factor: int, nu: int
     if covariance:
         widths += [("G_var", nz * nr, (nz, nr)), ("rho", 1, ()), ("rho_v", 1, ()),
                    ("P1_cov", (ny * nr) ** 2, (ny * nr, ny * nr))]
-    complex_ = {"G", "T", "P1", "P1_cov", "P1_half_a", "P1_half_b"}
+        if unfloored:
+            widths += [(f"{name}_unfloored", k, shape) for name, k, shape in widths[-3:]]
+    complex_ = {"G", "T", "P1", "P1_cov", "P1_half_a", "P1_half_b", "P1_cov_unfloored"}
     terms, o = {"P1_cov": None}, 0
     for name, k, shape in widths:
         # copies, not views: a view would keep all of ``packed`` alive for as long as the
@@ -1031,6 +1048,11 @@ def finish_packed(packed, *, nz: int, nr: int, n_fast: int, factor: int, nu: int
         o += k
     terms["ill_posed"] = terms["ill_posed"] != 0
     terms["s_singular"] = terms["s_singular"] != 0
+    raw = {k: terms.pop(f"{k}_unfloored") for k in _UNFLOORED if f"{k}_unfloored" in terms}
+    if any(not np.array_equal(raw[k], terms[k], equal_nan=True) for k in raw):
+        # (as the eager fits: only where the floor changed a bin does _finish recover them)
+        terms.update({f"{k}_unfloored": v for k, v in raw.items()})
+    del raw
     if not covariance:
         terms["G_var"] = np.full(terms["G"].shape, np.nan)
         terms["rho"] = terms["rho_v"] = np.full(lead_m, np.nan)
@@ -1457,7 +1479,8 @@ def _slow_axis(name, n_exp) -> int:
 
 def finish_packed_auto(packed, *, windows, nz: int, nr: int, n_fast: int, factor: int, nu: int,
                        ny: int, closed_loop: str = "indirect", degrees=(3, 3, 3),
-                       n_exp: int | None = None, twin=None, known_noise: bool = False) -> dict:
+                       n_exp: int | None = None, twin=None, known_noise: bool = False,
+                       unfloored: bool = False) -> dict:
     """The window choice of :func:`identify_spectra_auto` from its candidates' fits.
 
     ``packed`` (J, ..., M, K): :func:`fit_packed` of every candidate half-width in
@@ -1467,7 +1490,11 @@ def finish_packed_auto(packed, *, windows, nz: int, nr: int, n_fast: int, factor
     and as ``instruments`` the widest candidate's own
     prediction ``G R + T`` (:func:`_prediction`), the Hausman twin of :func:`identify_spectra_auto`.
     ``known_noise``: the fits' covariance was built from a known noise covariance
-    (periods), not from their residuals.  Returns the dict of :func:`identify_spectra_auto`.
+    (periods), not from their residuals.  ``unfloored``: the candidates' fits carry their
+    terms without the resolution floor (:func:`fit_packed` with ``unfloored``; one record
+    with its covariance from its residuals): the choice reads the variances recovered from
+    them, as :func:`identify_spectra_auto` does.  Returns the dict of
+    :func:`identify_spectra_auto`.
     """
     windows = np.asarray(windows, dtype=int)
     if np.any(np.diff(windows) <= 0) or len(windows) != len(packed):
@@ -1475,8 +1502,8 @@ def finish_packed_auto(packed, *, windows, nz: int, nr: int, n_fast: int, factor
                          f"for {len(packed)} fits.")
     shape = dict(nz=nz, nr=nr, n_fast=n_fast, factor=factor, nu=nu, ny=ny,
                  closed_loop=closed_loop, covariance=True)
-    outs = [finish_packed(p, dof=window_dof(w, nr, degrees, n_exp or 1), n_exp=n_exp, **shape)
-            for p, w in zip(packed, windows)]
+    outs = [finish_packed(p, dof=window_dof(w, nr, degrees, n_exp or 1), n_exp=n_exp,
+                          unfloored=unfloored, **shape) for p, w in zip(packed, windows)]
     bias = None
     if twin is not None:
         iv = finish_packed(twin, dof=None, n_exp=n_exp, **shape)
@@ -1491,10 +1518,13 @@ def _choose_windows(outs, windows, m, *, twin=None, nr=None, degrees=None, n_exp
     """Choose per slow bin among the finished candidates ``outs`` (ascending ``windows``)
     and gather every array from the chosen one (module notes of ``kernels.adaptive``).
     The candidates' arrays are released as they are gathered (``outs`` is emptied).
-    ``known_noise``: their covariance is built from a known noise covariance."""
+    ``known_noise``: their covariance is built from a known noise covariance.  The choice
+    reads a candidate's ``P_var_choice``, ``P_var_linear_choice`` where it has them (the
+    variances without the resolution floor, :func:`_finish`), as
+    :func:`identify_spectra_auto`; the band gathered is the floored one."""
     P = np.stack([o["P"] for o in outs])
-    P_var = np.stack([o["P_var"] for o in outs])
-    P_lin = np.stack([o["P_var_linear"] for o in outs])
+    P_var = np.stack([o.pop("P_var_choice", o["P_var"]) for o in outs])
+    P_lin = np.stack([o.pop("P_var_linear_choice", o["P_var_linear"]) for o in outs])
     choice, bias2 = select_windows(P, P_var, P_lin, m)
     del P, P_var, P_lin
     fast_choice = np.take(choice, np.arange(bias2.shape[-3]) % m, axis=-1)

@@ -442,10 +442,11 @@ def save_archive(experiments, path, *, overwrite: bool = False, layout: str | No
         The archive: a file (consolidated) or a directory (files; created if missing).
         A new consolidated file's name ends in ``.nc``, ``.nc4`` or ``.netcdf`` (any case),
         as :func:`lcmr_xr.io.save` requires of NetCDF files: other names (``campaign.h5``,
-        ``runs``) are refused, with the remedy; an existing archive file is appended to
-        whatever its name (one written before the rule came in).  A directory's name is
-        free.  A consolidated file is refused directly inside a directory archive (one with the
-        header index): the directory's open would refuse a file of another structure.
+        ``runs``) are refused, with the remedy, and so is appending to an existing archive
+        file under such a name (one written before the rule came in: it still opens; the
+        message names the rename to ``.nc``).  A directory's name is free.  A consolidated
+        file is refused directly inside a directory archive (one with the header index):
+        the directory's open would refuse a file of another structure.
     overwrite : bool, default False
         Consolidated: replace an existing archive file instead of appending to it.
         Files: replace existing files even when their content has a different shape.
@@ -471,20 +472,21 @@ def save_archive(experiments, path, *, overwrite: bool = False, layout: str | No
     experiments are dropped.
 
     Files: file names come from the ``experiment`` coordinate (its position when there is
-    none), with every character other than letters, digits, ``.``, ``_``, ``-`` replaced
-    by ``_``.  Each file is written atomically with :func:`lcmr_xr.io.save`.  The position
-    of each experiment is recorded in the file attribute ``lcmr_archive_index`` so
-    :func:`open_archive` returns them in the order given (new files are appended after
-    those already in the directory).  The new files' entries are added to the directory's
-    header index (:mod:`lcmr_xr.scaleout.dirindex`: one journal file, folded into the base
-    ``.lcmr_archive_index.nc`` by a compaction now and then), so that
-    :func:`open_archive` reads no file's header.  Two processes writing at once keep each
-    other's experiments and entries: a writer holds the directory's write lock
-    (:func:`lcmr_xr.scaleout.dirindex.write_lock`) from reading the next order index
-    to writing its journal file, so they never take the same order (nor, appending
-    without labels, the same label and file).  A directory without an index (of this
-    version) gets one first, as
-    :func:`index_archive` writes it (every header read once).
+    none), with every character other than letters, digits, ``.``, ``_``, ``-`` replaced by
+    ``_``: ``LABEL.nc``.  A label whose name the directory holds with another NetCDF ending
+    (``LABEL.NC``, ``LABEL.nc4``, ...) is refused before anything is written (its open would
+    refuse a label carried by two files).  Each file is written atomically with
+    :func:`lcmr_xr.io.save`.  The position of each experiment is recorded in the file
+    attribute ``lcmr_archive_index`` so :func:`open_archive` returns them in the order given
+    (new files are appended after those already in the directory).  The new files' entries
+    are added to the directory's header index (:mod:`lcmr_xr.scaleout.dirindex`: one journal
+    file, folded into the base ``.lcmr_archive_index.nc`` by a compaction now and then), so
+    that :func:`open_archive` reads no file's header.  Two processes writing at once keep
+    each other's experiments and entries: a writer holds the directory's write lock
+    (:func:`lcmr_xr.scaleout.dirindex.write_lock`) from reading the next order index to
+    writing its journal file, so they never take the same order (nor, appending without
+    labels, the same label and file).  A directory without an index (of this version) gets
+    one first, as :func:`index_archive` writes it (every header read once).
 
     All experiments of an archive must agree as its open requires: the same shape and
     metadata names, the same variables, channel labels and time coordinates bit for
@@ -597,8 +599,12 @@ def append_to_archive(experiment, path) -> Path:
         The experiment is invalid, of another shape than the archive, carries other
         metadata, or its label is taken or of another kind than the archive's (integer
         vs text); ``path`` is a consolidated archive file directly inside a directory
-        archive (its open would refuse the file; see :func:`save_archive`); or ``path``
-        does not exist and its name does not end in a NetCDF suffix.
+        archive (its open would refuse the file; see :func:`save_archive`); ``path``'s
+        name does not end in a NetCDF suffix (a new file, or an existing archive written
+        under another name before the rule: it still opens, and grows once renamed to
+        ``.nc``); or, in a directory, the experiment's file ``LABEL.nc`` would go beside
+        a file of the same name with another NetCDF ending (``LABEL.NC``, ``LABEL.nc4``,
+        ...), which the open would read as a second file of that label.
     FileExistsError
         Directory, where the write lock is not available (some network file systems):
         another append took the same file name while this one was writing (nothing was
@@ -612,10 +618,11 @@ def append_to_archive(experiment, path) -> Path:
     the file and the new experiment's data, not a pass over the archive.
 
     Directory: an experiment whose file exists is refused (:func:`save_archive` replaces
-    it); the experiment's file is written atomically (checked against one file of
-    the directory before it is moved into place, see :func:`save_archive`), then its
-    index entry as one journal file; an interrupted append leaves the directory without
-    the experiment, or with it and (without its entry) read from its header at open.
+    it), as is one whose file name exists with another NetCDF ending; the experiment's
+    file is written atomically (checked against one file of the directory before it is
+    moved into place, see :func:`save_archive`), then its index entry as one journal
+    file; an interrupted append leaves the directory without the experiment, or with it
+    and (without its entry) read from its header at open.
     Writers into one directory take turns (an exclusive ``flock`` on it, from the label
     position and the order to the journal file): two appends at once get different
     orders and, without labels, different labels; neither replaces the other's file.
@@ -811,6 +818,7 @@ def _save_files(items, first, directory: Path, overwrite: bool, add_only: bool =
                 f"of the same shape) with save_archive(experiment, {str(directory)!r}, "
                 "layout='files')."
             )
+    _refuse_other_endings(items, names, directory, add_only)
     journal, facts = _index_facts(directory)
     targets = set(names)
     # one file of the archive, not replaced: the base's first (no listing of the directory)
@@ -879,6 +887,38 @@ def _save_files(items, first, directory: Path, overwrite: bool, add_only: bool =
     written.due = _index_new_files(directory, rows, facts, dirindex.journal_count(journal, facts),
                                    unsettled)
     return written
+
+
+def _refuse_other_endings(items, names, directory: Path, add_only: bool) -> None:
+    """Refuse an experiment whose file ``LABEL.nc`` would go beside a file of the same
+    name with another NetCDF ending (``LABEL.NC``, ``LABEL.nc4``, ``LABEL.netcdf``, any
+    case): the directory's open reads both (:func:`lcmr_xr.scaleout.dirindex.plain_name`),
+    and refuses a label carried by two files.  Looks up those names only
+    (:func:`lcmr_xr.scaleout.dirindex.plain_names`), not the whole directory; before
+    anything is written."""
+    folder = os.fspath(directory)
+    for (label, _), name in zip(items, names):
+        target = directory / name
+        for other in dirindex.plain_names(name[:-len(SUFFIX)]):
+            path = os.path.join(folder, other)  # strings: 72 lookups in 0.3 ms
+            if other == name or not os.path.lexists(path):
+                continue
+            try:  # a file system that ignores case finds LABEL.nc itself under LABEL.NC
+                if target.exists() and os.path.samefile(path, target):
+                    continue
+            except OSError:
+                pass
+            replace = "" if add_only else (
+                f", or, to replace that experiment (a re-measurement of the same shape), rename "
+                f"{other} to {name} first")
+            raise ValueError(
+                f"cannot write experiment {label!r} to {target}: {directory} already holds "
+                f"{other}, the same name with another NetCDF ending (.nc, .nc4 or .netcdf, any "
+                f"case): a file of the archive, most likely experiment {label!r} itself (a "
+                f"file's label is its name unless it carries one), and {name} beside it would "
+                "give that label two files, which open_archive refuses. Give the experiment "
+                f"another label (its file name comes from it){replace}; nothing was written."
+            )
 
 
 def _index_facts(directory: Path):
