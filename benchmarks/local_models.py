@@ -306,7 +306,8 @@ print(total, sum(llvm.values()), own["fit_bins"], llvm.get("fit_bins", 0.0),
 """
 #: An empty cache, the HDD experiment's first ``identify`` with the default window
 #: (``"auto"``: the least-squares fit and the instrumental-variables twin of its widest
-#: window, both through the one compiled version of the loop): CPU seconds of the call.
+#: window, both through the one compiled version of the loop): wall and CPU seconds of the call
+#: (the second process of ``lcmr_xr.kernels.compile_ahead`` not counted in the CPU).
 _COLD_DEFAULT = """
 import time
 import numpy as np
@@ -314,9 +315,9 @@ import lcmr_xr
 d = np.load(PATH)
 exp = lcmr_xr.experiment(d["r"], d["u"], d["y"], factor=int(d["factor"]),
                          sampling_period=float(d["th"]))
-c0 = time.process_time()
+w0, c0 = time.perf_counter(), time.process_time()
 lcmr_xr.identify(exp)
-print(time.process_time() - c0)
+print(time.perf_counter() - w0, time.process_time() - c0)
 """
 
 
@@ -370,15 +371,22 @@ def start_times(rows, exp, repeat=5):
         np.savez(data, r=exp.r.values, u=exp.u.values, y=exp.y.values,
                  factor=int(exp.attrs["factor"]), th=float(exp.time[1] - exp.time[0]))
         code = _FIRST_IDENTIFY.replace("PATH", repr(data))
+        # the same without the second process first (its own empty cache), then with it
+        serial = _steps(code, dict(_start_env(os.path.join(tmp, "serial")),
+                                   LCMR_XR_COMPILE_AHEAD="0"))
         env = _start_env(tmp)
         cold = _steps(code, env)
+        time.sleep(5)  # (the second process, if still compiling, finishes alone)
         # alternating, so that a change of the machine's load hits both alike
         warm, kernel = [], []
         for _ in range(repeat):
             warm.append(_steps(code, env))
             kernel.append(_steps(_FIRST_KERNEL, env))
-    rows.append(("new process to first identify, empty cache (compiles) [s] (goal < 15)",
+    rows.append(("new process to first identify, empty cache (compiles; the helpers "
+                 "also in a second process) [s] (goal < 15)",
                  f"{cold[0].sum():.1f} (CPU {cold[1].sum():.1f})"))
+    rows.append(("  the same without the second process (LCMR_XR_COMPILE_AHEAD=0) [s]",
+                 f"{serial[0].sum():.1f} (CPU {serial[1].sum():.1f})"))
     _step_rows(rows, "new process to first identify, warm cache", _FIRST_IDENTIFY_STEPS,
                np.array(warm), " (goal < 1)")
     _step_rows(rows, "new process to first local_model result (plain arrays, no xarray), "
@@ -397,11 +405,12 @@ def start_times(rows, exp, repeat=5):
         np.savez(data, r=exp.r.values, u=exp.u.values, y=exp.y.values,
                  factor=int(exp.attrs["factor"]), th=float(exp.time[1] - exp.time[0]))
         env = _start_env(tmp)
-        cold = float(subprocess.run(
+        wall, cpu = (float(x) for x in subprocess.run(
             [sys.executable, "-c", _COLD_DEFAULT.replace("PATH", repr(data))], env=env,
-            check=True, capture_output=True, text=True).stdout)
+            check=True, capture_output=True, text=True).stdout.split())
     rows.append(("empty cache, first identify with the default window (auto: least squares "
-                 "and its IV twin) CPU [s] (goal < 15)", f"{cold:.1f}"))
+                 "and its IV twin), the call alone [s] (wall / CPU of this process; goal < 15)",
+                 f"{wall:.1f} / {cpu:.1f}"))
 
 
 def compile_breakdown(rows):
@@ -410,7 +419,8 @@ def compile_breakdown(rows):
     environment (the floor without LLVM's optimisation)."""
     for opt in (None, "0"):
         with tempfile.TemporaryDirectory() as tmp:
-            env = _start_env(tmp)
+            # the serial work: without the second process (lcmr_xr.kernels.compile_ahead)
+            env = dict(_start_env(tmp), LCMR_XR_COMPILE_AHEAD="0")
             if opt is not None:
                 env["NUMBA_OPT"] = opt
             load = os.getloadavg()[0]

@@ -584,6 +584,10 @@ API = [
     Case("lpm_with_denominator", lambda e: _identify12(e.small, method="lpm", degrees=(2, 2, 2)), ValueError,
          ("Rd", "(2, 2, 0)")),
     Case("window_zero", lambda e: _identify12(e.small, window=0), ValueError, ("window", ">= 1")),
+    # a typo in the switch of the second compiling process must not silently mean on or off
+    Case("compile_ahead_setting_typo",
+         lambda e: (e.monkeypatch.setenv("LCMR_XR_COMPILE_AHEAD", "yes"), _identify12(e.small, window=10))[1],
+         ValueError, ("LCMR_XR_COMPILE_AHEAD", "'yes'", "not 0 or 1", "set it to 0")),
     Case("window_too_small", lambda e: _identify12(e.small, window=3), ValueError, ("Use window >=",)),
     Case("window_too_wide", lambda e: _identify12(e.small, window=150), ValueError,
          ("wider than the spectrum", "window <= 99")),

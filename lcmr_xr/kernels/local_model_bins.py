@@ -1515,3 +1515,10 @@ def _pooled_d_column(zt, b, k, i, pw, orig, f, rho_pow, tpow, wtx, out):
             for t1 in range(tpow.shape[0]):
                 val -= rho_pow[r, tpow[t1]] * wtx[e, t1, orig]
             out[e * wn + r] = f * val
+
+
+# an empty cache's first fit_bins compile starts a second process that compiles the
+# helpers above into the same cache meanwhile (lcmr_xr.kernels.compile_ahead)
+from lcmr_xr.kernels import compile_ahead as _compile_ahead  # noqa: E402
+
+_compile_ahead.install(fit_bins)

@@ -65,6 +65,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from . import compile_ahead
 from .pages import empty_pages
 
 __all__ = ["CONDITION_LIMIT", "CovarianceBuffer", "LocalModelFit", "fits_half", "hermitian",
@@ -611,6 +612,8 @@ def local_model(R, Z, *, half_width, degrees=(3, 3, 3), circular: bool = True,
     if select is not None:
         todo = todo & select
 
+    # a wrong LCMR_XR_COMPILE_AHEAD is refused here, not inside numba's compiler
+    compile_ahead.enabled()
     out = _allocate(n_batch, m, nz, nr, covariance, n_exp, buffers)
     bins = _bins()
     mode = {None: bins.COV_NONE, "diag": bins.COV_DIAG, "full": bins.COV_FULL}[covariance]

@@ -1,0 +1,193 @@
+"""The second compiling process (lcmr_xr.kernels.compile_ahead): it compiles exactly the
+helpers that fit_bins calls, with the argument types fit_bins calls them with, into the
+same cache; it starts once, only where it can help, and a wrong setting is refused."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from numba.core import compiler, event, typed_passes, types
+from numba.core.compiler_machinery import FunctionPass, register_pass
+from numba.core.registry import cpu_target
+
+from lcmr_xr.kernels import compile_ahead, local_model_bins
+from lcmr_xr.kernels.local_models import local_model
+
+
+@register_pass(mutates_CFG=False, analysis_only=True)
+class _KeepTypes(FunctionPass):
+    """Ends a type-only pipeline: the compile result is the pipeline's state."""
+    _name = "lcmr_xr_keep_types"
+
+    def __init__(self):
+        FunctionPass.__init__(self)
+
+    def run_pass(self, state):
+        state.cr = state
+        return False
+
+
+class _TypeOnly(compiler.CompilerBase):
+    """numba's nopython pipeline up to type inference (dead branches pruned as for the
+    real compile): which functions a function calls, with which argument types, without
+    lowering it."""
+
+    def define_pipelines(self):
+        pm = compiler.DefaultPassBuilder.define_nopython_pipeline(self.state)
+        cut = [p for p, _ in pm.passes].index(typed_passes.NopythonTypeInference) + 1
+        pm.passes = pm.passes[:cut]
+        pm.add_pass(_KeepTypes, "keep the types")
+        pm._finalized = False
+        pm.finalize()
+        return [pm]
+
+
+def _called(dispatcher, args):
+    """(name, argument types) of every compiled function that ``dispatcher`` calls for
+    ``args``, and of those they call, recursively."""
+    flags = compiler.Flags()
+    dispatcher.targetdescr.options.parse_as_flags(flags, dispatcher.targetoptions)
+    state = compiler.compile_extra(cpu_target.typing_context, cpu_target.target_context,
+                                   dispatcher.py_func, args, None, flags, {},
+                                   pipeline_class=_TypeOnly)
+    found = set()
+    for expr, sig in state.calltypes.items():
+        if getattr(expr, "op", None) != "call":
+            continue
+        callee = state.typemap[expr.func.name]
+        if isinstance(callee, types.Dispatcher):
+            key = (callee.dispatcher.py_func.__name__, tuple(sig.args))
+            if key not in found:
+                found.add(key)
+                found |= _called(callee.dispatcher, sig.args)
+    return found
+
+
+@pytest.fixture(scope="module")
+def one_record_signature():
+    """fit_bins's one-record version's argument types, from a real local_model call."""
+    rng = np.random.default_rng(0)
+    R = np.exp(2j * np.pi * rng.random((60, 2)))
+    Z = rng.standard_normal((60, 2)) + 0j
+    local_model(R, Z, half_width=8, degrees=(1, 1, 1), covariance="full")
+    (sig,) = [s for s in local_model_bins.fit_bins.signatures if compile_ahead._one_record(s)]
+    return sig
+
+
+def test_the_listed_helpers_are_exactly_those_fit_bins_calls(one_record_signature):
+    listed = {(name, compile_ahead.signature(entry))
+              for name, entry in compile_ahead.HELPER_SIGNATURES}
+    called = _called(local_model_bins.fit_bins, one_record_signature)
+    assert len(listed) == len(compile_ahead.HELPER_SIGNATURES)  # each helper once
+    missing = sorted(called - listed)
+    extra = sorted(listed - called)
+    assert not missing and not extra, (
+        "compile_ahead.HELPER_SIGNATURES is stale; fit_bins now calls "
+        f"{missing} and no longer {extra}")
+
+
+def test_every_listed_helper_is_compiled_and_cached_by_the_second_process(tmp_path):
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path))
+    done = subprocess.run(compile_ahead._command(), env=env, capture_output=True, text=True,
+                          timeout=600)
+    assert done.returncode == 0, done.stderr
+    # a new process on that cache: every helper loads, none compiles
+    check = (
+        "from lcmr_xr.kernels import compile_ahead, local_model_bins as b\n"
+        "hits = misses = 0\n"
+        "for name, entry in compile_ahead.HELPER_SIGNATURES:\n"
+        "    d = getattr(b, name)\n"
+        "    d.compile(compile_ahead.signature(entry))\n"
+        "    hits += sum(d.stats.cache_hits.values())\n"
+        "    misses += sum(d.stats.cache_misses.values())\n"
+        "print(hits, misses)\n")
+    out = subprocess.run([sys.executable, "-c", check], env=env | {
+        "PYTHONPATH": compile_ahead._root()}, capture_output=True, text=True, timeout=600,
+        check=True).stdout.split()
+    assert [int(x) for x in out] == [len(compile_ahead.HELPER_SIGNATURES), 0]
+
+
+@pytest.fixture
+def spawns(monkeypatch):
+    """compile_ahead.start with a fresh once-flag and a recording Popen."""
+    calls = []
+
+    class FakeProcess:
+        def __init__(self, command, **kw):
+            calls.append((command, kw))
+
+        def wait(self):
+            return 0
+
+    monkeypatch.setattr(compile_ahead, "_started", False)
+    monkeypatch.setattr(compile_ahead.subprocess, "Popen", FakeProcess)
+    monkeypatch.setattr(compile_ahead, "available_cpus", lambda: 2)
+    monkeypatch.delenv(compile_ahead.SETTING, raising=False)
+    return calls
+
+
+def test_starts_once_per_process_for_this_copy_of_lcmr_xr(spawns):
+    assert compile_ahead.start() is not None
+    assert compile_ahead.start() is None
+    assert len(spawns) == 1
+    command, kw = spawns[0]
+    package = os.path.dirname(os.path.dirname(os.path.realpath(compile_ahead.__file__)))
+    assert command == [sys.executable, "-c", compile_ahead._BOOT, os.path.dirname(package)]
+    assert "env" not in kw  # this process's environment: numba's cache directory
+    assert kw["stdout"] is subprocess.DEVNULL and kw["stderr"] is subprocess.DEVNULL
+
+
+def test_the_second_process_compiles_nothing_for_another_copy_of_lcmr_xr(tmp_path):
+    # the copy asked for is on the path, but behind this one: the other copy's sources
+    # would be compiled, whose cache entries the asking process could not use
+    other = tmp_path / "lcmr_xr"
+    other.mkdir()
+    (other / "__init__.py").write_text("")
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([compile_ahead._root(), str(tmp_path)]),
+               NUMBA_CACHE_DIR=str(tmp_path / "cache"))
+    done = subprocess.run([sys.executable, "-c", compile_ahead._BOOT, str(tmp_path)], env=env,
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 2, done.stderr
+    assert not (tmp_path / "cache").exists()
+
+
+@pytest.mark.parametrize("setting, cpus", [("0", 4), ("1", 1), (None, 1)])
+def test_does_not_start_when_switched_off_or_on_one_cpu(spawns, monkeypatch, setting, cpus):
+    if setting is not None:
+        monkeypatch.setenv(compile_ahead.SETTING, setting)
+    monkeypatch.setattr(compile_ahead, "available_cpus", lambda: cpus)
+    assert compile_ahead.start() is None
+    assert spawns == []
+
+
+def test_a_setting_other_than_0_or_1_is_refused_by_name(monkeypatch):
+    monkeypatch.setenv(compile_ahead.SETTING, "off")
+    with pytest.raises(ValueError, match="LCMR_XR_COMPILE_AHEAD='off' is not 0 or 1"):
+        compile_ahead.enabled()
+
+
+def test_starts_on_the_compile_of_the_one_record_version_only(spawns, one_record_signature):
+    pooled = one_record_signature[:-2] + (types.int64,) + one_record_signature[-1:]
+    for dispatcher, args in ((local_model_bins.fit_bins, pooled),
+                             (local_model_bins._recurrence, one_record_signature)):
+        event.start_event("numba:compile", data=dict(dispatcher=dispatcher, args=args))
+        event.end_event("numba:compile", data=dict(dispatcher=dispatcher, args=args))
+    assert spawns == []
+    event.start_event("numba:compile", data=dict(dispatcher=local_model_bins.fit_bins,
+                                                 args=one_record_signature))
+    event.end_event("numba:compile", data=dict(dispatcher=local_model_bins.fit_bins,
+                                               args=one_record_signature))
+    assert len(spawns) == 1
+
+
+@pytest.mark.parametrize("text, expected", [
+    ("int64 1d readonly", types.Array(types.int64, 1, "C", readonly=True)),
+    ("complex128 3d", types.Array(types.complex128, 3, "C")),
+    ("bool 1d", types.Array(types.boolean, 1, "C")),
+    ("bool", types.boolean), ("none", types.none), ("float64", types.float64)])
+def test_type_names_read_as_numba_types(text, expected):
+    assert compile_ahead.parse_type(text) == expected
