@@ -81,9 +81,9 @@ _spans = st.tuples(st.integers(0, 2**32 - 1), st.integers(1, 70), st.integers(0,
 def test_moving_means_agree_with_exact_sums_relative_to_the_local_magnitude(case):
     """``_running_mean`` (edges: the available bins), and ``window_mean`` (circular, or
     NaN where the window is incomplete), on values of random sign whose magnitudes span up
-    to 120 decades, on any axis of a 3-d array: each mean is within ``(w + 1) eps`` of
-    the mean of |x| over its own window of the exact mean (recursive summation of the
-    window's ``w`` terms), whatever lies outside the window."""
+    to 120 decades, on any axis of a 3-d array: each mean differs from its window's exact
+    mean by at most ``(w + 1) eps`` times the mean of ``|x|`` over that window (the bound
+    of recursive summation of the window's ``w`` terms), whatever lies outside it."""
     seed, n, half, decades, signed, axis = case
     rng = np.random.default_rng(seed)
     shape = [2, 3, 2]
