@@ -472,19 +472,16 @@ def candidate_windows(n_min: int, n_max: int, *, ratio: float = WINDOW_RATIO,
 def _running_mean(x: np.ndarray, half: int, axis: int) -> np.ndarray:
     """Mean over ``2 half + 1`` neighbours along ``axis`` (edges: the available ones).
 
-    Each window is summed from its own bins (:func:`lcmr_xr.kernels.moving.window_sums`
-    on the bins padded with ``half`` zeros each side): the squared biases it smooths
-    follow ``|P|^2`` over tens of decades, and a running sum over all bins left a small
-    window with the rounding of every large bin before it."""
+    Each window is summed from its own bins (:func:`lcmr_xr.kernels.moving.window_sums`,
+    ``half`` zeros beyond each end): the squared biases it smooths follow ``|P|^2`` over
+    tens of decades, and a running sum over all bins left a small window with the
+    rounding of every large bin before it."""
     if half <= 0:
         return x
     x = np.moveaxis(np.asarray(x), axis, 0)
-    n = x.shape[0]
-    padded = np.zeros((n + 2 * half,) + x.shape[1:], dtype=np.result_type(x.dtype, float))
-    padded[half:half + n] = x
-    k = np.arange(n)
-    count = np.minimum(k + half + 1, n) - np.maximum(k - half, 0)
-    out = window_sums(padded, 2 * half + 1) / count.reshape((-1,) + (1,) * (x.ndim - 1))
+    k = np.arange(x.shape[0])
+    count = np.minimum(k + half + 1, x.shape[0]) - np.maximum(k - half, 0)
+    out = window_sums(x, 2 * half + 1, pad=half) / count.reshape((-1,) + (1,) * (x.ndim - 1))
     return np.moveaxis(out, 0, axis)
 
 

@@ -18,11 +18,12 @@ import numpy as np
 __all__ = ["window_sums"]
 
 
-def window_sums(x: np.ndarray, width: int) -> np.ndarray:
+def window_sums(x: np.ndarray, width: int, *, pad: int = 0) -> np.ndarray:
     """Sums over every run of ``width`` consecutive entries along the first axis.
 
-    Entry ``s`` of the result is ``x[s] + ... + x[s + width - 1]``, each summed from
-    that window's terms only (module notes), in ``O(1)`` per window.
+    Entry ``s`` of the result is ``x[s] + ... + x[s + width - 1]`` (of ``x`` with ``pad``
+    zeros before and after it), each summed from that window's terms only (module notes),
+    in ``O(1)`` per window.
 
     Parameters
     ----------
@@ -30,28 +31,36 @@ def window_sums(x: np.ndarray, width: int) -> np.ndarray:
         Values per bin along the first axis, any trailing axes.
     width : int
         ``w >= 1``, bins per window.
+    pad : int, default 0
+        Zeros taken before and after ``x`` (windows cut at the ends, when ``pad`` is
+        ``(w - 1) / 2``: one sum centred on every bin).
 
     Returns
     -------
-    ndarray, shape (max(L - w + 1, 0), ...)
+    ndarray, shape (max(L + 2 pad - w + 1, 0), ...)
         Floating point (``x``'s type promoted to at least float64's kind).
 
     Examples
     --------
     >>> window_sums(np.array([1e20, 1.0, 2.0, 3.0]), 2).tolist()
     [1e+20, 3.0, 5.0]
+    >>> window_sums(np.array([1.0, 2.0, 3.0]), 3, pad=1).tolist()
+    [3.0, 6.0, 5.0]
     """
     x = np.asarray(x)
-    w = int(width)
-    length = x.shape[0]
+    w, pad = int(width), int(pad)
     rest = x.shape[1:]
+    length = x.shape[0] + 2 * pad
     n_blocks = -(-length // w) + 1  # one spare block: the last window may read a prefix of it
-    blocks = np.zeros((n_blocks * w,) + rest, dtype=np.result_type(x.dtype, float))
-    blocks[:length] = x
-    blocks = blocks.reshape((n_blocks, w) + rest)
-    prefix = np.cumsum(blocks, axis=1)  # prefix[b, o] = sum of the first o + 1 of block b
-    suffix = np.cumsum(blocks[:, ::-1], axis=1)[:, ::-1]  # suffix[b, o] = from o to the end
-    start = np.arange(max(length - w + 1, 0))
-    b, o = start // w, start % w
-    return suffix[b, o] + np.where((o > 0).reshape((-1,) + (1,) * len(rest)),
-                                   prefix[b + 1, np.maximum(o - 1, 0)], 0.0)
+    flat = np.zeros((n_blocks * w,) + rest, dtype=np.result_type(x.dtype, float))
+    flat[pad:pad + x.shape[0]] = x
+    blocks = flat.reshape((n_blocks, w) + rest)
+    # prefix[b w + o] = block b's first o + 1 terms; suffix[b w + o] = its terms o..w-1
+    # (the blocks' cumulative sums read backwards: a view, no copy)
+    prefix = np.cumsum(blocks, axis=1).reshape(flat.shape)
+    suffix = np.cumsum(blocks[::-1, ::-1], axis=1).reshape(flat.shape)[::-1]
+    n_sums = max(length - w + 1, 0)
+    # window s = b w + o: block b from o on, plus block b + 1's first o (none when o = 0)
+    sums = suffix[:n_sums] + prefix[w - 1:w - 1 + n_sums]
+    sums[::w] = suffix[:n_sums:w]
+    return sums
