@@ -114,3 +114,22 @@ def test_moving_means_agree_with_exact_sums_relative_to_the_local_magnitude(case
         inner = slice(half, n - half)
         assert np.isnan(got_e[:half]).all() and np.isnan(got_e[n - half:]).all()
         assert np.all(np.abs(got_e[inner] - exact[inner]) <= (w + 1) * EPS * scale[inner])
+
+
+def test_a_non_finite_bin_reaches_only_the_windows_that_hold_it():
+    """A NaN or inf term spoils the means of the windows that contain it and no other
+    (the one cumulative sum carried it into every later window: inf - inf = NaN)."""
+    rng = np.random.default_rng(2)
+    half, n = 4, 50
+    for bad in (np.nan, np.inf):
+        x = rng.random((n, 2))
+        x[20, 1] = bad
+        got = _running_mean(x, half, 0)
+        near = np.abs(np.arange(n) - 20) <= half
+        assert not np.isfinite(got[near, 1]).any()
+        clean = x.copy()
+        clean[20, 1] = 0.0
+        lo, hi = _truncated(n, half)
+        exact = _exact_means(clean, lo, hi)
+        np.testing.assert_allclose(got[~near, 1], exact[~near, 1], rtol=4 * (2 * half + 1) * EPS)
+        np.testing.assert_allclose(got[:, 0], exact[:, 0], rtol=4 * (2 * half + 1) * EPS)
