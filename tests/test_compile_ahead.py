@@ -274,3 +274,33 @@ def test_starts_on_the_compile_of_the_one_record_version_only(spawns, one_record
     ("bool", types.boolean), ("none", types.none), ("float64", types.float64)])
 def test_type_names_read_as_numba_types(text, expected):
     assert compile_ahead.parse_type(text) == expected
+
+
+def test_numba_reports_a_compile_as_the_listener_expects():
+    # the listener reads numba's "numba:compile" event: its dispatcher and its argument
+    # types (pool None read as types.none); the other tests fire that event themselves, so
+    # this one checks numba's own event against them
+    import numba
+
+    seen = []
+
+    class Record(event.Listener):
+        def on_start(self, ev):
+            seen.append(ev.data)
+
+        def on_end(self, ev):
+            pass
+
+    @numba.njit
+    def pick(a, pool, b):
+        return a if pool is None else b
+
+    record = Record()
+    event.register("numba:compile", record)
+    try:
+        pick(1.0, None, 2.0)
+        pick(1.0, 3, 2.0)
+    finally:
+        event.unregister("numba:compile", record)
+    found = [d["args"] for d in seen if d.get("dispatcher") is pick]
+    assert [compile_ahead._one_record(args) for args in found] == [True, False]
