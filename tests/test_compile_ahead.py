@@ -94,7 +94,10 @@ def test_every_listed_helper_is_compiled_and_cached_by_the_second_process(tmp_pa
     # the asking process imports this copy of lcmr_xr through a symbolic link put on its
     # path at run time (where the platform allows one): numba's cache directory is made
     # from the source files' paths as imported, so the second process must import the
-    # same spelling, not the resolved one, for the asking process to find its work
+    # same spelling, not the resolved one, for the asking process to find its work.  The
+    # asking process is a script run in a directory holding a module named numba, which
+    # it does not import (a script's path holds its own directory, not the current one):
+    # nor may the second process (it imports from the asking process's path)
     root = compile_ahead._root()
     link = tmp_path / "link"
     try:
@@ -120,7 +123,11 @@ def test_every_listed_helper_is_compiled_and_cached_by_the_second_process(tmp_pa
         "    hits += sum(d.stats.cache_hits.values())\n"
         "    misses += sum(d.stats.cache_misses.values())\n"
         "print(b.__file__, hits, misses)\n")
-    out = subprocess.run([sys.executable, "-c", check], env=env, cwd=tmp_path,
+    (tmp_path / "numba.py").write_text("raise ImportError('numba of the current directory')\n")
+    script = tmp_path / "asking" / "check.py"
+    script.parent.mkdir()
+    script.write_text(check)
+    out = subprocess.run([sys.executable, str(script)], env=env, cwd=tmp_path,
                          capture_output=True, text=True, timeout=600)
     assert out.returncode == 0, out.stderr
     source, hits, misses = out.stdout.split()
@@ -153,7 +160,8 @@ def test_starts_once_per_process_for_this_copy_of_lcmr_xr(spawns):
     assert len(spawns) == 1
     command, kw = spawns[0]
     package = os.path.dirname(os.path.dirname(os.path.abspath(compile_ahead.__file__)))
-    assert command == [sys.executable, "-c", compile_ahead._BOOT, os.path.dirname(package)]
+    assert command == [sys.executable, "-c", compile_ahead._BOOT, os.path.dirname(package),
+                       *sys.path]
     assert "env" not in kw  # this process's environment: numba's cache directory
     assert kw["stdout"] is subprocess.DEVNULL and kw["stderr"] is subprocess.DEVNULL
 
@@ -230,10 +238,10 @@ def test_the_second_process_compiles_nothing_for_another_copy_of_lcmr_xr(tmp_pat
     other = tmp_path / "lcmr_xr"
     other.mkdir()
     (other / "__init__.py").write_text("")
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join([compile_ahead._root(), str(tmp_path)]),
-               NUMBA_CACHE_DIR=str(tmp_path / "cache"))
-    done = subprocess.run([sys.executable, "-c", compile_ahead._BOOT, str(tmp_path)], env=env,
-                          capture_output=True, text=True, timeout=120)
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cache"))
+    path = [compile_ahead._root(), str(tmp_path), *sys.path]
+    done = subprocess.run([sys.executable, "-c", compile_ahead._BOOT, str(tmp_path), *path],
+                          env=env, capture_output=True, text=True, timeout=120)
     assert done.returncode == 2, done.stderr
     assert not (tmp_path / "cache").exists()
 

@@ -147,12 +147,15 @@ def _one_record(args) -> bool:
 
 #: The second process's program: it must compile the same source files as this process,
 #: by the same paths (numba makes the cache directory from a source file's path as
-#: imported, symbolic links not resolved), so this copy of lcmr_xr, spelled as this
-#: process imported it, is put first on its path unless it is on it already (an
-#: installed package), and it stops if another copy or spelling would be imported.
+#: imported, symbolic links not resolved), so it imports from this process's path (its
+#: arguments after the first: not ``-c``'s current directory, whose modules this process
+#: may never import), this copy of lcmr_xr, spelled as this process imported it, put
+#: first unless it is on that path already (an installed package); and it stops if
+#: another copy or spelling would be imported.
 _BOOT = """
 import os, sys
 root = os.path.abspath(sys.argv[1])
+sys.path[:] = sys.argv[2:]
 if root not in {os.path.abspath(p) for p in sys.path if p}:
     sys.path.insert(0, root)
 import lcmr_xr
@@ -181,7 +184,7 @@ def _command() -> list[str] | None:
     name = os.path.basename(sys.executable).lower()
     if not name.startswith("python") or name.startswith("pythonservice"):
         return None
-    return [sys.executable, "-c", _BOOT, _root()]
+    return [sys.executable, "-c", _BOOT, _root(), *(p for p in sys.path if isinstance(p, str))]
 
 
 def start() -> subprocess.Popen | None:
