@@ -243,12 +243,15 @@ def install(dispatcher) -> None:
         """Fires after numba found no cached version, before it compiles."""
 
         def on_start(self, ev):
-            if (ev.data.get("dispatcher") is dispatcher
-                    and _one_record(ev.data.get("args", ()))):
-                try:
+            # runs inside every numba compile of this process (the user's own functions
+            # too): nothing may come out of it (a wrong SETTING local_model refuses itself)
+            try:
+                data = ev.data if isinstance(ev.data, dict) else {}
+                if (data.get("dispatcher") is dispatcher
+                        and _one_record(data.get("args", ()))):
                     start()
-                except Exception:  # noqa: BLE001 (an optimisation only, inside numba's
-                    pass           # compile: a wrong SETTING local_model refuses itself)
+            except Exception:  # noqa: BLE001 (an optimisation only)
+                pass
 
         def on_end(self, ev):
             pass
