@@ -106,7 +106,6 @@ def test_every_listed_helper_is_compiled_and_cached_by_the_second_process(tmp_pa
     except OSError:  # (no symbolic links here: the plain path)
         pass
     env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cache"))
-    env.pop("PYTHONPATH", None)
     env.pop(compile_ahead.SETTING, None)
     # the second process, run to its end by the asking process; then every helper loads
     # in the asking process, none compiles
