@@ -91,24 +91,47 @@ def test_the_listed_helpers_are_exactly_those_fit_bins_calls(one_record_signatur
 
 
 def test_every_listed_helper_is_compiled_and_cached_by_the_second_process(tmp_path):
-    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path))
-    done = subprocess.run(compile_ahead._command(), env=env, capture_output=True, text=True,
-                          timeout=600)
-    assert done.returncode == 0, done.stderr
-    # a new process on that cache: every helper loads, none compiles
+    # the asking process imports this copy of lcmr_xr through a symbolic link put on its
+    # path at run time (where the platform allows one): numba's cache directory is made
+    # from the source files' paths as imported, so the second process must import the
+    # same spelling, not the resolved one, for the asking process to find its work.  The
+    # asking process is a script run in a directory holding a module named numba, which
+    # it does not import (a script's path holds its own directory, not the current one):
+    # nor may the second process (it imports from the asking process's path)
+    root = compile_ahead._root()
+    link = tmp_path / "link"
+    try:
+        link.symlink_to(root, target_is_directory=True)
+        root = str(link)
+    except OSError:  # (no symbolic links here: the plain path)
+        pass
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cache"))
+    env.pop(compile_ahead.SETTING, None)
+    # the second process, run to its end by the asking process; then every helper loads
+    # in the asking process, none compiles
     check = (
+        f"import subprocess, sys\n"
+        f"sys.path.insert(0, {root!r})\n"
         "from lcmr_xr.kernels import compile_ahead, local_model_bins as b\n"
+        "done = subprocess.run(compile_ahead._command(), capture_output=True, text=True)\n"
+        "assert done.returncode == 0, done.stderr\n"
         "hits = misses = 0\n"
         "for name, entry in compile_ahead.HELPER_SIGNATURES:\n"
         "    d = getattr(b, name)\n"
         "    d.compile(compile_ahead.signature(entry))\n"
         "    hits += sum(d.stats.cache_hits.values())\n"
         "    misses += sum(d.stats.cache_misses.values())\n"
-        "print(hits, misses)\n")
-    out = subprocess.run([sys.executable, "-c", check], env=env | {
-        "PYTHONPATH": compile_ahead._root()}, capture_output=True, text=True, timeout=600,
-        check=True).stdout.split()
-    assert [int(x) for x in out] == [len(compile_ahead.HELPER_SIGNATURES), 0]
+        "print(b.__file__, hits, misses)\n")
+    (tmp_path / "numba.py").write_text("raise ImportError('numba of the current directory')\n")
+    script = tmp_path / "asking" / "check.py"
+    script.parent.mkdir()
+    script.write_text(check)
+    out = subprocess.run([sys.executable, str(script)], env=env, cwd=tmp_path,
+                         capture_output=True, text=True, timeout=600)
+    assert out.returncode == 0, out.stderr
+    source, hits, misses = out.stdout.split()
+    assert source.startswith(root)  # (imported by the spelling asked for)
+    assert (int(hits), int(misses)) == (len(compile_ahead.HELPER_SIGNATURES), 0)
 
 
 @pytest.fixture
@@ -135,10 +158,78 @@ def test_starts_once_per_process_for_this_copy_of_lcmr_xr(spawns):
     assert compile_ahead.start() is None
     assert len(spawns) == 1
     command, kw = spawns[0]
-    package = os.path.dirname(os.path.dirname(os.path.realpath(compile_ahead.__file__)))
-    assert command == [sys.executable, "-c", compile_ahead._BOOT, os.path.dirname(package)]
+    package = os.path.dirname(os.path.dirname(os.path.abspath(compile_ahead.__file__)))
+    # then this process's path, from which the second process imports
+    assert command == [sys.executable, "-c", compile_ahead._BOOT, os.path.dirname(package),
+                       *(p for p in sys.path if isinstance(p, str))]
     assert "env" not in kw  # this process's environment: numba's cache directory
     assert kw["stdout"] is subprocess.DEVNULL and kw["stderr"] is subprocess.DEVNULL
+
+
+@pytest.mark.parametrize("name", ["maya", "uwsgi", "myapp.exe", "pythonservice.exe"])
+def test_does_not_start_where_the_executable_is_not_a_python(spawns, monkeypatch, tmp_path,
+                                                            name):
+    # an embedding application (its sys.executable its own program): "-c code" would
+    # start another copy of that application
+    program = tmp_path / name
+    program.write_text("")
+    monkeypatch.setattr(sys, "executable", str(program))
+    assert compile_ahead.start() is None
+    assert spawns == []
+
+
+def test_does_not_start_in_a_frozen_application(spawns, monkeypatch):
+    # PyInstaller and the like: sys.executable is the application itself (numba caches
+    # there too, keyed on the executable)
+    monkeypatch.setattr(sys, "frozen", True, raising=False)
+    assert compile_ahead.start() is None
+    assert spawns == []
+
+
+@pytest.mark.parametrize("name", ["python", "python3", "python3.11", "python3.13t",
+                                  "python.exe", "pythonw.exe", "Python"])
+def test_starts_with_a_python_executable_of_any_usual_name(spawns, monkeypatch, tmp_path,
+                                                           name):
+    program = tmp_path / name
+    program.write_text("")
+    monkeypatch.setattr(sys, "executable", str(program))
+    assert compile_ahead.start() is not None
+    assert spawns[0][0][0] == str(program)
+
+
+def test_a_thread_that_cannot_start_costs_no_error_and_no_zombie(spawns, monkeypatch,
+                                                                 one_record_signature):
+    # "can't start new thread" (a thread limit; Python >= 3.12 at interpreter shutdown)
+    # must not come out of numba's compile of fit_bins: the optimisation is dropped and
+    # the process it started is ended and waited for
+    ended = []
+
+    class NoThread:
+        def __init__(self, *a, **kw):
+            pass
+
+        def start(self):
+            raise RuntimeError("can't start new thread")
+
+    monkeypatch.setattr(compile_ahead.threading, "Thread", NoThread)
+    monkeypatch.setattr(compile_ahead.subprocess.Popen, "kill",
+                        lambda self: ended.append("kill"), raising=False)
+    monkeypatch.setattr(compile_ahead.subprocess.Popen, "wait",
+                        lambda self, *a: ended.append("wait"), raising=False)
+    data = dict(dispatcher=local_model_bins.fit_bins, args=one_record_signature)
+    event.start_event("numba:compile", data=data)
+    event.end_event("numba:compile", data=data)
+    assert len(spawns) == 1
+    assert ended == ["kill", "wait"]
+
+
+def test_no_console_window_for_the_second_process_on_windows(spawns, monkeypatch):
+    # a process without a console (pythonw, a notebook started from a desktop launcher)
+    # would open one for the second process
+    monkeypatch.setattr(compile_ahead.subprocess, "CREATE_NO_WINDOW", 0x08000000,
+                        raising=False)
+    assert compile_ahead.start() is not None
+    assert spawns[0][1]["creationflags"] & 0x08000000
 
 
 def test_the_second_process_compiles_nothing_for_another_copy_of_lcmr_xr(tmp_path):
@@ -147,10 +238,10 @@ def test_the_second_process_compiles_nothing_for_another_copy_of_lcmr_xr(tmp_pat
     other = tmp_path / "lcmr_xr"
     other.mkdir()
     (other / "__init__.py").write_text("")
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join([compile_ahead._root(), str(tmp_path)]),
-               NUMBA_CACHE_DIR=str(tmp_path / "cache"))
-    done = subprocess.run([sys.executable, "-c", compile_ahead._BOOT, str(tmp_path)], env=env,
-                          capture_output=True, text=True, timeout=120)
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cache"))
+    path = [compile_ahead._root(), str(tmp_path), *sys.path]
+    done = subprocess.run([sys.executable, "-c", compile_ahead._BOOT, str(tmp_path), *path],
+                          env=env, capture_output=True, text=True, timeout=120)
     assert done.returncode == 2, done.stderr
     assert not (tmp_path / "cache").exists()
 
@@ -191,3 +282,43 @@ def test_starts_on_the_compile_of_the_one_record_version_only(spawns, one_record
     ("bool", types.boolean), ("none", types.none), ("float64", types.float64)])
 def test_type_names_read_as_numba_types(text, expected):
     assert compile_ahead.parse_type(text) == expected
+
+
+def test_numba_reports_a_compile_as_the_listener_expects():
+    # the listener reads numba's "numba:compile" event: its dispatcher and its argument
+    # types (pool None read as types.none); the other tests fire that event themselves, so
+    # this one checks numba's own event against them
+    import numba
+
+    seen = []
+
+    class Record(event.Listener):
+        def on_start(self, ev):
+            seen.append(ev.data)
+
+        def on_end(self, ev):
+            pass
+
+    @numba.njit
+    def pick(a, pool, b):
+        return a if pool is None else b
+
+    record = Record()
+    event.register("numba:compile", record)
+    try:
+        pick(1.0, None, 2.0)
+        pick(1.0, 3, 2.0)
+    finally:
+        event.unregister("numba:compile", record)
+    found = [d["args"] for d in seen if d.get("dispatcher") is pick]
+    assert [compile_ahead._one_record(args) for args in found] == [True, False]
+
+
+def test_the_listener_lets_any_compile_event_pass(spawns):
+    # it listens to every numba compile of the process, the user's own functions' and
+    # other libraries' too: an event it cannot read must not raise out of their compile
+    for data in (None, {}, {"dispatcher": local_model_bins.fit_bins},
+                 {"dispatcher": local_model_bins.fit_bins, "args": None}):
+        event.start_event("numba:compile", data=data)
+        event.end_event("numba:compile", data=data)
+    assert spawns == []

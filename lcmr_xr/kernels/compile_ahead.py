@@ -21,6 +21,8 @@ process that fails or is slow costs nothing but its own CPU.  It starts only
   once per process;
 * when more than one CPU is available to this process (on one CPU the two processes
   would share it);
+* when ``sys.executable`` is a Python interpreter: not in a frozen application, nor in a
+  program that embeds Python (``-c`` would start that program again);
 * unless the environment variable ``LCMR_XR_COMPILE_AHEAD`` is ``0`` (``1`` or unset:
   on).  Set it to ``0`` where starting processes is unwelcome, e.g. many dask workers
   starting together on an empty cache.
@@ -143,17 +145,21 @@ def _one_record(args) -> bool:
     return len(args) >= 2 and isinstance(args[-2], types.NoneType)
 
 
-#: The second process's program: it must compile the same source files as this process
-#: (their paths are part of numba's cache keys), so this copy of lcmr_xr is put first
-#: on its path unless it is on it already (an installed package), and it stops if
-#: another copy would be imported instead.
+#: The second process's program: it must compile the same source files as this process,
+#: by the same paths (numba makes the cache directory from a source file's path as
+#: imported, symbolic links not resolved), so it imports from this process's path (its
+#: arguments after the first: not ``-c``'s current directory, whose modules this process
+#: may never import), this copy of lcmr_xr, spelled as this process imported it, put
+#: first unless it is on that path already (an installed package); and it stops if
+#: another copy or spelling would be imported.
 _BOOT = """
 import os, sys
-root = os.path.realpath(sys.argv[1])
-if root not in {os.path.realpath(p) for p in sys.path if p}:
+root = os.path.abspath(sys.argv[1])
+sys.path[:] = sys.argv[2:]
+if root not in {os.path.abspath(p) for p in sys.path if p}:
     sys.path.insert(0, root)
 import lcmr_xr
-if os.path.dirname(os.path.dirname(os.path.realpath(lcmr_xr.__file__))) != root:
+if os.path.dirname(os.path.dirname(os.path.abspath(lcmr_xr.__file__))) != root:
     sys.exit(2)
 from lcmr_xr.kernels.compile_ahead import main
 sys.exit(main())
@@ -161,15 +167,24 @@ sys.exit(main())
 
 
 def _root() -> str:
-    """The directory holding this copy of the ``lcmr_xr`` package."""
-    return os.path.dirname(os.path.dirname(os.path.dirname(os.path.realpath(__file__))))
+    """The directory holding this copy of the ``lcmr_xr`` package, spelled as imported
+    (symbolic links not resolved: numba's cache directory depends on the spelling)."""
+    return os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 
 def _command() -> list[str] | None:
-    """The second process's command line, or None where there is no Python to run."""
+    """The second process's command line, or None where there is no Python to run: no
+    executable, a frozen application (``sys.executable`` is the application), or an
+    interpreter embedded in a program (``sys.executable`` that program, e.g. ``maya``,
+    ``uwsgi``, ``pythonservice.exe``), which ``-c`` would start again."""
     if not sys.executable or not os.path.exists(sys.executable):
         return None
-    return [sys.executable, "-c", _BOOT, _root()]
+    if getattr(sys, "frozen", False):
+        return None
+    name = os.path.basename(sys.executable).lower()
+    if not name.startswith("python") or name.startswith("pythonservice"):
+        return None
+    return [sys.executable, "-c", _BOOT, _root(), *(p for p in sys.path if isinstance(p, str))]
 
 
 def start() -> subprocess.Popen | None:
@@ -192,14 +207,22 @@ def start() -> subprocess.Popen | None:
     command = _command()
     if command is None:
         return None
+    options = {}
+    if hasattr(subprocess, "CREATE_NO_WINDOW"):  # (Windows: no console window for it)
+        options["creationflags"] = subprocess.CREATE_NO_WINDOW
     try:
         process = subprocess.Popen(command, stdin=subprocess.DEVNULL,
                                    stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-                                   close_fds=True)
-    except OSError:  # (no process could start: compiling here is the normal path)
+                                   close_fds=True, **options)
+    except (OSError, subprocess.SubprocessError):  # (compiling here is the normal path)
         return None
-    threading.Thread(target=process.wait, name="lcmr_xr compile ahead",
-                     daemon=True).start()
+    try:
+        threading.Thread(target=process.wait, name="lcmr_xr compile ahead",
+                         daemon=True).start()
+    except RuntimeError:  # (no thread to wait for it: a thread limit, shutdown)
+        process.kill()
+        process.wait()
+        return None
     return process
 
 
@@ -220,12 +243,15 @@ def install(dispatcher) -> None:
         """Fires after numba found no cached version, before it compiles."""
 
         def on_start(self, ev):
-            if (ev.data.get("dispatcher") is dispatcher
-                    and _one_record(ev.data.get("args", ()))):
-                try:
+            # runs inside every numba compile of this process (the user's own functions
+            # too): nothing may come out of it (a wrong SETTING local_model refuses itself)
+            try:
+                data = ev.data if isinstance(ev.data, dict) else {}
+                if (data.get("dispatcher") is dispatcher
+                        and _one_record(data.get("args", ()))):
                     start()
-                except ValueError:  # (SETTING changed since: local_model refuses it)
-                    pass
+            except Exception:  # noqa: BLE001 (an optimisation only)
+                pass
 
         def on_end(self, ev):
             pass
