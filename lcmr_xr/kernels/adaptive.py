@@ -70,6 +70,7 @@ from __future__ import annotations
 import numpy as np
 
 from lcmr_xr.kernels.lifting import first_block_row_weights
+from lcmr_xr.kernels.moving import window_sums
 
 __all__ = [
     "K95", "UNDETERMINED_LIMIT", "candidate_windows", "denominator_bias", "nonlinearity_factor",
@@ -469,16 +470,18 @@ def candidate_windows(n_min: int, n_max: int, *, ratio: float = WINDOW_RATIO,
 
 
 def _running_mean(x: np.ndarray, half: int, axis: int) -> np.ndarray:
-    """Mean over ``2 half + 1`` neighbours along ``axis`` (edges: the available ones)."""
+    """Mean over ``2 half + 1`` neighbours along ``axis`` (edges: the available ones).
+
+    Each window is summed from its own bins (:func:`lcmr_xr.kernels.moving.window_sums`,
+    ``half`` zeros beyond each end): the squared biases it smooths follow ``|P|^2`` over
+    tens of decades, and a running sum over all bins left a small window with the
+    rounding of every large bin before it."""
     if half <= 0:
         return x
-    x = np.moveaxis(x, axis, 0)
-    c = np.concatenate([np.zeros((1,) + x.shape[1:]), np.cumsum(x, axis=0)])
-    n = x.shape[0]
-    lo = np.clip(np.arange(n) - half, 0, n)
-    hi = np.clip(np.arange(n) + half + 1, 0, n)
-    shape = (-1,) + (1,) * (x.ndim - 1)
-    out = (c[hi] - c[lo]) / (hi - lo).reshape(shape)
+    x = np.moveaxis(np.asarray(x), axis, 0)
+    k = np.arange(x.shape[0])
+    count = np.minimum(k + half + 1, x.shape[0]) - np.maximum(k - half, 0)
+    out = window_sums(x, 2 * half + 1, pad=half) / count.reshape((-1,) + (1,) * (x.ndim - 1))
     return np.moveaxis(out, 0, axis)
 
 

@@ -38,6 +38,7 @@ import warnings
 import numpy as np
 
 from lcmr_xr.kernels.local_models import CONDITION_LIMIT
+from lcmr_xr.kernels.moving import window_sums
 
 __all__ = ["MIN_SPLIT_EXPERIMENTS", "PooledFit", "SPREAD_SMOOTHING", "group_weight",
            "half_variances", "mean_and_covariance", "nearest_correlation", "p_spread_factor",
@@ -103,12 +104,11 @@ def window_mean(x: np.ndarray, half_width: int, *, axis: int = -3, circular: boo
     """Mean over the ``2 n + 1``-bin window centred on every bin, in ``O(1)`` per bin.
 
     Noise spectra span many decades, so a running sum over all bins would lose the small
-    values to the rounding of the large ones.  Instead the bins are cut into blocks of one
-    window, and every window is the suffix sum of one block plus the prefix sum of the
-    next: each term sums only nearby bins (rounding relative to the local magnitude) and
-    the cost does not grow with the window.  ``circular``: bins wrap around (as the
-    local models' windows); otherwise the ``n`` bins at each end lack a full window and
-    are NaN.
+    values to the rounding of the large ones: the sums are
+    :func:`lcmr_xr.kernels.moving.window_sums` (each window summed from its own bins,
+    rounding relative to the local magnitude; the cost does not grow with the window).
+    ``circular``: bins wrap around (as the local models' windows); otherwise the ``n``
+    bins at each end lack a full window and are NaN.
 
     Parameters
     ----------
@@ -140,17 +140,7 @@ def window_mean(x: np.ndarray, half_width: int, *, axis: int = -3, circular: boo
     if w > m:
         raise ValueError(f"a window of {w} bins is wider than the {m} bins.")
     padded = x[np.arange(-n, m + n) % m] if circular else x
-    length = padded.shape[0]
-    n_blocks = -(-length // w) + 1  # one spare block: the last window may read a prefix of it
-    blocks = np.zeros((n_blocks * w,) + x.shape[1:], dtype=np.result_type(x.dtype, float))
-    blocks[:length] = padded
-    blocks = blocks.reshape((n_blocks, w) + x.shape[1:])
-    prefix = np.cumsum(blocks, axis=1)  # prefix[b, o] = sum of the first o + 1 of block b
-    suffix = np.cumsum(blocks[:, ::-1], axis=1)[:, ::-1]  # suffix[b, o] = from o to the end
-    start = np.arange(length - w + 1)
-    b, o = start // w, start % w
-    sums = suffix[b, o] + np.where((o > 0).reshape((-1,) + (1,) * (x.ndim - 1)),
-                                   prefix[b + 1, np.maximum(o - 1, 0)], 0.0)
+    sums = window_sums(padded, w)
     out = sums / w
     if not circular:
         nan = np.full((n,) + x.shape[1:], np.nan, dtype=out.dtype)
