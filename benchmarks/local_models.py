@@ -397,7 +397,8 @@ def start_times(rows, exp, repeat=5):
             [sys.executable, "-c", _COLD_VERSIONS], env=env, check=True, capture_output=True,
             text=True).stdout.split()]
     rows.append(("empty cache, first call CPU [s]: least squares / IV / pooled / pooled IV "
-                 "(one process, in this order; IV shares the version of least squares)",
+                 "(one process, in this order; IV shares the version of least squares; this "
+                 "process's CPU, the helpers' second process not counted)",
                  " / ".join(f"{t:.1f}" for t in cold) + f" ({versions:.0f} compiled versions)"))
     compile_breakdown(rows)
     with tempfile.TemporaryDirectory() as tmp:
